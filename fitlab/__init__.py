@@ -1,0 +1,18 @@
+"""fitlab: BSDF measurement fitting and tabulation in JAX.
+
+The stable entry points for scripts are :func:`eval_bsdf`, :func:`sample_bsdf` and
+:func:`pdf_bsdf`; the model registry is :data:`fitlab.models.MODELS`. Conventions (frame,
+directions, units) are written down in ``data_formats/CONVENTIONS.md``.
+"""
+
+__version__ = "0.1.0"
+
+import jax as _jax
+
+# fitlab fits in float64; float32 inputs still evaluate in float32 (see data_formats/CONVENTIONS.md).
+_jax.config.update("jax_enable_x64", True)
+
+from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
+from fitlab.models import MODELS, get_model  # noqa: E402
+
+__all__ = ["__version__", "eval_bsdf", "sample_bsdf", "pdf_bsdf", "MODELS", "get_model"]

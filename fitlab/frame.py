@@ -1,0 +1,84 @@
+"""Local shading frame helpers.
+
+Frame: normal = +z. Directions are unit vectors pointing away from the surface (Walter's
+convention): ``wi`` toward the light, ``wo`` toward the detector. θ is measured from +z (θ > 90°
+is the transmission side), φ from +x. Radians in code; degrees only at the file edges.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from fitlab.numerics import safe_rsqrt
+
+
+def cos_theta(w):
+    return w[..., 2]
+
+
+def sin2_theta(w):
+    """sin²θ from the tangential components (exact near the normal, unlike 1 - cos²θ)."""
+    return w[..., 0] ** 2 + w[..., 1] ** 2
+
+
+def dot(a, b):
+    return jnp.sum(a * b, axis=-1)
+
+
+def normalize(v):
+    """v / |v|; the zero vector maps to zero with finite gradients."""
+    return v * safe_rsqrt(dot(v, v))[..., None]
+
+
+def flip_z(w, s):
+    """Multiply the z component by s (±1): maps a configuration seen from below to one from above."""
+    return jnp.concatenate([w[..., :2], (w[..., 2] * s)[..., None]], axis=-1)
+
+
+def spherical_to_cartesian(theta, phi):
+    """Unit direction from θ (from +z) and φ (from +x), both in radians."""
+    st = jnp.sin(theta)
+    return jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), jnp.cos(theta)], axis=-1)
+
+
+def cartesian_to_spherical(w):
+    """(θ, φ) in radians of unit directions; φ in (-π, π]."""
+    theta = jnp.arctan2(jnp.sqrt(sin2_theta(w)), w[..., 2])
+    phi = jnp.arctan2(w[..., 1], w[..., 0])
+    return theta, phi
+
+
+def reflect(w, m):
+    """Mirror w about the microfacet normal m (Walter eq. 39 for i·m > 0): 2(w·m)m - w."""
+    return 2.0 * dot(w, m)[..., None] * m - w
+
+
+def refract(w, m, eta):
+    """Refract w (pointing away from the surface, w·m > 0) through a facet with normal m.
+
+    ``eta`` = η_t / η_i, the index on the transmitted side over the incident side. Returns the
+    refracted direction (Walter eq. 40 with η = η_i/η_t) and a mask that is False under total
+    internal reflection.
+    """
+    inv_eta = 1.0 / eta
+    c = dot(w, m)
+    k = 1.0 + inv_eta**2 * (c**2 - 1.0)
+    ok = k > 0
+    root = jnp.sqrt(jnp.where(ok, k, 1.0))
+    # Walter eq. 40 with sign(i·n) handled by the caller's frame flip (here i·m > 0).
+    wt = (inv_eta * c - root)[..., None] * m - inv_eta[..., None] * w
+    return wt, ok
+
+
+def half_vector_reflection(wi, wo):
+    """Unnormalized reflection half-vector, Walter eq. 13 (callers work with wi.z >= 0)."""
+    return wi + wo
+
+
+def half_vector_transmission(wi, wo, eta):
+    """Unnormalized generalized half-vector for refraction (Walter eq. 16) with η_i = 1, η_o = eta,
+    turned to the +z hemisphere (pbrt's face-forward). Degree-0 homogeneous quantities built from it
+    need no normalization."""
+    h = wi + eta[..., None] * wo
+    s = jnp.where(h[..., 2] < 0, -1.0, 1.0).astype(h.dtype)
+    return h * s[..., None]

@@ -1,0 +1,81 @@
+"""Fresnel reflectance for unpolarized light.
+
+Variants are named after their source and dispatched through :data:`FRESNEL_METHODS`
+(colour-science style). ``cos_i`` is the cosine between the incident direction and the
+(micro)surface normal on the incident side; signs are handled by the caller.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from fitlab.numerics import safe_div, safe_sqrt
+
+
+def fresnel_dielectric_Walter2007(cos_i, eta):
+    """Exact dielectric Fresnel reflectance, Walter eq. 22 ([CT82] form).
+
+    ``eta`` = η_t / η_i (transmitted over incident index). Total internal reflection (g² < 0)
+    gives 1.
+    """
+    c = jnp.abs(cos_i)
+    g2 = eta**2 - 1.0 + c**2
+    tir = g2 <= 0
+    g = safe_sqrt(g2)
+    # Walter eq. 22: F = 1/2 (g-c)²/(g+c)² (1 + (c(g+c)-1)² / (c(g-c)+1)²)
+    a = safe_div(g - c, g + c)
+    b = safe_div(c * (g + c) - 1.0, c * (g - c) + 1.0)
+    F = 0.5 * a**2 * (1.0 + b**2)
+    return jnp.where(tir, 1.0, jnp.clip(F, 0.0, 1.0))
+
+
+def fresnel_conductor_exact(cos_i, n, k):
+    """Exact Fresnel reflectance of a conductor with complex index n + i k relative to the
+    incident medium (unpolarized average of the s and p reflectances; the closed form of
+    pbrt-v3 ``FrConductor`` / Mitsuba ``fresnel_conductor``)."""
+    c = jnp.clip(jnp.abs(cos_i), 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    t0 = n * n - k * k - s2
+    a2b2 = safe_sqrt(t0 * t0 + 4.0 * n * n * k * k)  # a² + b²
+    a = safe_sqrt(0.5 * (a2b2 + t0))
+    t1 = a2b2 + c2
+    t2 = 2.0 * c * a
+    Rs = safe_div(t1 - t2, t1 + t2, 1.0)
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    Rp = Rs * safe_div(t3 - t4, t3 + t4, 1.0)
+    return jnp.clip(0.5 * (Rp + Rs), 0.0, 1.0)
+
+
+def fresnel_schlick(cos_i, f0):
+    """Schlick's approximation [Sch94]: F0 + (1 - F0)(1 - cos)^5."""
+    q = 1.0 - jnp.clip(jnp.abs(cos_i), 0.0, 1.0)
+    return f0 + (1.0 - f0) * q**5
+
+
+def fresnel_conductor_LazanyiSzirmayKalos(cos_i, n, k):
+    """Lazányi–Szirmay-Kalos approximation for metals, as given in Elek 2010 appendix B:
+    F = ((n-1)² + 4 n (1-cos)^5 + k²) / ((n+1)² + k²). Within about 5% of the exact formula."""
+    q = 1.0 - jnp.clip(jnp.abs(cos_i), 0.0, 1.0)
+    return ((n - 1.0) ** 2 + 4.0 * n * q**5 + k * k) / ((n + 1.0) ** 2 + k * k)
+
+
+def schlick_f0(n, k=0.0):
+    """Normal-incidence reflectance ((n-1)² + k²) / ((n+1)² + k²) used to drive Schlick."""
+    return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
+
+
+#: Fresnel variants a conductor model can use, by name. Each takes (cos_i, n, k).
+CONDUCTOR_FRESNEL_METHODS = {
+    "exact": fresnel_conductor_exact,
+    "schlick": lambda cos_i, n, k: fresnel_schlick(cos_i, schlick_f0(n, k)),
+    "lazanyi": fresnel_conductor_LazanyiSzirmayKalos,
+}
+
+#: Named (n, k) presets at (690, 550, 450) nm for R, G, B, from Elek 2010 appendix A.
+CONDUCTOR_PRESETS = {
+    "copper": {"n": (0.213, 1.04, 1.17), "k": (4.05, 2.59, 2.36)},
+    "chromium": {"n": (3.84, 3.18, 1.99), "k": (4.37, 4.41, 4.22)},
+    "cuprite": {"n": (2.83, 3.10, 3.06), "k": (0.083, 0.19, 0.6)},
+}

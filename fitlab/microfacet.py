@@ -1,0 +1,211 @@
+"""Microfacet distributions of Walter et al. 2007, section 5.2 (eqs 24-36).
+
+Every distribution is parameterized by its width α (Walter's α_b for Beckmann, α_g for GGX).
+Phong is parameterized by the same α through Walter's recommended mapping α_p = 2 α⁻² - 2
+(eq. 30 note), so all distributions share one roughness axis.
+
+Functions take microfacet normals ``m`` that need not be normalized: D is written as a
+degree-0 homogeneous function of m, so the unnormalized half-vectors of eqs 13 and 16 go in
+directly, and tan θ comes from the tangential components (exact near the normal in float32,
+unlike 1 - cos²θ). Every function broadcasts over leading dimensions.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax.numpy as jnp
+from jax.scipy.special import erfc
+
+from fitlab.frame import dot
+from fitlab.numerics import clamp_alpha, safe_div
+
+#: Beckmann-style a = 1 / (α tan θ) is capped here: G1 is 1 to machine precision beyond it.
+_A_MAX = 30.0
+_INV_SQRT_PI = 0.5641895835477563
+
+
+def _sin2_cos2(m):
+    s2 = m[..., 0] ** 2 + m[..., 1] ** 2
+    c2 = m[..., 2] ** 2
+    return s2, c2
+
+
+# --------------------------------------------------------------------------------------------
+# D(m)
+# --------------------------------------------------------------------------------------------
+
+
+def D_GGX(m, alpha):
+    """GGX distribution, Walter eq. 33: α² χ⁺(m·n) / (π cos⁴θm (α² + tan²θm)²)
+    = α² |m|⁴ / (π (α² m_z² + m_x² + m_y²)²)."""
+    alpha = clamp_alpha(alpha)
+    s2, c2 = _sin2_cos2(m)
+    a2 = alpha * alpha
+    denom = a2 * c2 + s2
+    val = safe_div(a2 * (s2 + c2) ** 2, jnp.pi * denom * denom)
+    return jnp.where(m[..., 2] > 0, val, 0.0)
+
+
+def D_Beckmann(m, alpha):
+    """Beckmann distribution, Walter eq. 25: χ⁺(m·n) exp(-tan²θm / α²) / (π α² cos⁴θm)."""
+    alpha = clamp_alpha(alpha)
+    s2, c2 = _sin2_cos2(m)
+    ok = m[..., 2] > 0
+    c2s = jnp.where(ok, c2, 1.0)
+    tan2 = s2 / c2s
+    a2 = alpha * alpha
+    val = jnp.exp(-tan2 / a2) * (s2 + c2s) ** 2 / (jnp.pi * a2 * c2s * c2s)
+    return jnp.where(ok, val, 0.0)
+
+
+def phong_exponent(alpha):
+    """Walter's mapping from Beckmann width to Phong exponent: α_p = 2 α⁻² - 2 (section 5.2)."""
+    alpha = clamp_alpha(alpha)
+    return 2.0 / (alpha * alpha) - 2.0
+
+
+def D_Phong(m, alpha):
+    """Phong distribution, Walter eq. 30: χ⁺(m·n) (α_p + 2)/(2π) cos^α_p θm, α_p = 2α⁻² - 2."""
+    ap = phong_exponent(alpha)
+    s2, c2 = _sin2_cos2(m)
+    ok = m[..., 2] > 0
+    cos2 = jnp.where(ok, c2 / (s2 + c2), 1.0)
+    val = (ap + 2.0) / (2.0 * jnp.pi) * jnp.exp(0.5 * ap * jnp.log(cos2))
+    return jnp.where(ok, val, 0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Smith G1(v): the monodirectional shadowing of eq. 23, without the sidedness factor
+# χ⁺((v·m)/(v·n)), which smith_G1 applies.
+# --------------------------------------------------------------------------------------------
+
+
+def G1_GGX(v, alpha):
+    """GGX Smith G1, Walter eq. 34: 2 / (1 + sqrt(1 + α² tan²θv)), written as
+    2|v_z| / (|v_z| + sqrt(v_z² + α²(v_x² + v_y²))) so it is finite at the horizon and normal."""
+    alpha = clamp_alpha(alpha)
+    s2, c2 = _sin2_cos2(v)
+    cz = jnp.sqrt(c2)
+    return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + alpha * alpha * s2))
+
+
+def _beckmann_a(v, alpha):
+    """a = 1 / (α tan θv) (Walter eq. 26), capped at _A_MAX where G1 == 1."""
+    alpha = clamp_alpha(alpha)
+    s2, c2 = _sin2_cos2(v)
+    ok = s2 > 0
+    s = jnp.sqrt(jnp.where(ok, s2, 1.0))
+    a = jnp.where(ok, jnp.sqrt(c2) / (alpha * s), _A_MAX)
+    return jnp.minimum(a, _A_MAX)
+
+
+def G1_Beckmann(v, alpha):
+    """Exact Beckmann Smith G1, Walter eq. 26: 2 / (1 + erf(a) + exp(-a²)/(a√π)), a = 1/(α tanθv).
+
+    Rewritten as 2a / (a (2 - erfc a) + exp(-a²)/√π): no division by a, no erf cancellation."""
+    a = _beckmann_a(v, alpha)
+    return 2.0 * a / (a * (2.0 - erfc(a)) + jnp.exp(-a * a) * _INV_SQRT_PI)
+
+
+def G1_Beckmann_rational(v, alpha):
+    """Walter's rational approximation to the Beckmann Smith G1, eq. 27 (error < 0.35%).
+
+    This is also the G1 Walter recommends for Phong (a = sqrt(0.5 α_p + 1)/tanθv, which equals
+    1/(α tanθv) under the mapping α_p = 2α⁻² - 2) and the one Mitsuba 3 uses for Beckmann."""
+    a = _beckmann_a(v, alpha)
+    r = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
+    return jnp.where(a < 1.6, r, 1.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Sampling of D(m)|m·n| (Walter eqs 28-29, 31-32, 35-36). u1, u2 in [0, 1).
+# --------------------------------------------------------------------------------------------
+
+
+def _normal_from_cos2(cos2, sin2, u2):
+    phi = 2.0 * jnp.pi * u2  # Walter eqs 29, 32, 36
+    st = jnp.sqrt(jnp.maximum(sin2, 0.0))
+    ct = jnp.sqrt(jnp.maximum(cos2, 0.0))
+    return jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), ct], axis=-1)
+
+
+def sample_m_GGX(u1, u2, alpha):
+    """Walter eq. 35, θm = arctan(α sqrt(u1 / (1 - u1))), as cos²θm = (1-u1)/(1 + (α²-1)u1)."""
+    a2 = clamp_alpha(alpha) ** 2
+    den = 1.0 - u1 + a2 * u1
+    return _normal_from_cos2((1.0 - u1) / den, a2 * u1 / den, u2)
+
+
+def sample_m_Beckmann(u1, u2, alpha):
+    """Walter eq. 28, tan²θm = -α² log(1 - u1)."""
+    t2 = -(clamp_alpha(alpha) ** 2) * jnp.log1p(-u1)
+    return _normal_from_cos2(1.0 / (1.0 + t2), t2 / (1.0 + t2), u2)
+
+
+def sample_m_Phong(u1, u2, alpha):
+    """Walter eq. 31, cos θm = u1^(1/(α_p + 2))."""
+    ap = phong_exponent(alpha)
+    ok = u1 > 0
+    cos2 = jnp.where(ok, jnp.exp(2.0 * jnp.log(jnp.where(ok, u1, 1.0)) / (ap + 2.0)), 0.0)
+    return _normal_from_cos2(cos2, 1.0 - cos2, u2)
+
+
+# --------------------------------------------------------------------------------------------
+# Registry of distributions
+# --------------------------------------------------------------------------------------------
+
+
+class Distribution(NamedTuple):
+    """A microfacet distribution: D(m, α), Smith G1(v, α) without sidedness, sampling of
+    D(m)|m·n| from two uniforms."""
+
+    name: str
+    D: Callable
+    G1: Callable
+    sample_m: Callable
+    reference: str
+
+
+DISTRIBUTIONS = {
+    "ggx": Distribution("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36"),
+    "beckmann": Distribution(
+        "beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann, "Walter 2007 eqs 25, 26, 28-29"
+    ),
+    "beckmann_rational": Distribution(
+        "beckmann_rational",
+        D_Beckmann,
+        G1_Beckmann_rational,
+        sample_m_Beckmann,
+        "Walter 2007 eqs 25, 27 (rational G1), 28-29",
+    ),
+    "phong": Distribution(
+        "phong", D_Phong, G1_Beckmann_rational, sample_m_Phong, "Walter 2007 eqs 30-32, G1 by eq. 27"
+    ),
+}
+
+
+def get_distribution(name: str) -> Distribution:
+    try:
+        return DISTRIBUTIONS[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown microfacet distribution {name!r}; choose one of {', '.join(DISTRIBUTIONS)}"
+        ) from None
+
+
+def smith_G1(dist: Distribution, v, m, alpha):
+    """Smith G1(v, m) with the sidedness factor χ⁺((v·m)/(v·n)) of eqs 26, 27, 34."""
+    side = dot(v, m) * v[..., 2] > 0
+    return jnp.where(side, dist.G1(v, alpha), 0.0)
+
+
+def widened_alpha(alpha, cos_i):
+    """Walter's widened sampling width α† = (1.2 - 0.2 sqrt|i·n|) α (section 5.3), which caps
+    the sample weight near four."""
+    return (1.2 - 0.2 * jnp.sqrt(jnp.abs(cos_i))) * alpha
+
+
+def pdf_m(dist: Distribution, m, alpha):
+    """Density of sampled normals, p_m(m) = D(m)|m·n| (Walter eq. 24), for unit m."""
+    return dist.D(m, alpha) * jnp.abs(m[..., 2])
