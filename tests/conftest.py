@@ -1,0 +1,28 @@
+"""Shared test set-up: float64 on, strict dtype promotion, and skips that CI turns into failures."""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+#: Set by .ci/run: a test that would skip for a missing system package fails instead.
+STRICT_ENV = "FITLAB_REQUIRE_ALL"
+
+
+def skip_or_fail(reason: str):
+    """Skip with ``reason`` on a developer machine; fail in CI (FITLAB_REQUIRE_ALL=1)."""
+    if os.environ.get(STRICT_ENV, "") not in ("", "0"):
+        pytest.fail(f"{reason} (and {STRICT_ENV} is set, so this is an error)")
+    pytest.skip(reason)
+
+
+@pytest.fixture(params=["float32", "float64"])
+def dtype(request):
+    import jax.numpy as jnp
+
+    return jnp.dtype(request.param)
