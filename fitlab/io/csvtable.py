@@ -1,0 +1,146 @@
+"""The strict comma-separated table reader behind every fitlab CSV format.
+
+Format: UTF-8 (no byte-order mark), ``#`` comment lines anywhere (``# key: value`` comments are
+metadata), one header line naming the columns, then rows of numbers separated by commas.
+Everything that is not exactly that is an error naming file, line and column.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from fitlab.errors import InputFileError
+
+
+class Table(NamedTuple):
+    path: str
+    columns: dict[str, np.ndarray]
+    #: ``# key: value`` comment lines, keys lower-cased
+    metadata: dict[str, str]
+    #: the 1-based file line of each row
+    lines: np.ndarray
+
+
+def _read_text(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputFileError(path, "no such file", hint="check the path") from None
+    except IsADirectoryError:
+        raise InputFileError(path, "is a folder, not a file", hint="give the path of a CSV file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raise InputFileError(
+            path, "starts with a UTF-8 byte-order mark", line=1,
+            hint="save the file as plain UTF-8 without BOM (e.g. 'UTF-8' rather than 'UTF-8 with BOM')",
+        )
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputFileError(path, "is not valid UTF-8 text", line=line,
+                             hint="save it as UTF-8 text") from None
+
+
+def _check_delimiters(path, lineno: int, text: str) -> None:
+    for bad, name in (("\t", "a tab"), (";", "a semicolon")):
+        if bad in text:
+            raise InputFileError(
+                path, f"uses {name} as a separator", line=lineno,
+                hint="fitlab CSV files separate fields with commas only",
+            )
+
+
+def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
+               what: str = "CSV file") -> Table:
+    """Read and validate a numeric table with the ``required`` and ``optional`` columns."""
+    path = Path(path)
+    text = _read_text(path)
+    metadata: dict[str, str] = {}
+    header = None
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            body = stripped[1:].strip()
+            if ":" in body:
+                key, _, value = body.partition(":")
+                metadata[key.strip().lower()] = value.strip()
+            continue
+        _check_delimiters(path, lineno, stripped)
+        fields = [f.strip() for f in stripped.split(",")]
+        if header is None:
+            header = _parse_header(path, lineno, fields, required, optional, what)
+            continue
+        if len(fields) != len(header):
+            raise InputFileError(
+                path, f"has {len(fields)} fields but the header names {len(header)}", line=lineno,
+                hint=f"every row needs exactly the columns {', '.join(header)}",
+            )
+        row = []
+        for name, cell in zip(header, fields):
+            row.append(_parse_number(path, lineno, name, cell))
+        rows.append(row)
+        lines.append(lineno)
+    if header is None:
+        raise InputFileError(path, f"is empty: a {what} needs a header line and at least one row",
+                             hint=f"the header must name the columns {', '.join(required)}")
+    if not rows:
+        raise InputFileError(path, "has a header but no data rows",
+                             hint="add at least one row of numbers")
+    data = np.asarray(rows, dtype=np.float64)
+    columns = {name: data[:, j] for j, name in enumerate(header)}
+    return Table(str(path), columns, metadata, np.asarray(lines))
+
+
+def _parse_header(path, lineno, fields, required, optional, what):
+    known = set(required) | set(optional)
+    seen = set()
+    for name in fields:
+        if name == "":
+            raise InputFileError(path, "the header has an empty column name", line=lineno)
+        try:
+            float(name)
+        except ValueError:
+            pass
+        else:
+            raise InputFileError(
+                path, f"the first non-comment line should be the header, found a number {name!r}",
+                line=lineno, hint=f"add a header line naming the columns {', '.join(required)}",
+            )
+        if name not in known:
+            raise InputFileError(
+                path, "unknown column", line=lineno, column=name,
+                hint=f"a {what} has the columns {', '.join(required + tuple(optional))}",
+            )
+        if name in seen:
+            raise InputFileError(path, "appears twice in the header", line=lineno, column=name)
+        seen.add(name)
+    missing = [c for c in required if c not in seen]
+    if missing:
+        raise InputFileError(
+            path, f"the header lacks the column(s) {', '.join(missing)}", line=lineno,
+            hint=f"a {what} needs the columns {', '.join(required)}",
+        )
+    return fields
+
+
+def _parse_number(path, lineno, column, cell) -> float:
+    try:
+        value = float(cell)
+    except ValueError:
+        shown = cell if cell else "(empty)"
+        raise InputFileError(path, f"{shown!r} is not a number", line=lineno, column=column,
+                             hint="every cell must be a decimal number") from None
+    if not math.isfinite(value):
+        raise InputFileError(path, f"{cell!r} is not a finite number", line=lineno, column=column,
+                             hint="remove or fix rows with NaN or infinite values")
+    return value
