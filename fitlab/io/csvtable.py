@@ -8,6 +8,7 @@ Everything that is not exactly that is an error naming file, line and column.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -57,8 +58,13 @@ def _check_delimiters(path, lineno: int, text: str) -> None:
 
 
 def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
-               what: str = "CSV file") -> Table:
-    """Read and validate a numeric table with the ``required`` and ``optional`` columns."""
+               what: str = "CSV file", text_columns: tuple[str, ...] = (),
+               column_pattern: str | None = None) -> Table:
+    """Read and validate a numeric table with the ``required`` and ``optional`` columns.
+
+    Columns named in ``text_columns`` keep their cells as strings; any other column must hold
+    finite numbers. Columns whose name matches the regular expression ``column_pattern`` are
+    accepted besides the named ones (e.g. per-channel ``value_R``)."""
     path = Path(path)
     text = _read_text(path)
     metadata: dict[str, str] = {}
@@ -78,7 +84,7 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
         _check_delimiters(path, lineno, stripped)
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
-            header = _parse_header(path, lineno, fields, required, optional, what)
+            header = _parse_header(path, lineno, fields, required, optional, what, column_pattern)
             continue
         if len(fields) != len(header):
             raise InputFileError(
@@ -87,7 +93,12 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
             )
         row = []
         for name, cell in zip(header, fields):
-            row.append(_parse_number(path, lineno, name, cell))
+            if name in text_columns:
+                if not cell:
+                    raise InputFileError(path, "is empty", line=lineno, column=name)
+                row.append(cell)
+            else:
+                row.append(_parse_number(path, lineno, name, cell))
         rows.append(row)
         lines.append(lineno)
     if header is None:
@@ -96,12 +107,14 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     if not rows:
         raise InputFileError(path, "has a header but no data rows",
                              hint="add at least one row of numbers")
-    data = np.asarray(rows, dtype=np.float64)
-    columns = {name: data[:, j] for j, name in enumerate(header)}
+    columns = {}
+    for j, name in enumerate(header):
+        cells = [r[j] for r in rows]
+        columns[name] = np.asarray(cells, dtype=object if name in text_columns else np.float64)
     return Table(str(path), columns, metadata, np.asarray(lines))
 
 
-def _parse_header(path, lineno, fields, required, optional, what):
+def _parse_header(path, lineno, fields, required, optional, what, column_pattern=None):
     known = set(required) | set(optional)
     seen = set()
     for name in fields:
@@ -116,7 +129,7 @@ def _parse_header(path, lineno, fields, required, optional, what):
                 path, f"the first non-comment line should be the header, found a number {name!r}",
                 line=lineno, hint=f"add a header line naming the columns {', '.join(required)}",
             )
-        if name not in known:
+        if name not in known and not (column_pattern and re.fullmatch(column_pattern, name)):
             raise InputFileError(
                 path, "unknown column", line=lineno, column=name,
                 hint=f"a {what} has the columns {', '.join(required + tuple(optional))}",

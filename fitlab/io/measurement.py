@@ -1,0 +1,249 @@
+"""Measurement CSV (data_formats/measurement_csv.md) and the in-memory ``Measurement``, the one
+contract between every reader and the fitter.
+
+Internally values are the BSDF f in 1/sr (``quantity == "bsdf"``) or f up to an unknown overall
+scale (``quantity == "relative"``); files holding f·|cos θo| or f·|cos θi| are converted on
+reading, their sigma with them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from fitlab.errors import InputFileError
+from fitlab.io.csvtable import read_table
+from fitlab.io.directions import check_angles, degrees_to_direction
+
+DIRECTION_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
+QUANTITIES = ("bsdf", "bsdf_cos", "relative")
+RELATIVE_TO = ("bsdf", "bsdf_cos", "bsdf_cos_i")
+SCATTER = ("bsdf", "brdf", "btdf")
+_CHANNEL_VALUE = r"value_([A-Za-z0-9]+)"
+_CHANNEL_SIGMA = r"sigma_([A-Za-z0-9]+)"
+
+
+class Measurement(NamedTuple):
+    path: str
+    sha256: str
+    theta_i: np.ndarray  # degrees, as in the file
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+    wi: np.ndarray  # (N, 3) unit vectors, float64
+    wo: np.ndarray
+    value: np.ndarray  # f in 1/sr, or f times an unknown scale when quantity == "relative"
+    sigma: np.ndarray | None  # absolute 1-σ uncertainty of value, same units; None if not given
+    channel: np.ndarray  # (N,) int index into channel_names
+    channel_names: tuple[str, ...]
+    wavelength_nm: np.ndarray | None  # per channel, when the file gives wavelengths
+    quantity: str  # "bsdf" or "relative"
+    file_quantity: str  # what the file stored: bsdf, bsdf_cos, relative (+ relative_to)
+    metadata: dict
+    lines: np.ndarray  # file line of each row
+
+    @property
+    def n(self) -> int:
+        return int(self.value.shape[0])
+
+    @property
+    def is_relative(self) -> bool:
+        return self.quantity == "relative"
+
+    def eta(self) -> float | None:
+        """n_inside / n_outside when the file states both indices."""
+        if "eta_inside" in self.metadata and "eta_outside" in self.metadata:
+            return float(self.metadata["eta_inside"]) / float(self.metadata["eta_outside"])
+        return None
+
+    def select(self, mask) -> "Measurement":
+        """The rows where ``mask`` is true (same metadata and provenance)."""
+        mask = np.asarray(mask, dtype=bool)
+        pick = lambda a: None if a is None else a[mask]  # noqa: E731
+        return self._replace(
+            theta_i=self.theta_i[mask], phi_i=self.phi_i[mask], theta_o=self.theta_o[mask],
+            phi_o=self.phi_o[mask], wi=self.wi[mask], wo=self.wo[mask], value=self.value[mask],
+            sigma=pick(self.sigma), channel=self.channel[mask], lines=self.lines[mask],
+        )
+
+
+def sha256_of(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _meta_choice(path, metadata, key, choices, default=None, hint=""):
+    value = metadata.get(key, default)
+    if value is None:
+        raise InputFileError(path, f"the metadata line '# {key}: ...' is missing",
+                             hint=hint or f"add '# {key}: ' followed by one of {', '.join(choices)}")
+    value = value.strip().lower()
+    if value not in choices:
+        raise InputFileError(path, f"'# {key}: {value}' is not one of {', '.join(choices)}",
+                             hint=hint or f"use one of {', '.join(choices)}")
+    return value
+
+
+def _meta_positive(path, metadata, key):
+    if key not in metadata:
+        return
+    try:
+        v = float(metadata[key])
+    except ValueError:
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0):
+        raise InputFileError(path, f"'# {key}: {metadata[key]}' must be a positive number",
+                             hint="give the refractive index of that medium, e.g. 1.0 for air")
+
+
+def _melt_channels(table):
+    """Wide per-channel columns value_<NAME> [sigma_<NAME>] to long rows with a channel index."""
+    cols = table.columns
+    names = [re.fullmatch(_CHANNEL_VALUE, c).group(1) for c in cols if re.fullmatch(_CHANNEL_VALUE, c)]
+    for c in cols:
+        m = re.fullmatch(_CHANNEL_SIGMA, c)
+        if m and m.group(1) not in names:
+            raise InputFileError(table.path, f"has no matching value_{m.group(1)} column", line=None,
+                                 column=c, hint="every sigma_<NAME> needs a value_<NAME>")
+    with_sigma = [f"sigma_{n}" in cols for n in names]
+    if any(with_sigma) and not all(with_sigma):
+        missing = [n for n, s in zip(names, with_sigma) if not s]
+        raise InputFileError(table.path, f"sigma is given for some channels but not for {', '.join(missing)}",
+                             hint="give a sigma_<NAME> column for every channel or for none")
+    n = len(table.lines)
+    k = len(names)
+    rep = lambda a: np.repeat(a, k)  # noqa: E731
+    out = {c: rep(cols[c]) for c in DIRECTION_COLUMNS}
+    out["value"] = np.stack([cols[f"value_{c}"] for c in names], axis=1).reshape(-1)
+    if all(with_sigma) and names:
+        out["sigma"] = np.stack([cols[f"sigma_{c}"] for c in names], axis=1).reshape(-1)
+    out["channel"] = np.tile(np.arange(k), n)
+    return out, tuple(names), rep(table.lines)
+
+
+def read_measurement(path) -> Measurement:
+    """Read and validate a measurement CSV; raises InputFileError naming file, line and column."""
+    path = Path(path)
+    optional = ("value", "sigma", "channel", "wavelength_nm")
+    table = read_table(path, DIRECTION_COLUMNS, optional, what="measurement CSV",
+                       text_columns=("channel",),
+                       column_pattern=f"{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}")
+    cols, meta = table.columns, table.metadata
+    wide = [c for c in cols if re.fullmatch(_CHANNEL_VALUE, c)]
+    if wide and ("value" in cols or "channel" in cols or "wavelength_nm" in cols):
+        raise InputFileError(path, "mixes per-channel value_<NAME> columns with a value/channel/"
+                             "wavelength_nm column", line=int(table.lines[0]) - 1,
+                             hint="use either one value column (with channel or wavelength_nm) "
+                             "or one value_<NAME> column per channel")
+    if not wide and "value" not in cols:
+        raise InputFileError(path, "the header lacks the column value",
+                             hint="a measurement CSV needs theta_i, phi_i, theta_o, phi_o, value")
+    if "channel" in cols and "wavelength_nm" in cols:
+        raise InputFileError(path, "has both a channel and a wavelength_nm column",
+                             hint="name channels either by label or by wavelength, not both")
+    check_angles(table)
+    quantity = _meta_choice(path, meta, "quantity", QUANTITIES,
+                            hint="state what the values are: '# quantity: bsdf' (f in 1/sr, no "
+                            "cosine), 'bsdf_cos' (f·|cos θo|) or 'relative' (f up to a scale)")
+    relative_to = _meta_choice(path, meta, "relative_to", RELATIVE_TO, default="bsdf")
+    scatter = _meta_choice(path, meta, "scatter", SCATTER, default="bsdf")
+    for key in ("eta_outside", "eta_inside"):
+        _meta_positive(path, meta, key)
+
+    if wide:
+        long, channel_names, lines = _melt_channels(table)
+        wavelengths = None
+    else:
+        long = {c: cols[c] for c in cols}
+        lines = table.lines
+        if "channel" in cols:
+            channel_names = tuple(dict.fromkeys(cols["channel"]))
+            index = {c: j for j, c in enumerate(channel_names)}
+            long["channel"] = np.array([index[c] for c in cols["channel"]])
+            wavelengths = None
+        elif "wavelength_nm" in cols:
+            wl = cols["wavelength_nm"]
+            bad = np.flatnonzero(wl <= 0)
+            if bad.size:
+                raise InputFileError(path, f"{wl[bad[0]]:g} is not a positive wavelength",
+                                     line=int(lines[bad[0]]), column="wavelength_nm")
+            uniq = np.unique(wl)
+            channel_names = tuple(f"{w:g}nm" for w in uniq)
+            long["channel"] = np.searchsorted(uniq, wl)
+            wavelengths = uniq
+        else:
+            channel_names = ("Y",)
+            long["channel"] = np.zeros(len(lines), dtype=int)
+            wavelengths = None
+
+    ti, to = long["theta_i"], long["theta_o"]
+    value = np.asarray(long["value"], dtype=np.float64)
+    sigma = long.get("sigma")
+
+    def fail_at(j, column, message, hint=None):
+        raise InputFileError(path, message, line=int(lines[j]), column=column, hint=hint)
+
+    for name, th in (("theta_i", ti), ("theta_o", to)):
+        bad = np.flatnonzero(th == 90.0)
+        if bad.size:
+            fail_at(bad[0], name, "90° lies in the surface plane, where no flux is measured",
+                    "remove the row or give the angle actually measured")
+    same_side = (ti < 90) == (to < 90)
+    if scatter == "brdf":
+        bad = np.flatnonzero(~same_side)
+        if bad.size:
+            fail_at(bad[0], "theta_o", f"θo = {to[bad[0]]:g}° is on the other side of the surface "
+                    f"from θi = {ti[bad[0]]:g}°, but '# scatter: brdf' says these are reflection data",
+                    "fix the angle, or declare '# scatter: bsdf'")
+    if scatter == "btdf":
+        bad = np.flatnonzero(same_side)
+        if bad.size:
+            fail_at(bad[0], "theta_o", f"θo = {to[bad[0]]:g}° is on the same side as θi = "
+                    f"{ti[bad[0]]:g}°, but '# scatter: btdf' says these are transmission data",
+                    "fix the angle, or declare '# scatter: bsdf'")
+    if quantity != "relative":
+        bad = np.flatnonzero(value < 0)
+        if bad.size:
+            fail_at(bad[0], "value", f"{value[bad[0]]:g} is negative, which a {quantity} cannot be",
+                    "negative values (detector noise) are allowed only with '# quantity: relative'")
+    if sigma is not None:
+        sigma = np.asarray(sigma, dtype=np.float64)
+        bad = np.flatnonzero(sigma <= 0)
+        if bad.size:
+            fail_at(bad[0], "sigma", f"{sigma[bad[0]]:g} is not a positive uncertainty",
+                    "sigma is the absolute 1-σ uncertainty of value and must be > 0")
+
+    # Duplicate rows: the same directions (and channel) twice.
+    key = np.stack([long["theta_i"], np.mod(long["phi_i"], 360.0), long["theta_o"],
+                    np.mod(long["phi_o"], 360.0), long["channel"].astype(float)], axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup_first = first[counts > 1].min()
+        same = np.flatnonzero(np.all(key == key[dup_first], axis=1))
+        fail_at(same[1], None, f"repeats the directions of line {int(lines[same[0]])}",
+                "merge repeated measurements into one row (mean value, combined sigma) or remove one")
+
+    wi = degrees_to_direction(long["theta_i"], long["phi_i"])
+    wo = degrees_to_direction(long["theta_o"], long["phi_o"])
+    # Convert to one internal quantity: f (or f times an unknown scale).
+    stored = quantity if quantity != "relative" else relative_to
+    factor = {"bsdf": np.ones_like(value), "bsdf_cos": np.abs(wo[:, 2]),
+              "bsdf_cos_i": np.abs(wi[:, 2])}[stored]
+    value = value / factor
+    if sigma is not None:
+        sigma = sigma / factor
+    file_quantity = quantity if quantity != "relative" else f"relative ({relative_to})"
+    return Measurement(
+        path=str(path), sha256=sha256_of(path), theta_i=long["theta_i"], phi_i=long["phi_i"],
+        theta_o=long["theta_o"], phi_o=long["phi_o"], wi=wi, wo=wo, value=value, sigma=sigma,
+        channel=np.asarray(long["channel"], dtype=int), channel_names=channel_names,
+        wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
+        file_quantity=file_quantity, metadata=dict(meta), lines=np.asarray(lines),
+    )
