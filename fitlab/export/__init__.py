@@ -1,0 +1,1 @@
+"""Outputs: parameter files (and later LUTs, shader snippets, renderer exports)."""

@@ -1,0 +1,185 @@
+"""Fit parameter files (JSON, schema ``fitlab-fit`` version 1, data_formats/fit_json.md) and
+optional chain files (NPZ). Both are built in memory and written atomically."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import platform
+from importlib import metadata as _md
+from pathlib import Path
+
+import numpy as np
+
+import fitlab
+from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.atomic import atomic_open
+
+SCHEMA = "fitlab-fit"
+SCHEMA_VERSION = 1
+
+CONVENTIONS = {
+    "frame": "local shading frame, normal = +z; theta from +z, phi from +x",
+    "directions": "unit vectors pointing away from the surface; wi toward the light, wo toward the detector",
+    "value": "BSDF f in 1/sr without the cosine factor; relative data: scale * f",
+    "angles": "degrees in files, radians in code",
+    "roughness": "alpha = microfacet width (Walter alpha_b / alpha_g); Phong via alpha_p = 2/alpha^2 - 2",
+    "shadowing": "separable Smith G = G1(i) G1(o) (Walter eq. 23)",
+    "refraction": "eta = n_inside / n_outside (inside = -z side); BTDF for radiance transport (Walter eq. 21)",
+    "document": "data_formats/CONVENTIONS.md",
+}
+
+
+def software_versions() -> dict:
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for pkg in ("fitlab", "jax", "jaxlib", "jaxopt", "emcee", "nlopt", "numpy"):
+        try:
+            out[pkg] = _md.version(pkg)
+        except _md.PackageNotFoundError:
+            out[pkg] = fitlab.__version__ if pkg == "fitlab" else None
+    return out
+
+
+def _num(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _channel_record(ch, model, fixed):
+    space, ls, mc = ch["space"], ch["ls"], ch["mcmc"]
+    params = {}
+    for p in model.parameters:
+        if p.name in fixed:
+            params[p.name] = {"value": float(fixed[p.name]), "unit": p.unit, "fixed": True,
+                              "bounds": [p.lower, p.upper]}
+    for k, fp in enumerate(space.free):
+        rec = {"value": float(ls.native[k]), "unit": fp.unit, "fixed": False,
+               "bounds": [fp.lower, fp.upper], "stderr": _num(ls.stderr[k]),
+               "at_bound": fp.name in ls.at_bound,
+               "transform": "log" if fp.log else "linear"}
+        if mc is not None:
+            s = mc.samples_native[:, k]
+            q = np.percentile(s, [2.5, 16, 50, 84, 97.5])
+            rec["posterior"] = {"median": float(q[2]), "p16": float(q[1]), "p50": float(q[2]),
+                                "p84": float(q[3]), "p2_5": float(q[0]), "p97_5": float(q[4]),
+                                "mean": float(s.mean()), "std": float(s.std(ddof=1))}
+        params[fp.name] = rec
+    # Preserve the registry order, scale last.
+    order = [p.name for p in model.parameters] + [n for n in space.names if n not in
+                                                    model.parameter_names]
+    params = {k: params[k] for k in order if k in params}
+    rec = {
+        "channel": ch["channel"],
+        "parameters": params,
+        "covariance": {"parameters": list(space.names),
+                       "matrix": [[_num(v) for v in row] for row in ls.covariance],
+                       "source": "least squares: noise² (JᵀJ)⁻¹ at the optimum, native units"},
+        "statistics": ch["statistics"],
+        "global_search": ls.global_search,
+        "starts": ls.starts,
+        "starts_disagree": ls.disagreement,
+        "timings_s": {"least_squares": ch["seconds_least_squares"]},
+        "mcmc": None,
+    }
+    if mc is not None:
+        post = {"nwalkers": mc.nwalkers, "nsteps": mc.nsteps, "burn_in": mc.burn, "thin": mc.thin,
+                "coordinates": list(mc.names),
+                "autocorrelation_time": [_num(t) for t in mc.tau],
+                "acceptance_fraction": mc.acceptance, "effective_sample_size": mc.ess,
+                "samples": int(mc.samples_native.shape[0]), "trustworthy": mc.trustworthy,
+                "warnings": mc.warnings,
+                "prior": "uniform over the bounds in each parameter's transform coordinate",
+                "correlation": np.corrcoef(mc.samples_native.T).tolist()
+                if mc.samples_native.shape[1] > 1 else [[1.0]]}
+        rec["mcmc"] = post
+        rec["timings_s"]["mcmc"] = mc.seconds
+    if "diagnostics" in ch:
+        rec["diagnostics"] = ch["diagnostics"]
+    return rec
+
+
+def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict:
+    model = result["model"]
+    m = measurement
+    return {
+        "schema": SCHEMA,
+        "schema_version": SCHEMA_VERSION,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "model": {"name": model.name, "options": result["options"], "lobes": model.lobes,
+                  "reference": model.reference},
+        "conventions": CONVENTIONS,
+        "loss": result["loss"],
+        "seed": result["seed"],
+        "notes": result["notes"],
+        "data": {"path": m.path, "sha256": m.sha256, "rows": m.n,
+                 "rows_fitted": int(np.sum(result["subset_rows"])), "fit_subset": subset_expr,
+                 "file_quantity": m.file_quantity, "quantity": m.quantity,
+                 "channels": list(m.channel_names), "metadata": m.metadata},
+        "fits": [_channel_record(ch, model, result["fixed"]) for ch in result["channels"]],
+        "software": software_versions(),
+        "timings_s": timings or {},
+    }
+
+
+def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -> None:
+    """Write the JSON (and the NPZ chain file) atomically; nothing is left on failure."""
+    text = json.dumps(record, indent=2, allow_nan=False) + "\n"
+    blob = None
+    if chains:
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **chains)
+        blob = buf.getvalue()
+    if blob is not None:
+        with atomic_open(chain_path, "wb") as fh:
+            fh.write(blob)
+    try:
+        with atomic_open(path, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    except BaseException:
+        if blob is not None:
+            Path(chain_path).unlink(missing_ok=True)
+        raise
+
+
+def read_fit(path) -> dict:
+    """Read and validate a parameter file (schema name and version)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(path, "no such file", hint="check the path") from None
+    except json.JSONDecodeError as exc:
+        raise InputFileError(path, f"is not valid JSON ({exc.msg})", line=exc.lineno) from None
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        raise InputFileError(path, f"is not a fitlab parameter file (schema is not {SCHEMA!r})",
+                             column="schema")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise InputFileError(path, f"has schema_version {data.get('schema_version')!r}; this "
+                             f"fitlab reads version {SCHEMA_VERSION}", column="schema_version",
+                             hint="refit with this fitlab version or upgrade fitlab")
+    for key in ("model", "fits", "data"):
+        if key not in data:
+            raise InputFileError(path, f"lacks the field {key!r}", column=key)
+    try:
+        fitlab.get_model(data["model"]["name"])
+    except (ValueError, KeyError, TypeError):
+        raise InputFileError(path, "names a model this fitlab does not know",
+                             column="model.name", hint="run `fitlab models`") from None
+    return data
+
+
+def chains_payload(result) -> dict:
+    out = {}
+    for ch in result["channels"]:
+        mc = ch["mcmc"]
+        if mc is None:
+            continue
+        tag = ch["channel"]
+        out[f"chain_{tag}"] = mc.chain_unit
+        out[f"log_prob_{tag}"] = mc.log_prob
+        out[f"samples_{tag}"] = mc.samples_native
+        out[f"coordinates_{tag}"] = np.asarray(mc.names)
+    if not out:
+        raise FitlabError("--chain needs --mcmc: there is no chain to write")
+    return out

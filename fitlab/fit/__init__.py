@@ -1,0 +1,1 @@
+"""Fitting: bounded parameter spaces, losses, least squares with global starts, MCMC."""

@@ -1,0 +1,161 @@
+"""One fit, end to end: a Measurement and a model in, a FitResult (plain data) out.
+
+Channels are fitted independently (every model parameter per channel); the result holds one
+entry per channel. Rows outside ``--fit-subset`` are not fitted but are predicted, and the
+statistics report both (Walter's protocol: fit at normal incidence, predict the others).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+from fitlab.api import check_params, resolve_options
+from fitlab.fit.least_squares import FitData, fit_least_squares
+from fitlab.fit.losses import loss_weights
+from fitlab.fit.mcmc import run_mcmc
+from fitlab.fit.space import SCALE, make_space
+from fitlab.models import get_model
+
+#: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
+#: error statistics (relative errors of near-zero data are meaningless).
+REL_ERR_FLOOR = 0.01
+
+
+def _log(quiet, msg):
+    if not quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def _scale_reference(model, options, start, m, rows):
+    f = np.asarray(model.eval({k: jnp.asarray(v) for k, v in start.items()},
+                              jnp.asarray(m.wi[rows]), jnp.asarray(m.wo[rows]), **options))
+    v = m.value[rows]
+    den = float(f @ f)
+    s = float(v @ f) / den if den > 0 else 0.0
+    if not np.isfinite(s) or s <= 0:
+        pos = f > 0
+        s = float(np.median(np.abs(v[pos])) / np.median(f[pos])) if pos.any() else 1.0
+    return max(s, 1e-300)
+
+
+def relative_errors(pred, value):
+    floor = REL_ERR_FLOOR * np.max(np.abs(value)) if value.size else 0.0
+    keep = np.abs(value) >= floor
+    return (pred[keep] - value[keep]) / value[keep], keep
+
+
+def statistics(m, rows_fit, pred, ls, data_sigma, loss):
+    """Fit statistics over the fitted rows and per incidence direction over all rows."""
+    rel_fit, _ = relative_errors(pred[rows_fit], m.value[rows_fit])
+    stats = {
+        "loss": loss,
+        "n_fit": int(rows_fit.sum()),
+        "n_total": int(rows_fit.size),
+        "cost": ls.cost,
+        "dof": ls.dof,
+        "residual_noise_scale": ls.noise_scale,
+        "rms_relative_error_fit": float(np.sqrt(np.mean(rel_fit**2))) if rel_fit.size else None,
+        "relative_error_floor": REL_ERR_FLOOR,
+    }
+    if data_sigma is not None:
+        chi2 = float(np.sum(((pred[rows_fit] - m.value[rows_fit]) / data_sigma[rows_fit]) ** 2))
+        stats["chi2"] = chi2
+        stats["chi2_per_dof"] = chi2 / ls.dof
+    per = []
+    keys = np.stack([m.theta_i, np.mod(m.phi_i, 360.0)], axis=1)
+    for ti, pi in np.unique(keys, axis=0):
+        sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
+        rel, keep = relative_errors(pred[sel], m.value[sel])
+        in_fit = rows_fit[sel]
+        per.append({
+            "theta_i": float(ti), "phi_i": float(pi), "n": int(sel.sum()),
+            "n_fitted": int(in_fit.sum()),
+            "role": "fit" if in_fit.all() else ("prediction" if not in_fit.any() else "partly fit"),
+            "rms_relative_error": float(np.sqrt(np.mean(rel**2))) if rel.size else None,
+            "max_abs_relative_error": float(np.max(np.abs(rel))) if rel.size else None,
+        })
+    stats["per_incidence"] = per
+    return stats
+
+
+def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
+                    subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
+                    n_starts=8, quiet=False, channels=None):
+    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md)."""
+    model = get_model(model_name)
+    options = resolve_options(model, options)
+    fixed = dict(fixed or {})
+    notes = []
+    eta_file = m.eta()
+    if eta_file is not None and "eta" in model.parameter_names and "eta" not in fixed \
+            and "eta" not in free:
+        fixed["eta"] = eta_file
+        notes.append(f"eta fixed to {eta_file:.6g} = eta_inside/eta_outside from the data file "
+                     "(use --free eta to fit it)")
+    for name in fixed:
+        if name not in model.parameter_names:
+            raise ValueError(f"--fix {name}: model {model.name!r} has no parameter {name!r} "
+                             f"(its parameters: {', '.join(model.parameter_names)})")
+    check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
+    loss = loss or ("chi2" if m.sigma is not None else "relative")
+    rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
+    start = {p.name: fixed.get(p.name, p.default) for p in model.parameters}
+    chan_ids = range(len(m.channel_names)) if channels is None else channels
+    results = []
+    for c in chan_ids:
+        name = m.channel_names[c]
+        in_chan = m.channel == c
+        rows = in_chan & rows_fit
+        if rows.sum() == 0:
+            continue
+        t0 = time.perf_counter()
+        scale_bounds = None
+        if m.is_relative:
+            s_ref = _scale_reference(model, options, start, m, rows)
+            scale_bounds = (s_ref * 1e-4, s_ref * 1e4)
+        space = make_space(model, options, fixed, m.is_relative, scale_bounds)
+        if rows.sum() <= space.ndim:
+            raise ValueError(f"channel {name}: {int(rows.sum())} rows cannot constrain "
+                             f"{space.ndim} free parameters ({', '.join(space.names)})")
+        sigma = None if m.sigma is None else m.sigma[rows]
+        consts = loss_weights(loss, m.value[rows], sigma, m.wo[rows, 2])
+        data = FitData(jnp.asarray(m.wi[rows]), jnp.asarray(m.wo[rows]),
+                       jnp.asarray(m.value[rows]), {k: jnp.asarray(v) for k, v in consts.items()},
+                       loss)
+        _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
+                    f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
+        start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
+                        for p in space.free]
+        ls = fit_least_squares(space, data, start_native=start_native, n_starts=n_starts,
+                               seed=seed)
+        t_ls = time.perf_counter() - t0
+        if ls.disagreement:
+            _log(quiet, f"WARNING: {ls.disagreement['message']}")
+        for p in ls.at_bound:
+            _log(quiet, f"WARNING: {p} ended at a bound of its range; its uncertainty is not "
+                        "meaningful")
+        _log(quiet, "  least squares: " + ", ".join(
+            f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in zip(space.names, ls.native, ls.stderr))
+            + f"  ({t_ls:.2f} s)")
+        chain = None
+        if mcmc:
+            _log(quiet, f"  MCMC: {mcmc_steps} steps")
+            chain = run_mcmc(space, data, ls, seed=seed, nsteps=mcmc_steps,
+                             nwalkers=mcmc_walkers, progress=not quiet)
+            for w in chain.warnings:
+                _log(quiet, f"WARNING: {w}")
+        # Predictions for every row of this channel (fitted or not).
+        full = np.asarray(space.predict(jnp.asarray(ls.native), jnp.asarray(m.wi[in_chan]),
+                                        jnp.asarray(m.wo[in_chan])))
+        sub = m.select(in_chan)
+        stats = statistics(sub, rows_fit[in_chan], full, ls,
+                           None if m.sigma is None else m.sigma[in_chan], loss)
+        results.append({"channel": name, "space": space, "ls": ls, "mcmc": chain,
+                        "statistics": stats, "seconds_least_squares": t_ls,
+                        "prediction": full, "rows": np.flatnonzero(in_chan)})
+    return {"model": model, "options": options, "fixed": fixed, "loss": loss,
+            "notes": notes, "seed": seed, "subset_rows": rows_fit, "channels": results}

@@ -1,0 +1,123 @@
+"""Posterior sampling with emcee: a jitted, vectorized log-posterior over all walkers at once.
+
+Prior: uniform over the bounds in each parameter's unit-box coordinate (linear, or logarithmic
+for parameters spanning decades). Likelihood: Gaussian residuals of the fit's loss; for losses
+whose residuals are not in units of the data's σ (everything but chi2) a noise scale σ_r is
+sampled too, with a Jeffreys prior p(σ_r) ∝ 1/σ_r (its log is the last chain coordinate).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import NamedTuple
+
+import emcee
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fitlab.fit.least_squares import FitData, residual_fn
+from fitlab.fit.losses import has_absolute_noise
+from fitlab.fit.space import FitSpace
+
+#: emcee's rule: a chain shorter than this many autocorrelation times is not trusted.
+MIN_TAU_MULTIPLE = 50
+
+
+class MCMCResult(NamedTuple):
+    samples_native: np.ndarray  # (n_samples, ndim) flattened after burn-in, native units
+    chain_unit: np.ndarray  # (nsteps, nwalkers, ndim_total) full chain in sampler coordinates
+    log_prob: np.ndarray  # (nsteps, nwalkers)
+    names: tuple[str, ...]  # coordinates of chain_unit
+    nwalkers: int
+    nsteps: int
+    burn: int
+    thin: int
+    tau: np.ndarray
+    acceptance: float
+    ess: float
+    trustworthy: bool
+    warnings: list
+    seconds: float
+
+
+def log_posterior_fn(space: FitSpace, data: FitData):
+    """Vectorized log-posterior over walker positions x (nwalkers, ndim[+1])."""
+    r_native = residual_fn(space, data)
+    nuisance = not has_absolute_noise(data.loss)
+    n = data.value.shape[0]
+
+    def one(x):
+        u = x[: space.ndim]
+        inside = jnp.all((u >= 0) & (u <= 1))
+        u_safe = jnp.where(inside, u, 0.5)
+        r = r_native(space.to_native(u_safe))
+        chi2 = jnp.sum(r * r)
+        if nuisance:
+            log_s = x[space.ndim]
+            lp = -0.5 * chi2 * jnp.exp(-2 * log_s) - n * log_s
+        else:
+            lp = -0.5 * chi2
+        lp = jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+        return jnp.where(inside, lp, -jnp.inf)
+
+    return jax.jit(jax.vmap(one)), nuisance
+
+
+def run_mcmc(space: FitSpace, data: FitData, ls, *, seed: int, nsteps: int = 3000,
+             nwalkers: int | None = None, progress: bool = True) -> MCMCResult:
+    """Start walkers in a small ball around the least-squares optimum and run emcee."""
+    t0 = time.perf_counter()
+    logp, nuisance = log_posterior_fn(space, data)
+    names = space.names + (("log_noise",) if nuisance else ())
+    ndim = len(names)
+    nwalkers = nwalkers or max(32, 4 * ndim)
+    rng = np.random.default_rng(seed)
+    u_best = space.to_unit(ls.native)
+    # Spread: the least-squares standard error mapped to the unit box, kept in a sane range.
+    eps = 1e-4
+    du = np.abs(space.to_unit(ls.native + ls.stderr) - space.to_unit(ls.native - ls.stderr)) / 2
+    du = np.clip(np.nan_to_num(du, nan=1e-2), 1e-5, 0.05)
+    centre = np.clip(u_best, eps, 1 - eps)
+    p0 = centre + du * rng.standard_normal((nwalkers, space.ndim)) * 0.5
+    p0 = np.clip(p0, eps, 1 - eps)
+    if nuisance:
+        log_s = np.log(max(ls.noise_scale, 1e-300))
+        p0 = np.column_stack([p0, log_s + 0.01 * rng.standard_normal(nwalkers)])
+
+    def log_prob(x):
+        return np.asarray(logp(jnp.asarray(x)), dtype=np.float64)
+
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
+    sampler.random_state = np.random.RandomState(seed).get_state()
+    report_every = max(nsteps // 10, 1)
+    for i, _ in enumerate(sampler.sample(p0, iterations=nsteps), start=1):
+        if progress and (i % report_every == 0 or i == nsteps):
+            frac = sampler.acceptance_fraction.mean()
+            print(f"  MCMC {100 * i // nsteps:3d}%  step {i}/{nsteps}  "
+                  f"acceptance {frac:.2f}", file=sys.stderr, flush=True)
+    chain = sampler.get_chain()
+    warnings = []
+    tau = emcee.autocorr.integrated_time(chain, quiet=True)
+    tau = np.asarray(tau, dtype=float)
+    tau_max = float(np.nanmax(tau))
+    trustworthy = bool(np.isfinite(tau_max) and nsteps >= MIN_TAU_MULTIPLE * tau_max)
+    if not trustworthy:
+        warnings.append(
+            f"THE CHAIN IS TOO SHORT TO TRUST: {nsteps} steps < {MIN_TAU_MULTIPLE} × the "
+            f"autocorrelation time ({tau_max:.1f} steps). Rerun with --mcmc-steps "
+            f"{int(np.ceil(MIN_TAU_MULTIPLE * tau_max / 500) * 500)} or more."
+        )
+    acceptance = float(sampler.acceptance_fraction.mean())
+    if not 0.15 <= acceptance <= 0.7:
+        warnings.append(f"acceptance fraction {acceptance:.2f} is outside [0.15, 0.7]: the "
+                        "posterior may be multimodal or badly scaled")
+    burn = int(min(nsteps // 2, np.ceil(3 * tau_max))) if np.isfinite(tau_max) else nsteps // 2
+    thin = max(1, int(tau_max // 2)) if np.isfinite(tau_max) else 1
+    flat = sampler.get_chain(discard=burn, thin=thin, flat=True)
+    samples_native = np.asarray(space.to_native(jnp.asarray(flat[:, : space.ndim])))
+    ess = float(nwalkers * (nsteps - burn) / tau_max) if np.isfinite(tau_max) else 0.0
+    return MCMCResult(samples_native, chain, sampler.get_log_prob(), names, nwalkers, nsteps,
+                      burn, thin, tau, acceptance, ess, trustworthy, warnings,
+                      time.perf_counter() - t0)

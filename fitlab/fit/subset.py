@@ -1,0 +1,74 @@
+"""``--fit-subset`` expressions: a safe, tiny language over the measurement's columns.
+
+    theta_i == 0
+    theta_i < 45 and theta_o > 90
+    not (abs(phi_o) < 1) or channel == 'R'
+
+Names: theta_i, phi_i, theta_o, phi_o (degrees), value, channel; numbers, strings,
+comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
+"""
+
+from __future__ import annotations
+
+import ast
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+
+_CMP = {ast.Eq: np.equal, ast.NotEq: np.not_equal, ast.Lt: np.less, ast.LtE: np.less_equal,
+        ast.Gt: np.greater, ast.GtE: np.greater_equal}
+
+
+def subset_mask(expr: str, measurement) -> np.ndarray:
+    try:
+        tree = ast.parse(expr, mode="eval")
+    except SyntaxError as exc:
+        raise FitlabError(f"--fit-subset {expr!r} is not a valid expression ({exc.msg}); "
+                          "example: 'theta_i == 0 and theta_o > 90'") from None
+    m = measurement
+    names = {"theta_i": m.theta_i, "phi_i": m.phi_i, "theta_o": m.theta_o, "phi_o": m.phi_o,
+             "value": m.value, "channel": np.asarray(m.channel_names, dtype=object)[m.channel]}
+
+    def ev(node):
+        if isinstance(node, ast.Expression):
+            return ev(node.body)
+        if isinstance(node, ast.BoolOp):
+            vals = [np.asarray(ev(v), dtype=bool) for v in node.values]
+            op = np.logical_and if isinstance(node.op, ast.And) else np.logical_or
+            out = vals[0]
+            for v in vals[1:]:
+                out = op(out, v)
+            return out
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+            return ~np.asarray(ev(node.operand), dtype=bool)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+            return -ev(node.operand)
+        if isinstance(node, ast.Compare):
+            left = ev(node.left)
+            out = None
+            for op, right_node in zip(node.ops, node.comparators):
+                right = ev(right_node)
+                if type(op) not in _CMP:
+                    raise FitlabError(f"--fit-subset: operator not allowed in {expr!r}")
+                r = _CMP[type(op)](left, right)
+                out = r if out is None else out & r
+                left = right
+            return out
+        if isinstance(node, ast.Name):
+            if node.id not in names:
+                raise FitlabError(f"--fit-subset: unknown name {node.id!r}; use "
+                                  f"{', '.join(names)}")
+            return names[node.id]
+        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str)):
+            return node.value
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and node.func.id == "abs" and len(node.args) == 1 and not node.keywords):
+            return np.abs(ev(node.args[0]))
+        raise FitlabError(f"--fit-subset: {ast.unparse(node)!r} is not allowed; use column "
+                          "names, numbers, comparisons, and/or/not and abs()")
+
+    mask = np.broadcast_to(np.asarray(ev(tree), dtype=bool), (m.n,)).copy()
+    if not mask.any():
+        raise FitlabError(f"--fit-subset {expr!r} selects no rows of {m.path}")
+    return mask
