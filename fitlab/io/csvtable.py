@@ -24,6 +24,8 @@ class Table(NamedTuple):
     metadata: dict[str, str]
     #: the 1-based file line of each row
     lines: np.ndarray
+    #: the file line of each metadata key
+    metadata_lines: dict
 
 
 def _read_text(path: Path) -> str:
@@ -68,6 +70,7 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     path = Path(path)
     text = _read_text(path)
     metadata: dict[str, str] = {}
+    metadata_lines: dict[str, int] = {}
     header = None
     rows: list[list[float]] = []
     lines: list[int] = []
@@ -80,6 +83,7 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
             if ":" in body:
                 key, _, value = body.partition(":")
                 metadata[key.strip().lower()] = value.strip()
+                metadata_lines[key.strip().lower()] = lineno
             continue
         _check_delimiters(path, lineno, stripped)
         fields = [f.strip() for f in stripped.split(",")]
@@ -111,7 +115,7 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     for j, name in enumerate(header):
         cells = [r[j] for r in rows]
         columns[name] = np.asarray(cells, dtype=object if name in text_columns else np.float64)
-    return Table(str(path), columns, metadata, np.asarray(lines))
+    return Table(str(path), columns, metadata, np.asarray(lines), metadata_lines)
 
 
 def _parse_header(path, lineno, fields, required, optional, what, column_pattern=None):

@@ -79,7 +79,9 @@ def sha256_of(path) -> str:
     return h.hexdigest()
 
 
-def _meta_choice(path, metadata, key, choices, default=None, hint=""):
+def _meta_choice(table, key, choices, default=None, hint=""):
+    path, metadata = table.path, table.metadata
+    line = table.metadata_lines.get(key)
     value = metadata.get(key, default)
     if value is None:
         raise InputFileError(path, f"the metadata line '# {key}: ...' is missing",
@@ -87,11 +89,12 @@ def _meta_choice(path, metadata, key, choices, default=None, hint=""):
     value = value.strip().lower()
     if value not in choices:
         raise InputFileError(path, f"'# {key}: {value}' is not one of {', '.join(choices)}",
-                             hint=hint or f"use one of {', '.join(choices)}")
+                             line=line, hint=hint or f"use one of {', '.join(choices)}")
     return value
 
 
-def _meta_positive(path, metadata, key):
+def _meta_positive(table, key):
+    path, metadata = table.path, table.metadata
     if key not in metadata:
         return
     try:
@@ -100,7 +103,7 @@ def _meta_positive(path, metadata, key):
         v = float("nan")
     if not (np.isfinite(v) and v > 0):
         raise InputFileError(path, f"'# {key}: {metadata[key]}' must be a positive number",
-                             hint="give the refractive index of that medium, e.g. 1.0 for air")
+                             line=table.metadata_lines.get(key), hint="give the refractive index of that medium, e.g. 1.0 for air")
 
 
 def _melt_channels(table):
@@ -149,13 +152,13 @@ def read_measurement(path) -> Measurement:
         raise InputFileError(path, "has both a channel and a wavelength_nm column",
                              hint="name channels either by label or by wavelength, not both")
     check_angles(table)
-    quantity = _meta_choice(path, meta, "quantity", QUANTITIES,
+    quantity = _meta_choice(table, "quantity", QUANTITIES,
                             hint="state what the values are: '# quantity: bsdf' (f in 1/sr, no "
                             "cosine), 'bsdf_cos' (f·|cos θo|) or 'relative' (f up to a scale)")
-    relative_to = _meta_choice(path, meta, "relative_to", RELATIVE_TO, default="bsdf")
-    scatter = _meta_choice(path, meta, "scatter", SCATTER, default="bsdf")
+    relative_to = _meta_choice(table, "relative_to", RELATIVE_TO, default="bsdf")
+    scatter = _meta_choice(table, "scatter", SCATTER, default="bsdf")
     for key in ("eta_outside", "eta_inside"):
-        _meta_positive(path, meta, key)
+        _meta_positive(table, key)
 
     if wide:
         long, channel_names, lines = _melt_channels(table)
