@@ -124,13 +124,12 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         sigma = None if m.sigma is None else m.sigma[rows]
         consts = loss_weights(loss, m.value[rows], sigma, m.wo[rows, 2])
         data = FitData(jnp.asarray(m.wi[rows]), jnp.asarray(m.wo[rows]),
-                       jnp.asarray(m.value[rows]), {k: jnp.asarray(v) for k, v in consts.items()},
-                       loss)
+                       jnp.asarray(m.value[rows]), {k: jnp.asarray(v) for k, v in consts.items()})
         _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
         start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
                         for p in space.free]
-        ls = fit_least_squares(space, data, start_native=start_native, n_starts=n_starts,
+        ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
                                seed=seed)
         t_ls = time.perf_counter() - t0
         if ls.disagreement:
@@ -144,7 +143,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         chain = None
         if mcmc:
             _log(quiet, f"  MCMC: {mcmc_steps} steps")
-            chain = run_mcmc(space, data, ls, seed=seed, nsteps=mcmc_steps,
+            chain = run_mcmc(space, data, loss, ls, seed=seed, nsteps=mcmc_steps,
                              nwalkers=mcmc_walkers, progress=not quiet)
             for w in chain.warnings:
                 _log(quiet, f"WARNING: {w}")

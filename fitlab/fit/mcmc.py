@@ -8,6 +8,7 @@ sampled too, with a Jeffreys prior p(σ_r) ∝ 1/σ_r (its log is the last chain
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from typing import NamedTuple
@@ -17,9 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab.fit.least_squares import FitData, residual_fn
+import functools
+
+from fitlab.fit.least_squares import FitData, problem_of, residuals_unit
 from fitlab.fit.losses import has_absolute_noise
-from fitlab.fit.space import FitSpace
+from fitlab.fit.space import FitSpace, StaticSpace
 
 #: emcee's rule: a chain shorter than this many autocorrelation times is not trusted.
 MIN_TAU_MULTIPLE = 50
@@ -42,34 +45,36 @@ class MCMCResult(NamedTuple):
     seconds: float
 
 
-def log_posterior_fn(space: FitSpace, data: FitData):
-    """Vectorized log-posterior over walker positions x (nwalkers, ndim[+1])."""
-    r_native = residual_fn(space, data)
-    nuisance = not has_absolute_noise(data.loss)
-    n = data.value.shape[0]
+@functools.lru_cache(maxsize=64)
+def log_posterior_fn(static: StaticSpace, loss: str):
+    """Jitted, vectorized log-posterior over walker positions x (nwalkers, ndim[+1])."""
+    nuisance = not has_absolute_noise(loss)
+    ndim = len(static.names)
 
-    def one(x):
-        u = x[: space.ndim]
+    def one(x, problem):
+        u = x[:ndim]
+        n = problem["data"].value.shape[0]
         inside = jnp.all((u >= 0) & (u <= 1))
         u_safe = jnp.where(inside, u, 0.5)
-        r = r_native(space.to_native(u_safe))
+        r = residuals_unit(static, loss, u_safe, problem)
         chi2 = jnp.sum(r * r)
         if nuisance:
-            log_s = x[space.ndim]
+            log_s = x[ndim]
             lp = -0.5 * chi2 * jnp.exp(-2 * log_s) - n * log_s
         else:
             lp = -0.5 * chi2
         lp = jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
         return jnp.where(inside, lp, -jnp.inf)
 
-    return jax.jit(jax.vmap(one)), nuisance
+    return jax.jit(jax.vmap(one, in_axes=(0, None))), nuisance
 
 
-def run_mcmc(space: FitSpace, data: FitData, ls, *, seed: int, nsteps: int = 3000,
+def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps: int = 3000,
              nwalkers: int | None = None, progress: bool = True) -> MCMCResult:
     """Start walkers in a small ball around the least-squares optimum and run emcee."""
     t0 = time.perf_counter()
-    logp, nuisance = log_posterior_fn(space, data)
+    logp, nuisance = log_posterior_fn(space.static, loss)
+    problem = problem_of(space, data)
     names = space.names + (("log_noise",) if nuisance else ())
     ndim = len(names)
     nwalkers = nwalkers or max(32, 4 * ndim)
@@ -87,7 +92,7 @@ def run_mcmc(space: FitSpace, data: FitData, ls, *, seed: int, nsteps: int = 300
         p0 = np.column_stack([p0, log_s + 0.01 * rng.standard_normal(nwalkers)])
 
     def log_prob(x):
-        return np.asarray(logp(jnp.asarray(x)), dtype=np.float64)
+        return np.asarray(logp(jnp.asarray(x), problem), dtype=np.float64)
 
     sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
     sampler.random_state = np.random.RandomState(seed).get_state()
@@ -99,6 +104,7 @@ def run_mcmc(space: FitSpace, data: FitData, ls, *, seed: int, nsteps: int = 300
                   f"acceptance {frac:.2f}", file=sys.stderr, flush=True)
     chain = sampler.get_chain()
     warnings = []
+    logging.getLogger("emcee").setLevel(logging.ERROR)  # fitlab words its own warning below
     tau = emcee.autocorr.integrated_time(chain, quiet=True)
     tau = np.asarray(tau, dtype=float)
     tau_max = float(np.nanmax(tau))

@@ -6,6 +6,10 @@ and a unit-box coordinate u_k ∈ [0, 1]: linear, θ = lo + (hi - lo) u, or loga
 θ = lo (hi/lo)^u, for positive parameters spanning two decades or more (α ∈ [1e-4, 1]).
 The least-squares solver works in unconstrained z = logit(u), the global search and the MCMC
 prior in u (a uniform prior over the bounds in that coordinate).
+
+A FitSpace splits into a hashable static part (model, options, names, transforms: what the
+compiled kernels depend on) and arrays (bounds, fixed values: arguments of those kernels), so
+one compilation serves every dataset and every bound of the same shape.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab.models import Model
+from fitlab.models import get_model
 
 SCALE = "scale"
 
@@ -29,31 +33,51 @@ class FreeParameter(NamedTuple):
     unit: str
 
 
+class StaticSpace(NamedTuple):
+    """What a compiled kernel depends on (hashable)."""
+
+    model_name: str
+    options: tuple  # sorted (name, value) pairs
+    names: tuple[str, ...]  # free parameters in order, the scale last if relative
+    log: tuple[bool, ...]
+    fixed_names: tuple[str, ...]
+    relative: bool
+
+
 class FitSpace(NamedTuple):
-    model: Model
-    options: dict
+    static: StaticSpace
     free: tuple[FreeParameter, ...]
     fixed: dict  # name -> value (native units)
-    relative: bool  # a free overall scale multiplies the model
 
     @property
     def names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.free)
+        return self.static.names
 
     @property
     def ndim(self) -> int:
         return len(self.free)
 
+    @property
+    def relative(self) -> bool:
+        return self.static.relative
+
+    @property
+    def model(self):
+        return get_model(self.static.model_name)
+
+    @property
+    def options(self) -> dict:
+        return dict(self.static.options)
+
+    def arrays(self) -> dict:
+        """The kernels' array arguments: bounds and fixed values."""
+        return {"lo": np.array([p.lower for p in self.free]),
+                "hi": np.array([p.upper for p in self.free]),
+                "fixed": {k: np.float64(v) for k, v in self.fixed.items()}}
+
     def to_native(self, u):
-        """u (..., ndim) in [0,1] → native parameter values (..., ndim)."""
-        lo = jnp.asarray([p.lower for p in self.free])
-        hi = jnp.asarray([p.upper for p in self.free])
-        is_log = jnp.asarray([p.log for p in self.free])
-        lin = lo + (hi - lo) * u
-        safe_lo = jnp.where(is_log, lo, 1.0)
-        safe_hi = jnp.where(is_log, hi, 1.0)
-        logv = jnp.exp(jnp.log(safe_lo) + (jnp.log(safe_hi) - jnp.log(safe_lo)) * u)
-        return jnp.where(is_log, logv, lin)
+        a = self.arrays()
+        return to_native(self.static, jnp.asarray(u), a["lo"], a["hi"])
 
     def to_unit(self, native):
         native = np.asarray(native, dtype=float)
@@ -66,26 +90,34 @@ class FitSpace(NamedTuple):
                 out[..., k] = (v - p.lower) / (p.upper - p.lower)
         return np.clip(out, 0.0, 1.0)
 
-    def params_dict(self, native):
-        """Model parameter dict (without the scale) from a native vector (..., ndim)."""
-        d = {k: v for k, v in self.fixed.items()}
-        for k, p in enumerate(self.free):
-            if p.name != SCALE:
-                d[p.name] = native[..., k]
-        return d
-
-    def scale_of(self, native):
-        if not self.relative:
-            return 1.0
-        return native[..., self.names.index(SCALE)]
-
     def predict(self, native, wi, wo):
-        """Model prediction for one native parameter vector: scale · f(wi, wo)."""
-        f = self.model.eval(self.params_dict(native), wi, wo, **self.options)
-        return self.scale_of(native) * f
+        return predict(self.static, jnp.asarray(native), self.arrays()["fixed"], wi, wo)
 
 
-def make_space(model: Model, options: dict, fixed: dict, relative: bool,
+def to_native(static: StaticSpace, u, lo, hi):
+    """u (..., ndim) in [0,1] → native parameter values (..., ndim)."""
+    is_log = jnp.asarray(static.log)
+    lin = lo + (hi - lo) * u
+    safe_lo = jnp.where(is_log, lo, 1.0)
+    safe_hi = jnp.where(is_log, hi, 1.0)
+    logv = jnp.exp(jnp.log(safe_lo) + (jnp.log(safe_hi) - jnp.log(safe_lo)) * u)
+    return jnp.where(is_log, logv, lin)
+
+
+def predict(static: StaticSpace, theta, fixed: dict, wi, wo):
+    """Model prediction scale · f(wi, wo) for one native parameter vector ``theta``."""
+    params = dict(fixed)
+    scale = 1.0
+    for k, name in enumerate(static.names):
+        if name == SCALE:
+            scale = theta[k]
+        else:
+            params[name] = theta[k]
+    model = get_model(static.model_name)
+    return scale * model.eval(params, wi, wo, **dict(static.options))
+
+
+def make_space(model, options: dict, fixed: dict, relative: bool,
                scale_bounds: tuple[float, float] | None = None) -> FitSpace:
     free = []
     for p in model.parameters:
@@ -98,7 +130,10 @@ def make_space(model: Model, options: dict, fixed: dict, relative: bool,
         free.append(FreeParameter(SCALE, float(lo), float(hi), True, "data units per 1/sr"))
     if not free:
         raise ValueError("every parameter is fixed: nothing to fit")
-    return FitSpace(model, dict(options), tuple(free), dict(fixed), relative)
+    static = StaticSpace(model.name, tuple(sorted(options.items())),
+                         tuple(p.name for p in free), tuple(p.log for p in free),
+                         tuple(sorted(fixed)), relative)
+    return FitSpace(static, tuple(free), dict(fixed))
 
 
 def unit_from_z(z):
