@@ -160,7 +160,9 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     starts_u = [u_glob] + list(halton(n_starts, d))
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
-    Z, iters = k["lm"](jnp.asarray(np.stack([z_from_unit(u0) for u0 in starts_u])), problem)
+    # jaxopt's LM multiplies bool masks with floats; allow that even under strict promotion.
+    with jax.numpy_dtype_promotion("standard"):
+        Z, iters = k["lm"](jnp.asarray(np.stack([z_from_unit(u0) for u0 in starts_u])), problem)
     U = np.asarray(unit_from_z(Z))
     costs = np.asarray(k["cost_batch"](jnp.asarray(U), problem))
     runs = [{"u0": np.asarray(u0), "u": u, "cost": float(c) if np.isfinite(c) else np.inf,

@@ -5,7 +5,7 @@
     not (abs(phi_o) < 1) or channel == 'R'
 
 Names: theta_i, phi_i, theta_o, phi_o (degrees), value, channel; numbers, strings,
-comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
+arithmetic (+ - * /), comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 
+_ARITH = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide}
 _CMP = {ast.Eq: np.equal, ast.NotEq: np.not_equal, ast.Lt: np.less, ast.LtE: np.less_equal,
         ast.Gt: np.greater, ast.GtE: np.greater_equal}
 
@@ -42,6 +43,8 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
             return out
         if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
             return ~np.asarray(ev(node.operand), dtype=bool)
+        if isinstance(node, ast.BinOp) and type(node.op) in _ARITH:
+            return _ARITH[type(node.op)](ev(node.left), ev(node.right))
         if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
             return -ev(node.operand)
         if isinstance(node, ast.Compare):
@@ -66,7 +69,7 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
                 and node.func.id == "abs" and len(node.args) == 1 and not node.keywords):
             return np.abs(ev(node.args[0]))
         raise FitlabError(f"--fit-subset: {ast.unparse(node)!r} is not allowed; use column "
-                          "names, numbers, comparisons, and/or/not and abs()")
+                          "names, numbers, + - * /, comparisons, and/or/not and abs()")
 
     mask = np.broadcast_to(np.asarray(ev(tree), dtype=bool), (m.n,)).copy()
     if not mask.any():
