@@ -1,7 +1,7 @@
 """The strict comma-separated table reader behind every fitlab CSV format.
 
-Format: UTF-8 (no byte-order mark), ``#`` comment lines anywhere (``# key: value`` comments are
-metadata), one header line naming the columns, then rows of numbers separated by commas.
+Format: UTF-8 (no byte-order mark), ``#`` comment lines anywhere (``# key: value`` comments with
+an identifier-like key are metadata), one header line naming the columns, then rows of numbers separated by commas.
 Everything that is not exactly that is an error naming file, line and column.
 """
 
@@ -15,6 +15,10 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import InputFileError
+
+
+#: A metadata comment: ``# key: value`` with an identifier-like key (other comments are prose).
+_METADATA = re.compile(r"#\s*([A-Za-z_][A-Za-z0-9_]*)\s*:(.*)$")
 
 
 class Table(NamedTuple):
@@ -79,11 +83,11 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
         if not stripped:
             continue
         if stripped.startswith("#"):
-            body = stripped[1:].strip()
-            if ":" in body:
-                key, _, value = body.partition(":")
-                metadata[key.strip().lower()] = value.strip()
-                metadata_lines[key.strip().lower()] = lineno
+            meta = _METADATA.match(stripped)
+            if meta:
+                key = meta.group(1).lower()
+                metadata[key] = meta.group(2).strip()
+                metadata_lines[key] = lineno
             continue
         _check_delimiters(path, lineno, stripped)
         fields = [f.strip() for f in stripped.split(",")]
