@@ -232,3 +232,20 @@ def test_credible_interval_calibration():
             total += 1
     coverage = hits / total
     assert 0.53 <= coverage <= 0.83, f"68% interval coverage {coverage:.2f}"
+
+
+def test_reference_fit_is_reproduced():
+    """fits/walter_rough_glass.json (the README's main job) comes back from its own command:
+    same data hash, same least-squares optimum."""
+    from fitlab.export.paramfile import read_fit
+
+    root = Path(__file__).resolve().parent.parent
+    ref = read_fit(root / "fits" / "walter_rough_glass.json")
+    m = read_measurement(root / ref["data"]["path"])
+    assert m.sha256 == ref["data"]["sha256"]
+    res = fit_measurement(m, ref["model"]["name"], options=ref["model"]["options"],
+                          subset=subset_mask(ref["data"]["fit_subset"], m), quiet=True,
+                          seed=ref["seed"])
+    ch = res["channels"][0]
+    for name, value in zip(ch["space"].names, ch["ls"].native):
+        assert value == pytest.approx(ref["fits"][0]["parameters"][name]["value"], rel=1e-6)
