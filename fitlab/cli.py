@@ -182,7 +182,7 @@ def cmd_fit(args):
     from fitlab.export.paramfile import build_record, chains_payload, write_fit
     from fitlab.fit.driver import fit_measurement
     from fitlab.fit.subset import subset_mask
-    from fitlab.io.measurement import read_measurement
+    from fitlab.io.formats import read_any
 
     t0 = time.perf_counter()
     try:
@@ -201,7 +201,7 @@ def cmd_fit(args):
         raise FitlabError("--chain needs --mcmc: there is no chain to write")
     if args.mcmc and args.mcmc_steps < 100:
         raise FitlabError("--mcmc-steps must be at least 100")
-    m = read_measurement(args.data)
+    m = read_any(args.data, args.format)
     t_read = time.perf_counter() - t0
     subset = subset_mask(args.fit_subset, m) if args.fit_subset else None
     channels = None
@@ -246,6 +246,70 @@ def cmd_fit(args):
         if not args.quiet:
             _print_summary(record)
         print(json.dumps(record, indent=2, allow_nan=False))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# fitlab info / convert
+# --------------------------------------------------------------------------------------------
+
+
+def _is_fit_json(path):
+    from pathlib import Path
+
+    p = Path(path)
+    if p.suffix.lower() != ".json" or not p.is_file():
+        return False
+    with open(p, "rb") as fh:
+        return b'"fitlab-fit"' in fh.read(256)
+
+
+def _describe_fit(path):
+    from fitlab.export.paramfile import read_fit
+
+    rec = read_fit(path)
+    return {"format": "fit-json", "format_description": "fitlab parameter file",
+            "spec": "data_formats/fit_json.md", "schema_version": rec["schema_version"],
+            "model": rec["model"], "loss": rec["loss"], "data": rec["data"]["path"],
+            "channels": [f["channel"] for f in rec["fits"]],
+            "parameters": {f["channel"]: {k: v["value"] for k, v in f["parameters"].items()}
+                           for f in rec["fits"]},
+            "mcmc": [bool(f["mcmc"]) for f in rec["fits"]]}
+
+
+def _print_info(info, indent=""):
+    for key, value in info.items():
+        if isinstance(value, dict):
+            print(f"{indent}{key}:")
+            _print_info(value, indent + "  ")
+        elif isinstance(value, list) and len(value) > 12:
+            shown = ", ".join(str(v) for v in value[:12])
+            print(f"{indent}{key}: [{shown}, ... ({len(value)} values)]")
+        else:
+            print(f"{indent}{key}: {value}")
+
+
+def cmd_info(args):
+    from fitlab.io.formats import describe_any
+
+    info = _describe_fit(args.file) if _is_fit_json(args.file) and not args.format \
+        else describe_any(args.file, args.format)
+    if args.json:
+        print(json.dumps(info, indent=2, default=str))
+    else:
+        _print_info(info)
+    return 0
+
+
+def cmd_convert(args):
+    from fitlab.io.atomic import atomic_write_text
+    from fitlab.io.formats import read_any
+    from fitlab.io.measurement import format_measurement_csv
+
+    m = read_any(args.input, args.format)
+    text = format_measurement_csv(m, {"converted_from": f"{args.input} ({m.file_quantity})"})
+    atomic_write_text(args.output, text)
+    print(f"wrote {m.n} rows ({', '.join(m.channel_names)}) to {args.output}", file=sys.stderr)
     return 0
 
 
@@ -321,7 +385,24 @@ def build_parser():
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
     p.add_argument("--chain", metavar="FILE.npz", help="also write the MCMC chain")
     p.add_argument("--quiet", action="store_true", help="no progress or summary on the terminal")
+    p.add_argument("--format", help="input format (default: detected from the content)")
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("info", help="show what a data, parameter or table file holds",
+                       description="Describe a file fitlab reads: format, angles, channels, units, "
+                       "value ranges and format-specific checks.")
+    p.add_argument("file")
+    p.add_argument("--format", help="force a format instead of detecting it")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("convert", help="convert a supported data file to fitlab's measurement CSV",
+                       description="Read any supported measurement format and write it as a fitlab "
+                       "measurement CSV (data_formats/measurement_csv.md), atomically.")
+    p.add_argument("input")
+    p.add_argument("output")
+    p.add_argument("--format", help="input format (default: detected from the content)")
+    p.set_defaults(func=cmd_convert)
     return parser
 
 

@@ -250,3 +250,91 @@ def read_measurement(path) -> Measurement:
         wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
         file_quantity=file_quantity, metadata=dict(meta), lines=np.asarray(lines),
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Writing, detection and description (the format registry's entry)
+# --------------------------------------------------------------------------------------------
+
+
+def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -> str:
+    """Measurement → fitlab measurement CSV text (long form; quantity bsdf or relative of f)."""
+    import io
+
+    out = io.StringIO()
+    out.write("# fitlab measurement CSV (data_formats/measurement_csv.md)\n")
+    meta = {k: v for k, v in m.metadata.items()
+            if k not in ("quantity", "relative_to", "scatter")}
+    meta.update(extra_metadata or {})
+    out.write(f"# quantity: {m.quantity}\n")
+    for k, v in meta.items():
+        out.write(f"# {k}: {v}\n")
+    spectral = m.wavelength_nm is not None
+    multi = len(m.channel_names) > 1 and not spectral
+    cols = ["theta_i", "phi_i", "theta_o", "phi_o"] + (["channel"] if multi else []) \
+        + (["wavelength_nm"] if spectral else []) + ["value"]
+    if m.sigma is not None:
+        cols.append("sigma")
+    out.write(",".join(cols) + "\n")
+    for j in range(m.n):
+        cells = [f"{m.theta_i[j]:.10g}", f"{m.phi_i[j]:.10g}", f"{m.theta_o[j]:.10g}",
+                 f"{m.phi_o[j]:.10g}"]
+        if multi:
+            cells.append(m.channel_names[m.channel[j]])
+        if spectral:
+            cells.append(f"{m.wavelength_nm[m.channel[j]]:.10g}")
+        cells.append(f"{m.value[j]:.9e}")
+        if m.sigma is not None:
+            cells.append(f"{m.sigma[j]:.6e}")
+        out.write(",".join(cells) + "\n")
+    return out.getvalue()
+
+
+def _detect(head: bytes, path) -> bool:
+    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
+    for line in text.splitlines():
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        return s.replace(" ", "").startswith(("theta_i", "phi_i", "theta_o", "phi_o")) or \
+            "theta_i" in s.split(",")
+    return False
+
+
+def describe_measurement(path) -> dict:
+    m = read_measurement(path)
+    return describe_loaded(m)
+
+
+def describe_loaded(m: Measurement) -> dict:
+    """What a Measurement holds, for ``fitlab info`` (shared by every reader)."""
+    incid = np.unique(np.stack([m.theta_i, np.mod(m.phi_i, 360)], axis=1), axis=0)
+    trans = (m.wi[:, 2] * m.wo[:, 2]) < 0
+    return {
+        "rows": m.n,
+        "quantity": m.quantity,
+        "stored_quantity": m.file_quantity,
+        "unit": "1/sr (BSDF f, no cosine)" if m.quantity == "bsdf" else "relative (unknown scale × f)",
+        "channels": list(m.channel_names),
+        "incident_directions": len(incid),
+        "theta_i_deg": sorted({float(x) for x in m.theta_i}),
+        "theta_o_range_deg": [float(m.theta_o.min()), float(m.theta_o.max())],
+        "phi_o_range_deg": [float(m.phi_o.min()), float(m.phi_o.max())],
+        "reflection_rows": int((~trans).sum()),
+        "transmission_rows": int(trans.sum()),
+        "value_range": [float(m.value.min()), float(m.value.max())],
+        "sigma": "given" if m.sigma is not None else "not given",
+        "eta_inside_over_outside": m.eta(),
+        "metadata": m.metadata,
+        "sha256": m.sha256,
+    }
+
+
+def _format():
+    from fitlab.io.formats import Format
+
+    return Format("csv", "fitlab measurement CSV", _detect, lambda p, **kw: read_measurement(p),
+                  describe_measurement, "data_formats/measurement_csv.md")
+
+
+FORMAT = _format()

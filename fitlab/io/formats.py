@@ -1,0 +1,85 @@
+"""Registry of the file formats fitlab reads: detection from content, reading to a
+Measurement, and a description for ``fitlab info``.
+
+Each reader module defines ``FORMAT = Format(...)``; ``READER_MODULES`` lists them in detection
+order (the most specific signatures first, fitlab's own CSV last).
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+from fitlab.errors import InputFileError
+
+#: Bytes read from the start of a file for detection.
+HEAD_BYTES = 4096
+
+
+class Format(NamedTuple):
+    name: str
+    description: str
+    #: detect(head: bytes, path: Path) -> bool, from the first HEAD_BYTES bytes
+    detect: Callable
+    #: read(path, **options) -> Measurement
+    read: Callable
+    #: describe(path) -> dict of what the file holds (format, angles, channels, units, checks)
+    describe: Callable
+    spec: str  # the data_formats/ document
+
+
+READER_MODULES = (
+    "fitlab.io.measurement",
+)
+
+
+def formats() -> dict[str, Format]:
+    out = {}
+    for mod in READER_MODULES:
+        fmt = importlib.import_module(mod).FORMAT
+        out[fmt.name] = fmt
+    return out
+
+
+def _head(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(HEAD_BYTES)
+    except FileNotFoundError:
+        raise InputFileError(path, "no such file", hint="check the path") from None
+    except IsADirectoryError:
+        raise InputFileError(path, "is a folder, not a file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
+
+
+def detect_format(path, name: str | None = None) -> Format:
+    """The format of ``path``: ``name`` if given (checked against the registry), else detected."""
+    path = Path(path)
+    known = formats()
+    if name is not None:
+        if name not in known:
+            raise InputFileError(path, f"unknown format {name!r}",
+                                 hint=f"formats: {', '.join(known)}")
+        _head(path)
+        return known[name]
+    head = _head(path)
+    for fmt in known.values():
+        if fmt.detect(head, path):
+            return fmt
+    raise InputFileError(
+        path, "is in no format fitlab recognizes",
+        hint=f"formats: {', '.join(known)}; see data_formats/ (or force one with --format)",
+    )
+
+
+def read_any(path, format: str | None = None, **options):
+    """Read any supported file to a Measurement (format detected from content unless given)."""
+    return detect_format(path, format).read(path, **options)
+
+
+def describe_any(path, format: str | None = None) -> dict:
+    fmt = detect_format(path, format)
+    return {"format": fmt.name, "format_description": fmt.description, "spec": fmt.spec,
+            **fmt.describe(path)}
