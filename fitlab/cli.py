@@ -82,6 +82,10 @@ def cmd_models(args):
                           "models": [_model_record(m) for m in models]}, indent=2))
         return 0
     print(f"Conventions: {CONVENTIONS}\n")
+    if not args.name:
+        print("Models add up with '+': e.g. lambertian+rough_conductor is f_lambertian + "
+              "f_rough_conductor (`fitlab models lambertian+rough_conductor` lists its "
+              "parameters).\n")
     for m in models:
         print(f"{m.name}: {m.summary}  [{m.lobes}]")
         for p in m.parameters:
