@@ -30,6 +30,9 @@ class Format(NamedTuple):
 
 
 READER_MODULES = (
+    "fitlab.io.merl",
+    "fitlab.io.klems",
+    "fitlab.io.pgii",
     "fitlab.io.measurement",
 )
 
