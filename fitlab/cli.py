@@ -103,10 +103,8 @@ def cmd_models(args):
 # --------------------------------------------------------------------------------------------
 
 
-def cmd_eval(args):
-    from fitlab.io.directions import read_directions
-    from fitlab.io.values_csv import format_values_csv
-
+def _model_from_cli(args):
+    """(model, params, options) from --model/model, --param and --option."""
     try:
         model = fitlab.get_model(args.model)
     except ValueError as exc:
@@ -116,6 +114,14 @@ def cmd_eval(args):
         options = fitlab.api.resolve_options(model, _parse_assignments(args.option, "option"))
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
+    return model, params, options
+
+
+def cmd_eval(args):
+    from fitlab.io.directions import read_directions
+    from fitlab.io.values_csv import format_values_csv
+
+    model, params, options = _model_from_cli(args)
     pairs = read_directions(args.directions)
     wi, wo = pairs.cartesian()
     dtype = np.float32 if args.dtype == "float32" else np.float64
@@ -305,15 +311,58 @@ def cmd_info(args):
     return 0
 
 
+_ZEMAX_ONLY = ("model", "param", "option", "grid", "aoi", "azimuth", "radial", "scatter", "channel")
+
+
 def cmd_convert(args):
+    from fitlab.io import zemax
+
+    if args.model:
+        if len(args.paths) != 1:
+            raise FitlabError("with --model give only the output file: fitlab convert --model "
+                              "NAME --param NAME=VALUE ... OUT.bsdf")
+        source, output = None, args.paths[0]
+    elif len(args.paths) != 2:
+        raise FitlabError("give INPUT OUTPUT (or --model NAME --param ... OUT.bsdf)")
+    else:
+        source, output = args.paths
+    to = args.to or ("zemax" if output.lower().endswith(".bsdf") else "csv")
+    if to == "csv":
+        given = [f"--{k}" for k in _ZEMAX_ONLY if getattr(args, k)]
+        if given or _is_fit_json(source):
+            raise FitlabError(f"{' '.join(given) or source}: applies to Zemax output only; "
+                              "name the output *.bsdf (or give --to zemax)")
+        return _convert_to_csv(source, output, args.format)
+    grid = dict(grid=args.grid or "standard", aoi=args.aoi, azimuth=args.azimuth,
+                radial=args.radial, scatter=args.scatter or "BRDF")
+    if args.model:
+        model, params, options = _model_from_cli(args)
+        summary = zemax.write_zemax(output, model.name, params, options, **grid)
+    elif _is_fit_json(source):
+        summary = zemax.write_zemax_from_fit(output, source, channel=args.channel, **grid)
+    else:
+        raise FitlabError(f"{source}: only a parameter file (fit JSON) or --model NAME can be "
+                          "written as a Zemax .bsdf; measured data would need resampling onto "
+                          "its grid (fit a model, then convert the fit)")
+    g = summary["grid"]
+    print(f"wrote {output}: Zemax {summary['scatter']} of {summary['model']} "
+          f"({summary['symmetry']}, {'/'.join(summary['channels'])}), {g['aoi']} AOI x "
+          f"{g['azimuth']} azimuth x {g['radial']} radial angles; TIS "
+          f"{summary['tis_range'][0]:.4g} .. {summary['tis_range'][1]:.4g}", file=sys.stderr)
+    for note in summary.get("notes", []):
+        print(f"note: {note}", file=sys.stderr)
+    return 0
+
+
+def _convert_to_csv(source, output, format_name):
     from fitlab.io.atomic import atomic_write_text
     from fitlab.io.formats import read_any
     from fitlab.io.measurement import format_measurement_csv
 
-    m = read_any(args.input, args.format)
-    text = format_measurement_csv(m, {"converted_from": f"{args.input} ({m.file_quantity})"})
-    atomic_write_text(args.output, text)
-    print(f"wrote {m.n} rows ({', '.join(m.channel_names)}) to {args.output}", file=sys.stderr)
+    m = read_any(source, format_name)
+    text = format_measurement_csv(m, {"converted_from": f"{source} ({m.file_quantity})"})
+    atomic_write_text(output, text)
+    print(f"wrote {m.n} rows ({', '.join(m.channel_names)}) to {output}", file=sys.stderr)
     return 0
 
 
@@ -400,12 +449,46 @@ def build_parser():
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("convert", help="convert a supported data file to fitlab's measurement CSV",
-                       description="Read any supported measurement format and write it as a fitlab "
-                       "measurement CSV (data_formats/measurement_csv.md), atomically.")
-    p.add_argument("input")
-    p.add_argument("output")
+    p = sub.add_parser(
+        "convert", help="convert data to measurement CSV; tabulate a fit or model as Zemax .bsdf",
+        description="Three forms, each writing atomically (nothing is left on failure). "
+        "(1) INPUT OUTPUT.csv: read any supported measurement format (e.g. a Zemax .bsdf) and "
+        "write a fitlab measurement CSV (data_formats/measurement_csv.md). "
+        "(2) FIT.json OUTPUT.bsdf: tabulate a fitted model (parameter file) as a Zemax / "
+        "Radiant IS-BSDF text file (data_formats/zemax_bsdf.md); channels X, Y, Z become "
+        "tristimulus data, other multi-channel fits need --channel; a relative fit's 'scale' is "
+        "not applied (the file holds the absolute model f). "
+        "(3) --model NAME --param NAME=VALUE ... OUTPUT.bsdf: the same for any registry model. "
+        "The Zemax grid is --grid standard (light at 0..80 deg in 5 deg steps, azimuth 0..180 "
+        "in 10 deg steps, plane-symmetric, radial 0..180 deg, fine near the specular ray) or "
+        "the angles of an existing .bsdf file, with --aoi/--azimuth/--radial replacing lists. "
+        "The output type follows the suffix (.bsdf = Zemax) unless --to is given.",
+        epilog="examples: fitlab convert data_formats/examples/zemax_brown_vinyl.bsdf vinyl.csv; "
+        "fitlab convert fits/vinyl.json vinyl_fit.bsdf --grid data_formats/examples/"
+        "zemax_brown_vinyl.bsdf; fitlab convert --model rough_dielectric --param alpha=0.3 "
+        "--param eta=1.5 --scatter BTDF --aoi 0:40:5 glass_btdf.bsdf",
+    )
+    p.add_argument("paths", nargs="+", metavar="FILE",
+                   help="INPUT OUTPUT, or only OUTPUT with --model")
     p.add_argument("--format", help="input format (default: detected from the content)")
+    p.add_argument("--to", choices=("csv", "zemax"),
+                   help="output type (default: zemax for *.bsdf, else csv)")
+    p.add_argument("--model", help="tabulate this registry model (see `fitlab models`)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="a parameter of --model; give every parameter")
+    p.add_argument("--option", action="append", metavar="NAME=VALUE",
+                   help="an option of --model, e.g. distribution=beckmann")
+    p.add_argument("--scatter", type=str.upper, choices=("BRDF", "BTDF"),
+                   help="Zemax ScatterType (default BRDF); for BTDF the angles are about the "
+                   "refracted ray and --aoi lists refraction angles")
+    p.add_argument("--grid", metavar="standard|FILE.bsdf",
+                   help="'standard' (default) or a Zemax file whose angles to reuse")
+    p.add_argument("--aoi", metavar="ANGLES", help="AngleOfIncidence list in degrees, "
+                   "'0,15,30' or START:STOP:STEP (e.g. 0:80:5)")
+    p.add_argument("--azimuth", metavar="ANGLES", help="ScatterAzimuth list; all within "
+                   "0..180 writes PlaneSymmetrical data, beyond 180 Asymmetrical")
+    p.add_argument("--radial", metavar="ANGLES", help="ScatterRadial list, 0..180")
+    p.add_argument("--channel", help="the channel of a multi-channel fit to write")
     p.set_defaults(func=cmd_convert)
     return parser
 

@@ -33,6 +33,16 @@ def degrees_to_direction(theta_deg, phi_deg) -> np.ndarray:
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
+def direction_to_degrees(w) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`degrees_to_direction`: θ in [0°, 180°] and φ in [0°, 360°) of unit
+    vectors (..., 3); φ is 0 on the z axis."""
+    w = np.asarray(w, dtype=np.float64)
+    theta = np.degrees(np.arccos(np.clip(w[..., 2], -1.0, 1.0)))
+    phi = np.mod(np.degrees(np.arctan2(w[..., 1], w[..., 0])), 360.0)
+    on_axis = np.hypot(w[..., 0], w[..., 1]) < 1e-12
+    return theta, np.where(on_axis | (phi >= 360.0), 0.0, phi)
+
+
 def check_angles(table, theta_cols=("theta_i", "theta_o"), phi_cols=("phi_i", "phi_o")):
     """θ in [0°, 180°], φ in [-360°, 360°]; errors name the first offending line."""
     for name in theta_cols:

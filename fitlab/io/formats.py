@@ -33,6 +33,7 @@ READER_MODULES = (
     "fitlab.io.merl",
     "fitlab.io.klems",
     "fitlab.io.pgii",
+    "fitlab.io.zemax",
     "fitlab.io.measurement",
 )
 
