@@ -34,6 +34,7 @@ READER_MODULES = (
     "fitlab.io.klems",
     "fitlab.io.pgii",
     "fitlab.io.zemax",
+    "fitlab.io.rgl",
     "fitlab.io.measurement",
 )
 
