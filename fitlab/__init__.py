@@ -11,6 +11,11 @@ import jax as _jax
 
 # fitlab fits in float64; float32 inputs still evaluate in float32 (see data_formats/CONVENTIONS.md).
 _jax.config.update("jax_enable_x64", True)
+# Run CPU computations on the calling thread: fitlab's fits make thousands of small calls whose
+# results are needed at once, and the hand-off to a worker thread cost more than the work
+# (about 50 us a call on a 2-core VM). Large evaluations still use every core. Takes effect only
+# if fitlab is imported before JAX's CPU backend starts.
+_jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
 from fitlab.models import MODELS, get_model  # noqa: E402

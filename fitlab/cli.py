@@ -189,6 +189,9 @@ def _print_summary(record):
 def cmd_fit(args):
     import time
 
+    from fitlab.fit.cache import enable_compilation_cache
+
+    enable_compilation_cache()  # before any computation; FITLAB_NO_CACHE=1 turns it off
     from fitlab.export.paramfile import build_record, chains_payload, write_fit
     from fitlab.fit.driver import fit_measurement
     from fitlab.fit.subset import subset_mask

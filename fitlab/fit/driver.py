@@ -10,14 +10,13 @@ from __future__ import annotations
 import sys
 import time
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from fitlab.api import check_params, resolve_options
 from fitlab.fit.least_squares import FitData, fit_least_squares
 from fitlab.fit.losses import loss_weights
-from fitlab.fit.mcmc import run_mcmc
-from fitlab.fit.space import SCALE, make_space
+from fitlab.fit.space import SCALE, make_space, model_values
 from fitlab.models import get_model
 
 #: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
@@ -30,9 +29,12 @@ def _log(quiet, msg):
         print(msg, file=sys.stderr, flush=True)
 
 
-def _scale_reference(model, options, start, m, rows):
-    f = np.asarray(model.eval({k: jnp.asarray(v) for k, v in start.items()},
-                              jnp.asarray(m.wi[rows]), jnp.asarray(m.wo[rows]), **options))
+def _scale_reference(model, options, start, m, rows, in_chan):
+    """Least-squares scale of the model at ``start`` to the fitted rows' values. The model is
+    evaluated on every row of the channel (the shape the final prediction uses too, so both are
+    one compiled kernel)."""
+    f = model_values(model.name, tuple(sorted(options.items())), start, m.wi[in_chan],
+                     m.wo[in_chan])[rows[in_chan]]
     v = m.value[rows]
     den = float(f @ f)
     s = float(v @ f) / den if den > 0 else 0.0
@@ -82,10 +84,9 @@ def statistics(m, rows_fit, pred, ls, data_sigma, loss):
     return stats
 
 
-def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
-                    subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
-                    n_starts=8, quiet=False, channels=None):
-    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md)."""
+def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None):
+    """The model, its options, the fixed parameters (eta from the data file unless freed), notes
+    for the user, the loss and the start point: everything channels share."""
     model = get_model(model_name)
     options = resolve_options(model, options)
     fixed = dict(fixed or {})
@@ -102,8 +103,52 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                              f"(its parameters: {', '.join(model.parameter_names)})")
     check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
     loss = loss or ("chi2" if m.sigma is not None else "relative")
-    rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
     start = {p.name: fixed.get(p.name, p.default) for p in model.parameters}
+    return model, options, fixed, notes, loss, start
+
+
+def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan):
+    """The fit space, the data of the fitted ``rows`` (within the channel's rows ``in_chan``) and
+    the extra start (native units)."""
+    scale_bounds = None
+    if m.is_relative:
+        s_ref = _scale_reference(model, options, start, m, rows, in_chan)
+        scale_bounds = (s_ref * 1e-4, s_ref * 1e4)
+    space = make_space(model, options, fixed, m.is_relative, scale_bounds)
+    if rows.sum() <= space.ndim:
+        raise ValueError(f"channel {name}: {int(rows.sum())} rows cannot constrain "
+                         f"{space.ndim} free parameters ({', '.join(space.names)})")
+    sigma = None if m.sigma is None else m.sigma[rows]
+    consts = loss_weights(loss, m.value[rows], sigma, m.wo[rows, 2])
+    data = jax.device_put(FitData(np.asarray(m.wi[rows], float), np.asarray(m.wo[rows], float),
+                                  np.asarray(m.value[rows], float),
+                                  {k: np.asarray(v, float) for k, v in consts.items()}))
+    start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
+                    for p in space.free]
+    return space, data, start_native
+
+
+def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None, free=(),
+                    loss=None):
+    """What ``fit_measurement`` hands the least-squares stage for one channel (benchmarks and
+    tests use it to reproduce a fit exactly): a dict with space, data, loss, start_native."""
+    model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
+                                                            fixed=fixed, free=free, loss=loss)
+    in_chan = m.channel == channel
+    rows = np.asarray(rows, dtype=bool) & in_chan
+    space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
+                                                m.channel_names[channel], in_chan)
+    return {"space": space, "data": data, "loss": loss, "start_native": start_native,
+            "fixed": fixed, "options": options, "notes": notes}
+
+
+def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
+                    subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
+                    n_starts=8, quiet=False, channels=None):
+    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md)."""
+    model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
+                                                            fixed=fixed, free=free, loss=loss)
+    rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
     chan_ids = range(len(m.channel_names)) if channels is None else channels
     results = []
     for c in chan_ids:
@@ -113,22 +158,10 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         if rows.sum() == 0:
             continue
         t0 = time.perf_counter()
-        scale_bounds = None
-        if m.is_relative:
-            s_ref = _scale_reference(model, options, start, m, rows)
-            scale_bounds = (s_ref * 1e-4, s_ref * 1e4)
-        space = make_space(model, options, fixed, m.is_relative, scale_bounds)
-        if rows.sum() <= space.ndim:
-            raise ValueError(f"channel {name}: {int(rows.sum())} rows cannot constrain "
-                             f"{space.ndim} free parameters ({', '.join(space.names)})")
-        sigma = None if m.sigma is None else m.sigma[rows]
-        consts = loss_weights(loss, m.value[rows], sigma, m.wo[rows, 2])
-        data = FitData(jnp.asarray(m.wi[rows]), jnp.asarray(m.wo[rows]),
-                       jnp.asarray(m.value[rows]), {k: jnp.asarray(v) for k, v in consts.items()})
+        space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
+                                                    name, in_chan)
         _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
-        start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
-                        for p in space.free]
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
                                seed=seed)
         t_ls = time.perf_counter() - t0
@@ -142,14 +175,15 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             + f"  ({t_ls:.2f} s)")
         chain = None
         if mcmc:
+            from fitlab.fit.mcmc import run_mcmc  # emcee (and SciPy) load only when sampling
+
             _log(quiet, f"  MCMC: {mcmc_steps} steps")
             chain = run_mcmc(space, data, loss, ls, seed=seed, nsteps=mcmc_steps,
                              nwalkers=mcmc_walkers, progress=not quiet)
             for w in chain.warnings:
                 _log(quiet, f"WARNING: {w}")
         # Predictions for every row of this channel (fitted or not).
-        full = np.asarray(space.predict(jnp.asarray(ls.native), jnp.asarray(m.wi[in_chan]),
-                                        jnp.asarray(m.wo[in_chan])))
+        full = space.predict(ls.native, m.wi[in_chan], m.wo[in_chan])
         sub = m.select(in_chan)
         stats = statistics(sub, rows_fit[in_chan], full, ls,
                            None if m.sigma is None else m.sigma[in_chan], loss)

@@ -1,24 +1,35 @@
-"""Least squares: jaxopt Levenberg–Marquardt on jitted residuals, global starts with nlopt,
+"""Least squares: Levenberg–Marquardt on jitted residuals, global starts with nlopt,
 covariance from the Jacobian at the optimum.
 
-The compiled kernels (residuals, cost and gradient, the vmapped LM) are cached by the fit's
+Three compiled kernels per fit structure: the cost, and the cost with its gradient (for the
+global search), and the local stage (Levenberg–Marquardt from every start at once, batched,
+then each end's cost, residuals and Jacobian in native units). They are cached by the fit's
 static structure (model, options, free names, transforms, loss): data, bounds and fixed values
-are arguments, so refitting new data of the same size reuses the compilation.
+are arguments, so refitting new data of the same size reuses the compilation (and ``fitlab
+fit`` keeps it on disk, see fitlab.fit.cache).
 """
 
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxopt
 import nlopt
 import numpy as np
 
 from fitlab.fit.losses import has_absolute_noise, residuals
 from fitlab.fit.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
+
+#: Levenberg–Marquardt settings: step limit, tolerances (see ``levenberg_marquardt``), and
+#: the initial damping relative to the largest diagonal element of JᵀJ.
+LM_MAXITER = 200
+LM_XTOL = 1e-10
+LM_GTOL = 1e-10
+LM_DAMPING = 1e-6
+_LM_FACTOR_MAX = 2.0**32
 
 #: Two optima count as "equally good" when their costs differ by less than this fraction ...
 EQUAL_COST_RTOL = 0.01
@@ -51,8 +62,8 @@ class LeastSquaresResult(NamedTuple):
 
 
 def problem_of(space: FitSpace, data: FitData) -> dict:
-    """The array arguments of every kernel."""
-    return {**space.arrays(), "data": data}
+    """The array arguments of every kernel, on the device once (not copied at every call)."""
+    return {**jax.device_put(space.arrays()), "data": jax.device_put(data)}
 
 
 def residuals_native(static: StaticSpace, loss: str, theta, problem):
@@ -71,31 +82,124 @@ def cost_unit(static, loss, u, problem):
     return 0.5 * jnp.sum(r * r)
 
 
+def levenberg_marquardt(r_and_jac, z0, n_residuals, maxiter=LM_MAXITER, xtol=LM_XTOL,
+                        gtol=LM_GTOL):
+    """Levenberg–Marquardt from each row of ``z0`` (starts, ndim), all in one XLA while loop;
+    ``r_and_jac(z)`` maps (starts, ndim) to the residuals (starts, n_residuals) and their
+    Jacobians (starts, n_residuals, ndim). Returns (z, number of steps), one per start.
+
+    Madsen & Nielsen's method ("Introduction to Optimization and Data Fitting", 2010, sec. 6.2,
+    eqs 6.16-6.18): initial damping μ = 1e-6 max diag(JᵀJ); the step h solves
+    (JᵀJ + μI) h = -Jᵀr (Cholesky); it is taken when the gain ratio ρ (actual over predicted
+    decrease of ½|r|²) is positive, then μ ← μ max(1/3, 1 - (2ρ - 1)³), ν ← 2, else μ ← μν,
+    ν ← 2ν. The first step is always tried; after it a start stops when |Jᵀr|∞ ≤ gtol or
+    |h|₂ ≤ xtol (|z|₂ - xtol) for the last step tried, or after ``maxiter`` steps; the loop runs
+    until every start has stopped (a stopped start no longer changes). These are the update and
+    stopping rules of jaxopt.LevenbergMarquardt (Cholesky, materialized Jacobian,
+    "madsen-nielsen" criterion) vmapped over the starts, which fitlab used before. Here each
+    loop iteration evaluates the residuals and Jacobian once, together (the first iteration at
+    z0), instead of three times, and the batch is explicit rather than a vmapped while loop: the
+    kernel holds the model once, so it traces and compiles several times faster, and runs
+    several times faster on CPU.
+    """
+    S, d = z0.shape
+    dtype = z0.dtype
+    eye = jnp.eye(d, dtype=dtype)
+
+    def col(mask, a):  # broadcast a per-start mask against a per-start array
+        return mask.reshape(mask.shape + (1,) * (a.ndim - 1))
+
+    def point_at(z):
+        r, J = r_and_jac(z)
+        return (z, r, jnp.einsum("snd,sne->sde", J, J), jnp.einsum("snd,sn->sd", J, r),
+                0.5 * jnp.einsum("sn,sn->s", r, r))
+
+    def going(state):
+        (z, _, _, g, _), _, _, h_tried, it, _, started = state
+        return ~started | (it == 0) | ((it < maxiter) & (jnp.max(jnp.abs(g), axis=1) > gtol)
+                                       & (jnp.linalg.norm(h_tried, axis=1)
+                                          > xtol * (jnp.linalg.norm(z, axis=1) - xtol)))
+
+    def body(state):
+        point, mu, nu, h_tried, it, h, started = state
+        active = going(state)
+        new = point_at(jnp.where(col(started, z0), point[0] + h, z0))
+        # A step from `point` (started): the gain-ratio test.
+        gain = (point[4] - new[4]) / (0.5 * jnp.einsum("sd,sd->s", h, mu[:, None] * h - point[3]))
+        ok = gain > 0.0
+        stepped = jax.tree.map(lambda a, b: jnp.where(col(ok, a), a, b), new, point)
+        mu_s = jnp.where(ok, mu * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3),
+                         jnp.minimum(mu * nu, _LM_FACTOR_MAX))
+        nu_s = jnp.where(ok, 2.0, jnp.minimum(2.0 * nu, _LM_FACTOR_MAX))
+        # The start point (not started): initial damping.
+        mu_0 = LM_DAMPING * jnp.max(jnp.diagonal(new[2], axis1=1, axis2=2), axis=1)
+        point = jax.tree.map(lambda a, b: jnp.where(col(started, a), a, b), stepped, new)
+        mu = jnp.where(started, mu_s, mu_0)
+        nu = jnp.where(started, nu_s, 2.0)
+        h_tried = jnp.where(col(started, h), h, 0.0)
+        it = jnp.where(started, it + 1, 0)
+        # The next step to try.
+        L = jnp.linalg.cholesky(point[2] + mu[:, None, None] * eye)
+        h = -jax.scipy.linalg.cho_solve((L, True), point[3][..., None])[..., 0]
+        new_state = (point, mu, nu, h_tried, it, h, jnp.ones_like(started))
+        return jax.tree.map(lambda a, b: jnp.where(col(active, a), a, b), new_state, state)
+
+    zeros = functools.partial(jnp.zeros, dtype=dtype)
+    state = ((z0, zeros((S, n_residuals)), zeros((S, d, d)), zeros((S, d)), zeros((S,))),
+             zeros((S,)), zeros((S,)), zeros((S, d)), jnp.zeros((S,), jnp.int32), zeros((S, d)),
+             jnp.zeros((S,), bool))
+    state = jax.lax.while_loop(lambda st: jnp.any(going(st)), body, state)
+    return state[0][0], state[4]
+
+
+def _value_and_jacobian(f):
+    """x -> (f(x), ∂f/∂x) in one forward-mode pass."""
+
+    def both(x, *args):
+        def f2(y):
+            v = f(y, *args)
+            return v, v
+
+        J, v = jax.jacfwd(f2, has_aux=True)(x)
+        return v, J
+
+    return both
+
+
 @functools.lru_cache(maxsize=64)
-def kernels(static: StaticSpace, loss: str, maxiter: int = 200):
-    """Jitted kernels for one static structure: cost + gradient, batched LM, batched cost,
-    residuals and their Jacobian in native units."""
+def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
+    """Jitted kernels for one static structure: ``value`` and ``value_and_grad`` (the cost, and
+    the cost and its gradient as one array [cost, gradient...], in the unit box, for the global
+    search) and ``local`` (LM from a batch of starts, then each end's cost, residuals and
+    Jacobian in native units)."""
 
     def r_z(z, problem):
         return residuals_unit(static, loss, unit_from_z(z), problem)
 
-    solver = jaxopt.LevenbergMarquardt(residual_fun=r_z, maxiter=maxiter,
-                                       stop_criterion="madsen-nielsen", xtol=1e-10, gtol=1e-10,
-                                       solver="cholesky", materialize_jac=True,
-                                       implicit_diff=False, jit=True)
+    r_and_jac_z = jax.vmap(_value_and_jacobian(r_z), in_axes=(0, None))
+    r_and_jac_native = jax.vmap(_value_and_jacobian(functools.partial(residuals_native, static,
+                                                                      loss)), in_axes=(0, None))
 
-    def lm_one(z0, problem):
-        sol = solver.run(z0, problem)
-        return sol.params, sol.state.iter_num
+    def local(Z0, U0, problem):
+        Z, iters = levenberg_marquardt(lambda z: r_and_jac_z(z, problem), Z0,
+                                       problem["data"].value.shape[0], maxiter=maxiter)
+        U = unit_from_z(Z)
+        native = to_native(static, U, problem["lo"], problem["hi"])
+        R, J = r_and_jac_native(native, problem)
+        return {"z": Z, "iters": iters, "u": U, "native": native,
+                "cost": 0.5 * jnp.einsum("sn,sn->s", R, R), "residuals": R, "jacobian": J,
+                "start_native": to_native(static, U0, problem["lo"], problem["hi"])}
 
     cost = functools.partial(cost_unit, static, loss)
-    r_nat = functools.partial(residuals_native, static, loss)
+
+    def value_and_grad(u, problem):
+        v, g = jax.value_and_grad(cost)(u, problem)
+        return jnp.concatenate([v[None], g])
+
     return {
-        "value_and_grad": jax.jit(jax.value_and_grad(cost)),
-        "lm": jax.jit(jax.vmap(lm_one, in_axes=(0, None))),
-        "cost_batch": jax.jit(jax.vmap(cost, in_axes=(0, None))),
-        "residuals": jax.jit(r_nat),
-        "jacobian": jax.jit(jax.jacfwd(r_nat)),
+        "value": jax.jit(cost),
+        "value_and_grad": jax.jit(value_and_grad),
+        "local": jax.jit(local),
     }
 
 
@@ -114,17 +218,26 @@ def halton(n, d, skip=1):
     return out
 
 
-def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int):
+def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=None):
     """nlopt multi-level single linkage over a low-discrepancy sequence (G_MLSL_LDS) with
-    gradient-based local searches (LD_LBFGS), over the unit box of the bounds."""
+    gradient-based local searches (LD_LBFGS), over the unit box of the bounds.
+    ``value_and_grad(u, problem)`` returns one array, [cost, gradient...] (one transfer);
+    ``value(u, problem)``, if given, the cost alone, for the points where nlopt needs no
+    gradient (most of the low-discrepancy samples)."""
     evals = [0]
+    best = {"u": np.full(ndim, 0.5), "v": np.inf}
 
     def objective(u, grad):
         evals[0] += 1
-        v, g = value_and_grad(jnp.asarray(u), problem)
-        if grad.size:
-            grad[:] = np.nan_to_num(np.asarray(g), nan=0.0, posinf=0.0, neginf=0.0)
-        v = float(v)
+        if grad.size or value is None:
+            vg = np.asarray(value_and_grad(u, problem))
+            if grad.size:
+                grad[:] = np.nan_to_num(vg[1:], nan=0.0, posinf=0.0, neginf=0.0)
+            v = float(vg[0])
+        else:
+            v = float(np.asarray(value(u, problem)))
+        if np.isfinite(v) and v < best["v"]:
+            best["u"], best["v"] = np.array(u, dtype=float), v
         return v if np.isfinite(v) else 1e300
 
     nlopt.srand(int(seed))
@@ -139,13 +252,33 @@ def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int):
     opt.set_maxeval(int(maxeval))
     x0 = np.full(ndim, 0.5)
     try:
-        u_best = opt.optimize(x0)
-        status = opt.last_optimize_result()
-    except (nlopt.RoundoffLimited, RuntimeError) as exc:  # keep the start point
-        u_best, status = np.asarray(x0), f"stopped: {exc}"
-    return np.clip(u_best, 0, 1), {"algorithm": "nlopt G_MLSL_LDS + LD_LBFGS",
-                                   "evaluations": evals[0], "status": str(status),
-                                   "best_cost": float(opt.last_optimum_value())}
+        opt.optimize(x0)
+        status = str(opt.last_optimize_result())
+    except Exception as exc:  # nlopt stops a local search it cannot continue (roundoff, a
+        # failed line search); the best point evaluated so far is still a valid start.
+        status = f"stopped early ({type(exc).__name__}: {exc}); best evaluated point kept"
+    return np.clip(best["u"], 0, 1), {"algorithm": "nlopt G_MLSL_LDS + LD_LBFGS",
+                                      "evaluations": evals[0], "status": status,
+                                      "best_cost": best["v"] if np.isfinite(best["v"]) else None}
+
+
+#: (static, loss, starts, rows) of the local stages compiled in this process.
+_compiled_local = set()
+
+
+def _compile_local(k, problem, n_local, d):
+    """Compile (and run once, on placeholder starts) the local stage for this shape."""
+    jax.block_until_ready(k["local"](np.zeros((n_local, d)), np.full((n_local, d), 0.5), problem))
+
+
+def local_fits(k, problem, starts_u):
+    """Levenberg–Marquardt from each start (unit-box points) in one batched call; per start (as
+    NumPy arrays): z (logit coordinates), iters, u, native, cost, residuals, jacobian (native
+    units), start_native."""
+    U0 = np.stack([np.asarray(u0, dtype=float) for u0 in starts_u])
+    Z0 = np.stack([z_from_unit(u0) for u0 in U0])
+    out = k["local"](Z0, U0, problem)
+    return {key: np.asarray(v) for key, v in out.items()}
 
 
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
@@ -155,33 +288,42 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     k = kernels(space.static, loss)
     problem = problem_of(space, data)
     d = space.ndim
-    u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed,
-                                      global_maxeval or 150 * (d + 1))
+    n_local = 1 + n_starts + (start_native is not None)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # The first fit of this shape in the process compiles the local stage meanwhile (XLA
+        # compiles outside the GIL, so with two cores the two compilations overlap).
+        key = (space.static, loss, n_local, int(data.value.shape[0]))
+        warm = None if key in _compiled_local else pool.submit(
+            _compile_local, k, problem, n_local, d)
+        u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed,
+                                          global_maxeval or 150 * (d + 1), value=k["value"])
+        if warm is not None:
+            warm.result()
+            _compiled_local.add(key)
     starts_u = [u_glob] + list(halton(n_starts, d))
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
-    # jaxopt's LM multiplies bool masks with floats; allow that even under strict promotion.
-    with jax.numpy_dtype_promotion("standard"):
-        Z, iters = k["lm"](jnp.asarray(np.stack([z_from_unit(u0) for u0 in starts_u])), problem)
-    U = np.asarray(unit_from_z(Z))
-    costs = np.asarray(k["cost_batch"](jnp.asarray(U), problem))
-    runs = [{"u0": np.asarray(u0), "u": u, "cost": float(c) if np.isfinite(c) else np.inf,
-             "iters": int(it)} for u0, u, c, it in zip(starts_u, U, costs, np.asarray(iters))]
+    loc = local_fits(k, problem, starts_u)
+    runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
+             "cost": float(loc["cost"][i]) if np.isfinite(loc["cost"][i]) else np.inf,
+             "iters": int(loc["iters"][i]), "index": i} for i, u0 in enumerate(starts_u)]
     best = min(runs, key=lambda r: r["cost"])
-    theta = np.asarray(space.to_native(best["u"]))
-    r = np.asarray(k["residuals"](jnp.asarray(theta), problem))
+    ib = best["index"]
+    theta = loc["native"][ib]
+    r = loc["residuals"][ib]
     cost = 0.5 * float(r @ r)
     dof = max(r.size - d, 1)
     noise = 1.0 if has_absolute_noise(loss) else float(np.sqrt(2 * cost / dof))
-    J = np.asarray(k["jacobian"](jnp.asarray(theta), problem))
+    J = loc["jacobian"][ib]
     cov = noise**2 * np.linalg.pinv(J.T @ J)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
     at_bound = tuple(p.name for p, u in zip(space.free, best["u"]) if u < 1e-6 or u > 1 - 1e-6)
 
-    def named(u):
-        return {n: float(v) for n, v in zip(space.names, np.asarray(space.to_native(u)))}
+    def named(native):
+        return {n: float(v) for n, v in zip(space.names, native)}
 
-    starts = [{"start": named(rr["u0"]), "end": named(rr["u"]), "cost": rr["cost"],
+    starts = [{"start": named(loc["start_native"][rr["index"]]),
+               "end": named(loc["native"][rr["index"]]), "cost": rr["cost"],
                "lm_iterations": rr["iters"]} for rr in runs]
     equal = [rr for rr in runs if rr["cost"] <= best["cost"] * (1 + EQUAL_COST_RTOL) + 1e-300]
     distinct = [rr for rr in equal if np.max(np.abs(rr["u"] - best["u"])) > DISTINCT_UNIT]
@@ -192,7 +334,7 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
             "message": f"{len(distinct)} of {len(runs)} starts reached fits as good as the best "
                        "(cost within 1%) at different parameters: the data do not pin the "
                        "parameters down uniquely",
-            "optima": [named(rr["u"]) for rr in distinct],
+            "optima": [named(loc["native"][rr["index"]]) for rr in distinct],
         }
     glob_info = dict(glob_info, lm_starts=len(runs), local_minima_worse=len(worse))
     return LeastSquaresResult(theta, cost, r, cov, stderr, noise, dof, at_bound,

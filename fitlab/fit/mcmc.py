@@ -69,10 +69,12 @@ def log_posterior_fn(static: StaticSpace, loss: str):
     return jax.jit(jax.vmap(one, in_axes=(0, None))), nuisance
 
 
-def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps: int = 3000,
-             nwalkers: int | None = None, progress: bool = True) -> MCMCResult:
-    """Start walkers in a small ball around the least-squares optimum and run emcee."""
-    t0 = time.perf_counter()
+def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
+               nwalkers: int | None = None) -> dict:
+    """What ``run_mcmc`` hands emcee: the vectorized ``log_prob`` (walker positions (n, ndim) →
+    log-posteriors (n,)), the start positions ``p0`` (nwalkers, ndim), the coordinate ``names``
+    and whether a noise scale is sampled (``nuisance``). Walkers start in a small ball around
+    the least-squares optimum."""
     logp, nuisance = log_posterior_fn(space.static, loss)
     problem = problem_of(space, data)
     names = space.names + (("log_noise",) if nuisance else ())
@@ -91,9 +93,27 @@ def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps
         log_s = np.log(max(ls.noise_scale, 1e-300))
         p0 = np.column_stack([p0, log_s + 0.01 * rng.standard_normal(nwalkers)])
 
-    def log_prob(x):
-        return np.asarray(logp(jnp.asarray(x), problem), dtype=np.float64)
+    chunk = (nwalkers + 1) // 2  # emcee asks for half the ensemble at a time (all at the start)
 
+    def log_prob(x):  # the walkers of one half-step in one call, always `chunk` rows (one compile)
+        n = x.shape[0]
+        pad = -n % chunk
+        if pad:
+            x = np.concatenate([x, np.repeat(x[:1], pad, axis=0)])
+        out = np.concatenate([np.asarray(logp(x[i:i + chunk], problem), dtype=np.float64)
+                              for i in range(0, x.shape[0], chunk)])
+        return out[:n]
+
+    return {"log_prob": log_prob, "p0": p0, "names": names, "nuisance": nuisance}
+
+
+def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps: int = 3000,
+             nwalkers: int | None = None, progress: bool = True) -> MCMCResult:
+    """Start walkers in a small ball around the least-squares optimum and run emcee."""
+    t0 = time.perf_counter()
+    setup = mcmc_setup(space, data, loss, ls, seed=seed, nwalkers=nwalkers)
+    log_prob, p0, names = setup["log_prob"], setup["p0"], setup["names"]
+    nwalkers, ndim = p0.shape
     sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
     sampler.random_state = np.random.RandomState(seed).get_state()
     report_every = max(nsteps // 10, 1)
@@ -122,7 +142,7 @@ def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps
     burn = int(min(nsteps // 2, np.ceil(3 * tau_max))) if np.isfinite(tau_max) else nsteps // 2
     thin = max(1, int(tau_max // 2)) if np.isfinite(tau_max) else 1
     flat = sampler.get_chain(discard=burn, thin=thin, flat=True)
-    samples_native = np.asarray(space.to_native(jnp.asarray(flat[:, : space.ndim])))
+    samples_native = space.to_native(flat[:, : space.ndim])
     ess = float(nwalkers * (nsteps - burn) / tau_max) if np.isfinite(tau_max) else 0.0
     return MCMCResult(samples_native, chain, sampler.get_log_prob(), names, nwalkers, nsteps,
                       burn, thin, tau, acceptance, ess, trustworthy, warnings,

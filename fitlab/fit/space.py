@@ -14,6 +14,7 @@ one compilation serves every dataset and every bound of the same shape.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -76,8 +77,17 @@ class FitSpace(NamedTuple):
                 "fixed": {k: np.float64(v) for k, v in self.fixed.items()}}
 
     def to_native(self, u):
-        a = self.arrays()
-        return to_native(self.static, jnp.asarray(u), a["lo"], a["hi"])
+        """Unit-box coordinates (..., ndim) → native values, in NumPy (host side; the kernels use
+        the module-level ``to_native``)."""
+        u = np.asarray(u, dtype=float)
+        out = np.empty_like(u)
+        for k, p in enumerate(self.free):
+            if p.log:
+                out[..., k] = np.exp(np.log(p.lower) + (np.log(p.upper) - np.log(p.lower))
+                                     * u[..., k])
+            else:
+                out[..., k] = p.lower + (p.upper - p.lower) * u[..., k]
+        return out
 
     def to_unit(self, native):
         native = np.asarray(native, dtype=float)
@@ -91,7 +101,16 @@ class FitSpace(NamedTuple):
         return np.clip(out, 0.0, 1.0)
 
     def predict(self, native, wi, wo):
-        return predict(self.static, jnp.asarray(native), self.arrays()["fixed"], wi, wo)
+        """scale · f(wi, wo) at native parameter values, as a NumPy array (one jitted call)."""
+        params = dict(self.fixed)
+        scale = 1.0
+        for name, v in zip(self.names, np.asarray(native, dtype=float)):
+            if name == SCALE:
+                scale = float(v)
+            else:
+                params[name] = v
+        f = model_values(self.static.model_name, self.static.options, params, wi, wo)
+        return scale * f
 
 
 def to_native(static: StaticSpace, u, lo, hi):
@@ -115,6 +134,19 @@ def predict(static: StaticSpace, theta, fixed: dict, wi, wo):
             params[name] = theta[k]
     model = get_model(static.model_name)
     return scale * model.eval(params, wi, wo, **dict(static.options))
+
+
+@functools.lru_cache(maxsize=64)
+def model_kernel(model_name: str, options: tuple):
+    """The model's ``eval(params, wi, wo)`` jitted for one set of options (sorted pairs)."""
+    return jax.jit(functools.partial(get_model(model_name).eval, **dict(options)))
+
+
+def model_values(model_name: str, options: tuple, params: dict, wi, wo) -> np.ndarray:
+    """f(wi, wo) for parameter values ``params`` (name -> number), in float64, as NumPy."""
+    params = {k: np.float64(v) for k, v in params.items()}
+    return np.asarray(model_kernel(model_name, tuple(options))(params, np.asarray(wi, float),
+                                                                np.asarray(wo, float)))
 
 
 def make_space(model, options: dict, fixed: dict, relative: bool,
