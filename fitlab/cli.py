@@ -411,9 +411,11 @@ def build_parser():
     p = sub.add_parser(
         "fit", help="fit a model to measurements (least squares, global starts, optional MCMC)",
         description="Fit a registry model to a measurement file (data_formats/measurement_csv.md): "
-        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (jaxopt), covariance from "
-        "the Jacobian, optional posterior sampling with emcee. Writes a parameter file "
-        "(data_formats/fit_json.md).",
+        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (batched, in JAX), "
+        "covariance from the Jacobian, optional posterior sampling with emcee. Writes a parameter "
+        "file (data_formats/fit_json.md). Compiled kernels are kept on disk for later runs, in "
+        "$FITLAB_CACHE_DIR or else $XDG_CACHE_HOME/fitlab/xla or ~/.cache/fitlab/xla "
+        "(FITLAB_NO_CACHE=1: no cache).",
         epilog="example: fitlab fit data_formats/examples/walter_rough_glass.csv --model "
         "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_ground_glass.json",
     )
