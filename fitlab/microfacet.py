@@ -22,6 +22,11 @@ from fitlab.numerics import clamp_alpha, safe_div
 
 #: Beckmann-style a = 1 / (α tan θ) is capped here: G1 is 1 to machine precision beyond it.
 _A_MAX = 30.0
+#: Beckmann D is 0 beyond tan²θm/α² = _X_MAX: exp(-x)(1 + tan²θm)² underflows to 0 in float64
+#: there, and cutting it off keeps the gradient of tan²θm = sin²/cos² finite near the horizon.
+_X_MAX = 750.0
+#: Phong's tan²θm is capped here (cos^α_p of a steeper m is 0 unless α_p ≈ 0).
+_TAN2_MAX = 1e30
 _INV_SQRT_PI = 0.5641895835477563
 
 
@@ -37,25 +42,29 @@ def _sin2_cos2(m):
 
 
 def D_GGX(m, alpha):
-    """GGX distribution, Walter eq. 33: α² χ⁺(m·n) / (π cos⁴θm (α² + tan²θm)²)
-    = α² |m|⁴ / (π (α² m_z² + m_x² + m_y²)²)."""
+    """GGX distribution, Walter eq. 33: α² χ⁺(m·n) / (π cos⁴θm (α² + tan²θm)²) = α² / (π q²),
+    q = cos²θm (α² + tan²θm) = (m_x² + m_y² + α² m_z²) / |m|² in [min(α², 1), 1].
+
+    Written through the ratio q rather than α²|m|⁴ / (π (m_x² + m_y² + α² m_z²)²): for a short
+    unnormalized half-vector the |m|⁴ form under/overflows in float32 (NaN gradients)."""
     alpha = clamp_alpha(alpha)
     s2, c2 = _sin2_cos2(m)
     a2 = alpha * alpha
-    denom = a2 * c2 + s2
-    val = safe_div(a2 * (s2 + c2) ** 2, jnp.pi * denom * denom)
-    return jnp.where(m[..., 2] > 0, val, 0.0)
+    ok = m[..., 2] > 0
+    q = jnp.where(ok, (s2 + a2 * c2) / jnp.where(ok, s2 + c2, 1.0), 1.0)
+    return jnp.where(ok, a2 / (jnp.pi * q * q), 0.0)
 
 
 def D_Beckmann(m, alpha):
     """Beckmann distribution, Walter eq. 25: χ⁺(m·n) exp(-tan²θm / α²) / (π α² cos⁴θm)."""
     alpha = clamp_alpha(alpha)
     s2, c2 = _sin2_cos2(m)
-    ok = m[..., 2] > 0
-    c2s = jnp.where(ok, c2, 1.0)
-    tan2 = s2 / c2s
     a2 = alpha * alpha
-    val = jnp.exp(-tan2 / a2) * (s2 + c2s) ** 2 / (jnp.pi * a2 * c2s * c2s)
+    # 1/cos⁴θm = (1 + tan²θm)² (no |m|⁴ that under/overflows in float32); D = 0 beyond
+    # tan²θm/α² = _X_MAX (tested without a division) so the tan² gradient stays finite there.
+    ok = (m[..., 2] > 0) & (s2 < _X_MAX * a2 * c2)
+    tan2 = jnp.where(ok, s2, 0.0) / jnp.where(ok, c2, 1.0)
+    val = jnp.exp(-tan2 / a2) * (1.0 + tan2) ** 2 / (jnp.pi * a2)
     return jnp.where(ok, val, 0.0)
 
 
@@ -70,8 +79,12 @@ def D_Phong(m, alpha):
     ap = phong_exponent(alpha)
     s2, c2 = _sin2_cos2(m)
     ok = m[..., 2] > 0
-    cos2 = jnp.where(ok, c2 / (s2 + c2), 1.0)
-    val = (ap + 2.0) / (2.0 * jnp.pi) * jnp.exp(0.5 * ap * jnp.log(cos2))
+    # cos^α_p θm = (1 + tan²θm)^(-α_p/2) with tan² from the tangential components: log(cos²θm)
+    # of a cos² near 1 keeps no digits for narrow lobes (α_p = 2e8 at α = 1e-4). tan² is capped
+    # at _TAN2_MAX (θm within 1e-15 of the horizon) so that its gradient stays finite.
+    keep = ok & (s2 < _TAN2_MAX * c2)
+    tan2 = jnp.where(keep, s2, _TAN2_MAX) / jnp.where(keep, c2, 1.0)
+    val = (ap + 2.0) / (2.0 * jnp.pi) * jnp.exp(-0.5 * ap * jnp.log1p(tan2))
     return jnp.where(ok, val, 0.0)
 
 
@@ -86,18 +99,20 @@ def G1_GGX(v, alpha):
     2|v_z| / (|v_z| + sqrt(v_z² + α²(v_x² + v_y²))) so it is finite at the horizon and normal."""
     alpha = clamp_alpha(alpha)
     s2, c2 = _sin2_cos2(v)
-    cz = jnp.sqrt(c2)
+    cz = jnp.abs(v[..., 2])  # not sqrt(c2): its gradient is NaN at the horizon
     return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + alpha * alpha * s2))
 
 
 def _beckmann_a(v, alpha):
-    """a = 1 / (α tan θv) (Walter eq. 26), capped at _A_MAX where G1 == 1."""
+    """a = 1 / (α tan θv) (Walter eq. 26), capped at _A_MAX where G1 == 1.
+
+    The cap is decided without a division (a < _A_MAX <=> v_z² < _A_MAX² α² sin²): computing a
+    first and clamping it leaves NaN gradients near the normal, and sqrt(v_z²) at the horizon."""
     alpha = clamp_alpha(alpha)
     s2, c2 = _sin2_cos2(v)
-    ok = s2 > 0
+    ok = c2 < (_A_MAX * alpha) ** 2 * s2
     s = jnp.sqrt(jnp.where(ok, s2, 1.0))
-    a = jnp.where(ok, jnp.sqrt(c2) / (alpha * s), _A_MAX)
-    return jnp.minimum(a, _A_MAX)
+    return jnp.where(ok, jnp.abs(v[..., 2]) / (alpha * s), _A_MAX)
 
 
 def G1_Beckmann(v, alpha):
@@ -147,8 +162,9 @@ def sample_m_Phong(u1, u2, alpha):
     """Walter eq. 31, cos θm = u1^(1/(α_p + 2))."""
     ap = phong_exponent(alpha)
     ok = u1 > 0
-    cos2 = jnp.where(ok, jnp.exp(2.0 * jnp.log(jnp.where(ok, u1, 1.0)) / (ap + 2.0)), 0.0)
-    return _normal_from_cos2(cos2, 1.0 - cos2, u2)
+    x = 2.0 * jnp.log(jnp.where(ok, u1, 1.0)) / (ap + 2.0)  # log cos²θm
+    # sin²θm = -expm1(x): 1 - cos²θm would round to 0 for narrow lobes (α_p + 2 = 2e8 at α = 1e-4)
+    return _normal_from_cos2(jnp.where(ok, jnp.exp(x), 0.0), jnp.where(ok, -jnp.expm1(x), 1.0), u2)
 
 
 # --------------------------------------------------------------------------------------------

@@ -66,7 +66,9 @@ def eval(params, wi, wo, distribution="ggx", sampling="standard"):
     # Walter eq. 20: F G D / (4 |i·n| |o·n|)
     f_r = safe_div(F * G * D, 4.0 * cos_prod)
     # Walter eq. 21 with η_i = 1, η_o = eta: (η_i(i·h) + η_o(o·h))² = |h_t|² for unnormalized h_t
-    h2 = dot(h, h)
+    # |h_t|² only where the pair is a transmission: for a reflection the (unused) f_t's
+    # denominator cos_prod·|h|² can underflow in float32, and 0·inf would poison the gradient
+    h2 = jnp.where(is_r, 1.0, dot(h, h))
     f_t = safe_div(jnp.abs(i_h * o_h) * eta**2 * (1.0 - F) * G * D, cos_prod * h2)
     return jnp.where(ci > 0, jnp.where(is_r, f_r, f_t), 0.0)
 
