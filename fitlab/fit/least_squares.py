@@ -82,11 +82,13 @@ def cost_unit(static, loss, u, problem):
     return 0.5 * jnp.sum(r * r)
 
 
-def levenberg_marquardt(r_and_jac, z0, n_residuals, maxiter=LM_MAXITER, xtol=LM_XTOL,
+def levenberg_marquardt(r_and_jac, z0, n_residuals, aux0, maxiter=LM_MAXITER, xtol=LM_XTOL,
                         gtol=LM_GTOL):
     """Levenberg–Marquardt from each row of ``z0`` (starts, ndim), all in one XLA while loop;
-    ``r_and_jac(z)`` maps (starts, ndim) to the residuals (starts, n_residuals) and their
-    Jacobians (starts, n_residuals, ndim). Returns (z, number of steps), one per start.
+    ``r_and_jac(z)`` maps (starts, ndim) to the residuals (starts, n_residuals), their Jacobians
+    (starts, n_residuals, ndim) and anything else of that point the caller wants back (``aux``,
+    a pytree of per-start arrays shaped like ``aux0``). Returns (z, number of steps, aux) of
+    each start's final point.
 
     Madsen & Nielsen's method ("Introduction to Optimization and Data Fitting", 2010, sec. 6.2,
     eqs 6.16-6.18): initial damping μ = 1e-6 max diag(JᵀJ); the step h solves
@@ -110,12 +112,12 @@ def levenberg_marquardt(r_and_jac, z0, n_residuals, maxiter=LM_MAXITER, xtol=LM_
         return mask.reshape(mask.shape + (1,) * (a.ndim - 1))
 
     def point_at(z):
-        r, J = r_and_jac(z)
+        r, J, aux = r_and_jac(z)
         return (z, r, jnp.einsum("snd,sne->sde", J, J), jnp.einsum("snd,sn->sd", J, r),
-                0.5 * jnp.einsum("sn,sn->s", r, r))
+                0.5 * jnp.einsum("sn,sn->s", r, r), aux)
 
     def going(state):
-        (z, _, _, g, _), _, _, h_tried, it, _, started = state
+        (z, _, _, g, _, _), _, _, h_tried, it, _, started = state
         return ~started | (it == 0) | ((it < maxiter) & (jnp.max(jnp.abs(g), axis=1) > gtol)
                                        & (jnp.linalg.norm(h_tried, axis=1)
                                           > xtol * (jnp.linalg.norm(z, axis=1) - xtol)))
@@ -145,11 +147,11 @@ def levenberg_marquardt(r_and_jac, z0, n_residuals, maxiter=LM_MAXITER, xtol=LM_
         return jax.tree.map(lambda a, b: jnp.where(col(active, a), a, b), new_state, state)
 
     zeros = functools.partial(jnp.zeros, dtype=dtype)
-    state = ((z0, zeros((S, n_residuals)), zeros((S, d, d)), zeros((S, d)), zeros((S,))),
+    state = ((z0, zeros((S, n_residuals)), zeros((S, d, d)), zeros((S, d)), zeros((S,)), aux0),
              zeros((S,)), zeros((S,)), zeros((S, d)), jnp.zeros((S,), jnp.int32), zeros((S, d)),
              jnp.zeros((S,), bool))
     state = jax.lax.while_loop(lambda st: jnp.any(going(st)), body, state)
-    return state[0][0], state[4]
+    return state[0][0], state[4], state[0][5]
 
 
 def _value_and_jacobian(f):
@@ -173,20 +175,25 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     search) and ``local`` (LM from a batch of starts, then each end's cost, residuals and
     Jacobian in native units)."""
 
-    def r_z(z, problem):
-        return residuals_unit(static, loss, unit_from_z(z), problem)
+    r_and_jac_native = _value_and_jacobian(functools.partial(residuals_native, static, loss))
 
-    r_and_jac_z = jax.vmap(_value_and_jacobian(r_z), in_axes=(0, None))
-    r_and_jac_native = jax.vmap(_value_and_jacobian(functools.partial(residuals_native, static,
-                                                                      loss)), in_axes=(0, None))
+    def r_and_jac_z(z, problem):
+        """Residuals at θ(z) and their Jacobian in z (for the LM), from the Jacobian in native
+        units (returned too, with θ and r: the covariance needs them at the end) times the
+        diagonal dθ/dz of the transforms. One forward-mode evaluation of the model."""
+        theta, dtheta = jax.jvp(lambda z: to_native(static, unit_from_z(z), problem["lo"],
+                                                    problem["hi"]), (z,), (jnp.ones_like(z),))
+        r, J = r_and_jac_native(theta, problem)
+        return r, J * dtheta, (theta, r, J)
 
     def local(Z0, U0, problem):
-        Z, iters = levenberg_marquardt(lambda z: r_and_jac_z(z, problem), Z0,
-                                       problem["data"].value.shape[0], maxiter=maxiter)
-        U = unit_from_z(Z)
-        native = to_native(static, U, problem["lo"], problem["hi"])
-        R, J = r_and_jac_native(native, problem)
-        return {"z": Z, "iters": iters, "u": U, "native": native,
+        S, d = Z0.shape
+        n = problem["data"].value.shape[0]
+        zeros = functools.partial(jnp.zeros, dtype=Z0.dtype)
+        Z, iters, (native, R, J) = levenberg_marquardt(
+            jax.vmap(lambda z: r_and_jac_z(z, problem)), Z0, n,
+            (zeros((S, d)), zeros((S, n)), zeros((S, n, d))), maxiter=maxiter)
+        return {"z": Z, "iters": iters, "u": unit_from_z(Z), "native": native,
                 "cost": 0.5 * jnp.einsum("sn,sn->s", R, R), "residuals": R, "jacobian": J,
                 "start_native": to_native(static, U0, problem["lo"], problem["hi"])}
 
