@@ -47,7 +47,7 @@ DISTS = ("ggx", "beckmann", "beckmann_rational", "phong")
 CONFIGS = (
     [("rough_dielectric", {"distribution": d}, {"alpha": ALPHAS, "eta": ETAS}) for d in DISTS]
     + [("rough_conductor", {"distribution": d, "fresnel": "exact"},
-        {"alpha": ALPHAS, "n": (0.01, 0.2, 1.0, 10.0), "k": (0.0, 3.9, 20.0)}) for d in DISTS]
+        {"alpha": ALPHAS, "n": (0.01, 1.0, 10.0), "k": (0.0, 3.9, 20.0)}) for d in DISTS]
     + [("rough_conductor", {"distribution": d, "fresnel": f},
         {"alpha": ALPHAS, "n": (0.01, 1.0, 10.0), "k": (0.0, 20.0)})
        for d in ("ggx", "beckmann") for f in ("schlick", "lazanyi")]
@@ -70,7 +70,7 @@ def _dirs(theta, phi):
 #: Every grid is padded to this many rows (by repeating its first row): op-by-op execution
 #: compiles each primitive once per shape and dtype, so one shape for every model and test
 #: keeps that to one compilation per primitive.
-N_ROWS = 54_000
+N_ROWS = 40_500
 
 
 def _pad(x, n=N_ROWS):
@@ -159,7 +159,7 @@ def test_sample_finite_on_hard_inputs(config, dtype):
     us = list(itertools.product(HARD_U, repeat=3))
     rows = np.array([(*c, t, 0.3, *u) for c in combos for t in HARD_THETAS for u in us])
     n = len(rows)
-    rows = _pad(rows, 120_000)
+    rows = _pad(rows, 90_000)
     X = _columns(rows, dtype)
     k = len(names)
     params = dict(zip(names, X[:k]))
@@ -180,7 +180,7 @@ JIT_CONFIGS = [
     ("rough_dielectric", {"distribution": "ggx"}, {"alpha": ALPHAS, "eta": ETAS}),
     ("rough_dielectric", {"distribution": "beckmann"}, {"alpha": ALPHAS, "eta": ETAS}),
     ("rough_conductor", {"distribution": "ggx", "fresnel": "exact"},
-     {"alpha": ALPHAS, "n": (0.01, 0.2, 10.0), "k": (0.0, 3.9, 20.0)}),
+     {"alpha": ALPHAS, "n": (0.01, 1.0, 10.0), "k": (0.0, 3.9, 20.0)}),
 ]
 
 
@@ -370,7 +370,7 @@ def _cases(alpha, eta, n, k, albedo, sigma):
     yield "oren_nayar", (), {"albedo": albedo, "sigma": sigma}
 
 
-@settings(derandomize=True, database=None, max_examples=100, deadline=None)
+@settings(derandomize=True, database=None, max_examples=60, deadline=None)
 @given(
     ti=_angle_theta, pi=_angle_phi, to=_angle_theta, po=_angle_phi,
     log_alpha=st.floats(-4.0, 0.0), eta=st.floats(0.2, 5.0),
