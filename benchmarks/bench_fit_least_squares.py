@@ -1,5 +1,5 @@
-"""Warm least-squares fit of the Walter example: fitlab (jitted JAX, its own batched
-Levenberg–Marquardt) against SciPy (``scipy.optimize.least_squares`` on a plain-NumPy implementation of the same GGX
+"""Warm least-squares fit of the Walter example: fitlab (jitted JAX, jaxopt's
+Levenberg–Marquardt vmapped over the starts) against SciPy (``scipy.optimize.least_squares`` on a plain-NumPy implementation of the same GGX
 rough-dielectric model, transforms and residuals, written in ``_walter_fit.py``).
 
 The problem is exactly what ``fitlab fit data_formats/examples/walter_rough_glass.csv --model

@@ -181,9 +181,12 @@ def _print_summary(record):
               file=sys.stderr)
         for row in st["per_incidence"]:
             err = row["rms_relative_error"]
-            print(f"    theta_i = {row['theta_i']:6.2f}  phi_i = {row['phi_i']:6.2f}  "
-                  f"{row['role']:>10}  n = {row['n']:4d}  RMS rel. error = "
-                  f"{'n/a' if err is None else f'{err:.4f}'}", file=sys.stderr)
+            line = (f"    theta_i = {row['theta_i']:6.2f}  phi_i = {row['phi_i']:6.2f}  "
+                    f"{row['role']:>10}  n = {row['n']:4d}  RMS rel. error = "
+                    f"{'n/a' if err is None else f'{err:.4f}'}")
+            if row["role"] == "partly fit" and row["rms_relative_error_fitted_rows"] is not None:
+                line += f" (fitted rows {row['rms_relative_error_fitted_rows']:.4f})"
+            print(line, file=sys.stderr)
 
 
 def cmd_fit(args):
@@ -411,7 +414,7 @@ def build_parser():
     p = sub.add_parser(
         "fit", help="fit a model to measurements (least squares, global starts, optional MCMC)",
         description="Fit a registry model to a measurement file (data_formats/measurement_csv.md): "
-        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (batched, in JAX), "
+        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (jaxopt, vmapped over the starts), "
         "covariance from the Jacobian, optional posterior sampling with emcee. Writes a parameter "
         "file (data_formats/fit_json.md). Compiled kernels are kept on disk for later runs, in "
         "$FITLAB_CACHE_DIR or else $XDG_CACHE_HOME/fitlab/xla or ~/.cache/fitlab/xla "

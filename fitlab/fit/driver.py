@@ -50,6 +50,10 @@ def relative_errors(pred, value):
     return (pred[keep] - value[keep]) / value[keep], keep
 
 
+def _rms(x):
+    return float(np.sqrt(np.mean(x**2))) if x.size else None
+
+
 def statistics(m, rows_fit, pred, ls, data_sigma, loss):
     """Fit statistics over the fitted rows and per incidence direction over all rows."""
     rel_fit, _ = relative_errors(pred[rows_fit], m.value[rows_fit])
@@ -79,6 +83,7 @@ def statistics(m, rows_fit, pred, ls, data_sigma, loss):
             "role": "fit" if in_fit.all() else ("prediction" if not in_fit.any() else "partly fit"),
             "rms_relative_error": float(np.sqrt(np.mean(rel**2))) if rel.size else None,
             "max_abs_relative_error": float(np.max(np.abs(rel))) if rel.size else None,
+            "rms_relative_error_fitted_rows": _rms(rel[in_fit[keep]]),
         })
     stats["per_incidence"] = per
     return stats
