@@ -7,6 +7,9 @@ import os
 import jax
 import pytest
 
+# Tests never write to the user's compilation cache (fitlab fit keeps one by default).
+os.environ.setdefault("FITLAB_NO_CACHE", "1")
+
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
