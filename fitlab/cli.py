@@ -420,7 +420,7 @@ def build_parser():
         "$FITLAB_CACHE_DIR or else $XDG_CACHE_HOME/fitlab/xla or ~/.cache/fitlab/xla "
         "(FITLAB_NO_CACHE=1: no cache).",
         epilog="example: fitlab fit data_formats/examples/walter_rough_glass.csv --model "
-        "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_ground_glass.json",
+        "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_rough_glass.json",
     )
     p.add_argument("data", help="measurement CSV")
     p.add_argument("--model", required=True, help="model name (see `fitlab models`)")
@@ -432,7 +432,9 @@ def build_parser():
     p.add_argument("--loss", choices=("chi2", "relative", "log", "cos_l2"),
                    help="default: chi2 when the data have sigma, else relative")
     p.add_argument("--fit-subset", metavar="EXPR",
-                   help="fit only these rows, predict the rest, e.g. 'theta_i == 0'")
+                   help="fit only these rows, predict the rest, e.g. 'theta_i == 0', "
+                   "'value > 0.01 and theta_o < 80', 'row %% 8 == 0' (names: theta_i, phi_i, "
+                   "theta_o, phi_o, value, channel, row; + - * / %%, comparisons, and/or/not, abs)")
     p.add_argument("--channel", help="fit only this channel (default: every channel separately)")
     p.add_argument("--mcmc", action="store_true", help="sample the posterior with emcee")
     p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")

@@ -203,6 +203,7 @@ def test_subset_language():
         np.sum((m.theta_i < 45) & ~(m.theta_o > 170))
     assert subset_mask("abs(phi_o - 180) < 1 or theta_o == 180", m).sum() == \
         np.sum((np.abs(m.phi_o - 180) < 1) | (m.theta_o == 180))
+    assert subset_mask("row % 4 == 0", m).sum() == 69
     from fitlab.errors import FitlabError
 
     for bad, msg in [("__import__('os')", "not allowed"), ("theta_x == 0", "unknown name"),

@@ -4,8 +4,9 @@
     theta_i < 45 and theta_o > 90
     not (abs(phi_o) < 1) or channel == 'R'
 
-Names: theta_i, phi_i, theta_o, phi_o (degrees), value, channel; numbers, strings,
-arithmetic (+ - * /), comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
+Names: theta_i, phi_i, theta_o, phi_o (degrees), value, channel, row (0-based row index, so
+``row % 10 == 0`` thins large scans deterministically); numbers, strings, arithmetic
+(+ - * / %), comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 
-_ARITH = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide}
+_ARITH = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide,
+          ast.Mod: np.mod}
 _CMP = {ast.Eq: np.equal, ast.NotEq: np.not_equal, ast.Lt: np.less, ast.LtE: np.less_equal,
         ast.Gt: np.greater, ast.GtE: np.greater_equal}
 
@@ -29,7 +31,8 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
                           "example: 'theta_i == 0 and theta_o > 90'") from None
     m = measurement
     names = {"theta_i": m.theta_i, "phi_i": m.phi_i, "theta_o": m.theta_o, "phi_o": m.phi_o,
-             "value": m.value, "channel": np.asarray(m.channel_names, dtype=object)[m.channel]}
+             "value": m.value, "channel": np.asarray(m.channel_names, dtype=object)[m.channel],
+             "row": np.arange(m.n)}
 
     def ev(node):
         if isinstance(node, ast.Expression):
@@ -69,7 +72,7 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
                 and node.func.id == "abs" and len(node.args) == 1 and not node.keywords):
             return np.abs(ev(node.args[0]))
         raise FitlabError(f"--fit-subset: {ast.unparse(node)!r} is not allowed; use column "
-                          "names, numbers, + - * /, comparisons, and/or/not and abs()")
+                          "names, numbers, + - * / %, comparisons, and/or/not and abs()")
 
     mask = np.broadcast_to(np.asarray(ev(tree), dtype=bool), (m.n,)).copy()
     if not mask.any():
