@@ -72,15 +72,21 @@ def _prepare(model_name, params, options, *dirs):
     model = get_model(model_name)
     opts = resolve_options(model, options)
     check_params(model, params)
-    dirs = [jnp.asarray(d) for d in dirs]
+    dirs = [d if isinstance(d, jax.Array) else jnp.asarray(d) for d in dirs]
     dtype = jnp.result_type(*dirs)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
-    dirs = [d.astype(dtype) for d in dirs]
+    dirs = [d if d.dtype == dtype else d.astype(dtype) for d in dirs]
     for d in dirs:
         if d.shape[-1:] != (3,):
             raise ValueError(f"directions must have shape (..., 3), got {d.shape}")
-    cast = {k: jnp.asarray(v, dtype=dtype) for k, v in params.items()}
+    # Host values stay NumPy: the jitted call transfers them with the arguments (a jnp.asarray
+    # each would be a separate device transfer, about as long as evaluating 10^5 pairs).
+    cast = {
+        k: np.asarray(v, dtype=dtype) if isinstance(v, (numbers.Number, np.ndarray, np.generic))
+        else jnp.asarray(v, dtype=dtype)
+        for k, v in params.items()
+    }
     return model, tuple(sorted(opts.items())), cast, dirs
 
 

@@ -103,6 +103,19 @@ def G1_GGX(v, alpha):
     return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + alpha * alpha * s2))
 
 
+def G_GGX(wi, wo, alpha):
+    """Separable GGX Smith G1(i) G1(o) (Walter eqs 23, 34) without the sidedness factors, with
+    one division: 4|i_z||o_z| / ((|i_z| + sqrt(i_z² + α²(i_x² + i_y²))) (|o_z| + ...)).
+
+    Equal to ``G1_GGX(wi, alpha) * G1_GGX(wo, alpha)`` up to float rounding."""
+    alpha = clamp_alpha(alpha)
+    a2 = alpha * alpha
+    si2, ci2 = _sin2_cos2(wi)
+    so2, co2 = _sin2_cos2(wo)
+    ci, co = jnp.abs(wi[..., 2]), jnp.abs(wo[..., 2])
+    return safe_div(4.0 * ci * co, (ci + jnp.sqrt(ci2 + a2 * si2)) * (co + jnp.sqrt(co2 + a2 * so2)))
+
+
 def _beckmann_a(v, alpha):
     """a = 1 / (α tan θv) (Walter eq. 26), capped at _A_MAX where G1 == 1.
 
@@ -174,17 +187,18 @@ def sample_m_Phong(u1, u2, alpha):
 
 class Distribution(NamedTuple):
     """A microfacet distribution: D(m, α), Smith G1(v, α) without sidedness, sampling of
-    D(m)|m·n| from two uniforms."""
+    D(m)|m·n| from two uniforms; optionally G(i, o, α) = G1(i) G1(o) in a cheaper fused form."""
 
     name: str
     D: Callable
     G1: Callable
     sample_m: Callable
     reference: str
+    G: Callable | None = None
 
 
 DISTRIBUTIONS = {
-    "ggx": Distribution("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36"),
+    "ggx": Distribution("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36", G_GGX),
     "beckmann": Distribution(
         "beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann, "Walter 2007 eqs 25, 26, 28-29"
     ),
@@ -214,6 +228,13 @@ def smith_G1(dist: Distribution, v, m, alpha):
     """Smith G1(v, m) with the sidedness factor χ⁺((v·m)/(v·n)) of eqs 26, 27, 34."""
     side = dot(v, m) * v[..., 2] > 0
     return jnp.where(side, dist.G1(v, alpha), 0.0)
+
+
+def smith_G(dist: Distribution, wi, wo, side_i, side_o, alpha):
+    """Separable Smith G(i, o, m) = G1(i, m) G1(o, m) (Walter eq. 23), given the sidedness masks
+    side_v = (v·m)(v·n) > 0 computed by the caller."""
+    g = dist.G(wi, wo, alpha) if dist.G is not None else dist.G1(wi, alpha) * dist.G1(wo, alpha)
+    return jnp.where(side_i & side_o, g, 0.0)
 
 
 def widened_alpha(alpha, cos_i):

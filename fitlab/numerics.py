@@ -41,4 +41,5 @@ def safe_rsqrt(x):
 
 def sign_nonzero(x):
     """Sign of x with sign(0) = +1 (a direction on the horizon counts as the outside)."""
-    return jnp.where(x < 0, -1.0, 1.0).astype(x.dtype)
+    one = jnp.ones((), dtype=x.dtype)  # typed constants: no float64 intermediate under x64
+    return jnp.where(x < 0, -one, one)

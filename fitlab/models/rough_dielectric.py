@@ -15,9 +15,9 @@ import jax.numpy as jnp
 
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refract
-from fitlab.microfacet import get_distribution, smith_G1, widened_alpha
+from fitlab.microfacet import get_distribution, smith_G, smith_G1, widened_alpha
 from fitlab.models.base import Model, Option, Parameter
-from fitlab.numerics import safe_div, sign_nonzero
+from fitlab.numerics import safe_div, safe_rsqrt, sign_nonzero
 
 PARAMETERS = (
     Parameter("alpha", 1e-4, 1.0, 0.1, "1", "microfacet width α (Walter α_b / α_g)"),
@@ -50,27 +50,40 @@ def _half_vector(wi, wo, eta):
 
 
 def eval(params, wi, wo, distribution="ggx", sampling="standard"):
-    """f_r (Walter eq. 20) + f_t (eq. 21), in 1/sr without the cosine."""
+    """f_r (Walter eq. 20) + f_t (eq. 21), in 1/sr without the cosine.
+
+    Written on vector components (no size-3 reductions or concatenations of intermediates), so
+    that XLA compiles the whole evaluation into one elementwise loop; the steps are those of
+    ``_to_upper_frame`` and ``_half_vector`` (see ``benchmarks/bench_btdf_eval.py``)."""
     dist = get_distribution(distribution)
     alpha = params["alpha"]
-    wi, wo, eta, _ = _to_upper_frame(wi, wo, params["eta"])
-    ci, co = wi[..., 2], wo[..., 2]
-    h, is_r = _half_vector(wi, wo, eta)
-    hh = normalize(h)
-    i_h, o_h = dot(wi, hh), dot(wo, hh)
+    ix, iy, iz = wi[..., 0], wi[..., 1], wi[..., 2]
+    ox, oy, oz = wo[..., 0], wo[..., 1], wo[..., 2]
+    # Mirror to the upper frame (wi.z >= 0); eta becomes η_o/η_i for that incident side.
+    s = sign_nonzero(iz)
+    ci, co = iz * s, oz * s
+    eta = jnp.where(s > 0, params["eta"], 1.0 / params["eta"])
+    is_r = co > 0
+    # Unnormalized half-vector: wi + wo (eq. 13) or wi + eta wo (eq. 16), turned to +z.
+    e = jnp.where(is_r, 1.0, eta)
+    t = sign_nonzero(ci + e * co)
+    hx, hy, hz = (ix + e * ox) * t, (iy + e * oy) * t, (ci + e * co) * t
+    h2 = hx * hx + hy * hy + hz * hz
+    r = safe_rsqrt(h2)  # 1/|h|: i·ĥ and o·ĥ without normalizing h itself
+    i_h = (ix * hx + iy * hy + ci * hz) * r
+    o_h = (ox * hx + oy * hy + co * hz) * r
     F = fresnel_dielectric_Walter2007(i_h, eta)
-    D = dist.D(h, alpha)
+    D = dist.D(jnp.stack([hx, hy, hz], axis=-1), alpha)  # degree-0 homogeneous in h
     # Walter eq. 23: separable Smith G; the sidedness factors discard backfacing microfacets.
-    G = smith_G1(dist, wi, hh, alpha) * smith_G1(dist, wo, hh, alpha)
+    G = smith_G(dist, jnp.stack([ix, iy, ci], axis=-1), jnp.stack([ox, oy, co], axis=-1),
+                i_h * ci > 0, o_h * co > 0, alpha)
     cos_prod = ci * jnp.abs(co)
-    # Walter eq. 20: F G D / (4 |i·n| |o·n|)
-    f_r = safe_div(F * G * D, 4.0 * cos_prod)
-    # Walter eq. 21 with η_i = 1, η_o = eta: (η_i(i·h) + η_o(o·h))² = |h_t|² for unnormalized h_t
-    # |h_t|² only where the pair is a transmission: for a reflection the (unused) f_t's
-    # denominator cos_prod·|h|² can underflow in float32, and 0·inf would poison the gradient
-    h2 = jnp.where(is_r, 1.0, dot(h, h))
-    f_t = safe_div(jnp.abs(i_h * o_h) * eta**2 * (1.0 - F) * G * D, cos_prod * h2)
-    return jnp.where(ci > 0, jnp.where(is_r, f_r, f_t), 0.0)
+    # Walter eq. 20, f_r = F G D / (4 |i·n| |o·n|), and eq. 21 with η_i = 1, η_o = eta,
+    # f_t = |i·h||o·h| eta² (1 - F) G D / (|i·n||o·n| |h_t|²) ((η_i(i·h) + η_o(o·h))² = |h_t|² for
+    # the unnormalized h_t), sharing one division.
+    num = jnp.where(is_r, F, jnp.abs(i_h * o_h) * eta**2 * (1.0 - F)) * G * D
+    f = safe_div(num, cos_prod * jnp.where(is_r, 4.0, h2))
+    return jnp.where(ci > 0, f, 0.0)
 
 
 def pdf(params, wi, wo, distribution="ggx", sampling="standard"):
