@@ -282,6 +282,12 @@ DISTRIBUTIONS = {
     "phong": Distribution(
         "phong", D_Phong, G1_Beckmann_rational, sample_m_Phong, "Walter 2007 eqs 30-32, G1 by eq. 27"
     ),
+}
+
+#: Distributions outside Walter's family, reachable through get_distribution but not listed in
+#: DISTRIBUTIONS (whose members share Walter's reference values, D(n) = 1/(πα²) among them, and
+#: are the choices of the fitted models). The simulator's vMF interfaces use this one.
+EXTRA_DISTRIBUTIONS = {
     "vmf": Distribution(
         "vmf", D_vMF, G1_vMF, sample_m_vMF,
         "extended-NDF paper eqs 5-8 (vMF NDF, masking approximation), kappa = 2/alpha^2"
@@ -291,7 +297,7 @@ DISTRIBUTIONS = {
 
 def get_distribution(name: str) -> Distribution:
     try:
-        return DISTRIBUTIONS[name]
+        return DISTRIBUTIONS[name] if name in DISTRIBUTIONS else EXTRA_DISTRIBUTIONS[name]
     except KeyError:
         raise ValueError(
             f"unknown microfacet distribution {name!r}; choose one of {', '.join(DISTRIBUTIONS)}"
