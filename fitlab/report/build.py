@@ -1,0 +1,511 @@
+"""``build_report``: a fit record, its data and chain in; ``index.html`` and the figures (PNG and
+SVG) out. Every file is rendered in memory first and then written atomically, ``index.html``
+last, so a failure leaves no partial report. The output depends only on the inputs (no dates,
+sorted iteration, deterministic figure bytes)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import fitlab
+from fitlab.errors import FitlabError
+from fitlab.fit.driver import REL_ERR_FLOOR
+from fitlab.fit.space import SCALE
+from fitlab.io.atomic import atomic_open
+from fitlab.report import geometry as geo
+from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,
+                                table_html, warning_html)
+from fitlab.report.inputs import BAND_SAMPLES, load_inputs, predictive_band, prediction, model_f
+from fitlab.report.style import render
+
+#: At most this many incidence directions get an in-plane scan figure per channel.
+MAX_SCANS = 24
+#: Hemisphere maps and polar lobes: this many incidence angles.
+MAX_MAPS = 4
+MAX_LOBES = 4
+#: Hemisphere maps: at most this many points per incidence (evenly thinned).
+MAX_MAP_POINTS = 20000
+
+
+def _fmt(x, digits=5):
+    if x is None:
+        return "n/a"
+    if isinstance(x, (bool, np.bool_)):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    try:
+        return f"{float(x):.{digits}g}"
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def _angle_tag(x):
+    return f"{x:g}".replace(".", "p").replace("-", "m")
+
+
+class _Report:
+    """Collects figures (rendered at once) and HTML sections."""
+
+    def __init__(self, progress):
+        self.figures: list[FigureEntry] = []
+        self.say = progress
+
+    def figure(self, name, fig, caption, alt):
+        png, svg = render(fig)
+        fig.clear()
+        entry = FigureEntry(name, caption, alt, png, svg)
+        self.figures.append(entry)
+        self.say(f"report: figure {len(self.figures)}: {name}.png")
+        return figure_html(entry)
+
+
+# --------------------------------------------------------------------------------------------
+# Header, parameters, statistics
+# --------------------------------------------------------------------------------------------
+
+
+def _header(inp):
+    rec, m = inp.record, inp.measurement
+    meta = rec["data"].get("metadata", {})
+    model = rec["model"]
+    rows = [
+        ("sample", meta.get("sample", "not stated in the data file")),
+        ("instrument", meta.get("instrument", meta.get("source", "not stated in the data file"))),
+        ("model", f"{model['name']} ({model.get('lobes', '')}); options "
+                  + ", ".join(f"{k}={v}" for k, v in sorted(model.get("options", {}).items()))),
+        ("model equations", model.get("reference", "")),
+        ("loss", rec.get("loss")),
+        ("seed", rec.get("seed")),
+        ("fit made", rec.get("created_utc", "not recorded")),
+        ("parameter file", inp.fit_path),
+    ]
+    prov = [
+        ("data file", inp.data_path),
+        ("recorded path", rec["data"].get("path")),
+        ("SHA-256", rec["data"].get("sha256")),
+        ("file quantity", rec["data"].get("file_quantity")),
+        ("quantity fitted", "relative (scale · f, unknown overall scale)"
+         if m.is_relative else "BSDF f (1/sr)"),
+        ("rows", f"{rec['data'].get('rows')} ({rec['data'].get('rows_fitted')} fitted)"),
+        ("fit subset", rec["data"].get("fit_subset") or "all rows"),
+        ("channels", ", ".join(rec["data"].get("channels", []))),
+    ]
+    prov += [(f"file metadata: {k}", v) for k, v in sorted(meta.items())
+             if k not in ("sample", "instrument")]
+    conv = sorted(rec.get("conventions", {}).items())
+    soft = sorted((rec.get("software") or {}).items())
+    chain = inp.chain_path or inp.chain_note
+    body = table_html(["", ""], rows)
+    body += "<h3>Data provenance</h3>\n" + table_html(["", ""], prov)
+    body += "<h3>Conventions</h3>\n" + table_html(["", ""], conv)
+    body += "<h3>Software (of the fit)</h3>\n" + table_html(["package", "version"], soft)
+    body += paragraph(f"Report made by fitlab {fitlab.__version__}. MCMC chain: {chain}.")
+    for note in rec.get("notes", []):
+        body += note_html(f"fit note: {note}")
+    return body
+
+
+def _warnings(inp):
+    items = []
+    for fit in inp.record["fits"]:
+        tag = f"channel {fit['channel']}: "
+        mc = fit.get("mcmc")
+        if mc and not mc.get("trustworthy", True):
+            items.append(tag + "the MCMC chain is NOT trustworthy (" +
+                         "; ".join(mc.get("warnings") or ["too short"]) + ")")
+        elif mc and mc.get("warnings"):
+            items += [tag + w for w in mc["warnings"]]
+        for name, p in fit["parameters"].items():
+            if p.get("at_bound"):
+                items.append(tag + f"{name} ended at a bound of its range "
+                             f"{p['bounds']}: its uncertainty is not meaningful")
+        if fit.get("starts_disagree"):
+            items.append(tag + fit["starts_disagree"].get("message", "starts disagree"))
+    return warning_html("Warnings: read these before trusting the numbers below", items) \
+        if items else ""
+
+
+def _parameter_table(ch):
+    rows = []
+    for name, p in ch.fit["parameters"].items():
+        post = p.get("posterior")
+        if p["fixed"]:
+            rows.append([name, p.get("unit", ""), _fmt(p["value"], 6), "fixed", "", "", "",
+                         f"[{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}]", "fixed"])
+            continue
+        flags = [p.get("transform", "")] + (["AT BOUND"] if p.get("at_bound") else [])
+        rows.append([
+            name, p.get("unit", ""), _fmt(p["value"], 6),
+            _fmt(p.get("stderr"), 3),
+            _fmt(post["median"], 6) if post else "no MCMC",
+            f"[{_fmt(post['p16'], 6)}, {_fmt(post['p84'], 6)}]" if post else "",
+            f"[{_fmt(post['p2_5'], 6)}, {_fmt(post['p97_5'], 6)}]" if post else "",
+            f"[{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}]", ", ".join(f for f in flags if f),
+        ])
+    return table_html(["parameter", "unit", "best fit (least squares)", "std. error (LS)",
+                       "posterior median", "68% interval", "95% interval", "bounds", "notes"],
+                      rows, numeric=(2, 3, 4))
+
+
+def _correlation(rep, ch, tag):
+    names = list(ch.free)
+    mc = ch.fit.get("mcmc")
+    if mc and mc.get("correlation") is not None and len(names) > 1:
+        matrix, source = np.asarray(mc["correlation"], float), "MCMC posterior samples"
+    else:
+        cov = np.asarray([[np.nan if v is None else v for v in row]
+                          for row in ch.fit["covariance"]["matrix"]], float)
+        sd = np.sqrt(np.diag(cov))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            matrix = cov / np.outer(sd, sd)
+        source = "least-squares covariance"
+    if len(names) < 2:
+        return paragraph("One free parameter: no correlation matrix.")
+    if not np.all(np.isfinite(matrix)):
+        return note_html(f"The correlation matrix ({source}) is not finite: a parameter's "
+                         "uncertainty is undefined (see the warnings).")
+    from fitlab.report.posterior import correlation_figure
+
+    fig = correlation_figure(matrix, names, source=source)
+    return rep.figure(f"correlation_{tag}", fig,
+                      f"Correlation matrix of the free parameters ({source}); colours from −1 "
+                      "(blue) to +1 (red), 0 white.",
+                      f"Correlation matrix of {', '.join(names)}, channel {ch.name}")
+
+
+def _error_tables(inp, ch, preds):
+    st = ch.fit["statistics"]
+    rows = [[_fmt(r["theta_i"], 4), _fmt(r["phi_i"], 4), r["role"], r["n"], r["n_fitted"],
+             _fmt(r["rms_relative_error"], 4), _fmt(r["max_abs_relative_error"], 4)]
+            for r in st["per_incidence"]]
+    head = []
+    if st.get("chi2_per_dof") is not None:
+        head.append(f"χ²/dof = {_fmt(st['chi2_per_dof'], 4)} (χ² = {_fmt(st['chi2'], 5)}, "
+                    f"dof = {st['dof']}).")
+    head.append(f"RMS relative error over the fitted rows: {_fmt(st['rms_relative_error_fit'], 4)}"
+                f" ({st['n_fit']} of {st['n_total']} rows fitted). Relative errors use rows whose "
+                f"|value| is at least {st['relative_error_floor']:g} × the maximum of their "
+                "incidence.")
+    body = paragraph(" ".join(head))
+    body += table_html(["θi (°)", "φi (°)", "role", "rows", "fitted", "RMS rel. error",
+                        "max |rel. error|"], rows, numeric=(0, 1, 3, 4, 5, 6))
+    # Walter-style protocol: fit on a subset, predict the rest.
+    if inp.record["data"].get("fit_subset") and not ch.fitted.all() and ch.fitted.any():
+        m = inp.measurement
+        v = m.value[ch.rows]
+        rel_all = np.full(v.shape, np.nan)
+        for inc in geo.incidences(m, ch.rows):
+            sel = np.isin(ch.rows, inc.rows)
+            floor = REL_ERR_FLOOR * np.max(np.abs(v[sel]))
+            ok = sel & (np.abs(v) >= floor) & (np.abs(v) > 0)
+            rel_all[ok] = (preds[ok] - v[ok]) / v[ok]
+        srows = []
+        for label, mask in (("fit subset", ch.fitted), ("predicted (not fitted)", ~ch.fitted)):
+            r = rel_all[mask & np.isfinite(rel_all)]
+            srows.append([label, int(mask.sum()), r.size,
+                          _fmt(np.sqrt(np.mean(r**2)) if r.size else None, 4),
+                          _fmt(np.max(np.abs(r)) if r.size else None, 4)])
+        body += ("<h3>Fit subset against prediction (Walter 2007 §6.1 protocol)</h3>\n"
+                 + paragraph(f"Fitted on {inp.record['data']['fit_subset']!s}; every other row "
+                             "is a prediction. Predictions as good as the fit mean the model "
+                             "generalizes across incidence angles.")
+                 + table_html(["rows", "count", "counted for errors", "RMS rel. error",
+                               "max |rel. error|"], srows, numeric=(1, 2, 3, 4)))
+    return body
+
+
+# --------------------------------------------------------------------------------------------
+# Scans, maps, lobes
+# --------------------------------------------------------------------------------------------
+
+
+def _value_label(inp):
+    return "scale·f (data units)" if inp.measurement.is_relative else "f (1/sr)"
+
+
+def _scans(rep, inp, ch, preds, tag):
+    from fitlab.report.scans import ScanSide, scan_figure
+
+    m = inp.measurement
+    incs = geo.incidences(m, ch.rows)
+    shown = geo.pick_evenly(incs, MAX_SCANS)
+    body = ""
+    if len(shown) < len(incs):
+        body += note_html(f"{len(incs)} incidence directions: scans of {len(shown)}, evenly "
+                          "spread; the error table above covers all.")
+    if ch.samples is None:
+        body += note_html("No posterior bands: " + (inp.chain_note or "no chain for this "
+                                                    "channel") + ".")
+    body_parts = []
+    for inc in shown:
+        sel = np.isin(ch.rows, inc.rows)
+        rows = ch.rows[sel]
+        mask, x = geo.in_plane(m, rows)
+        sides_data = geo.side_of(m, rows)
+        sides = []
+        floor = REL_ERR_FLOOR * np.max(np.abs(m.value[rows]))
+        for side in (geo.REFLECTION, geo.TRANSMISSION):
+            keep = mask & (sides_data == side)
+            if not keep.any():
+                continue
+            xd, wi, wo = geo.dense_scan(inc.theta_i, inc.phi_i, side)
+            best = prediction(inp, ch, wi, wo)
+            band = predictive_band(inp, ch, wi, wo)
+            order = np.argsort(x[keep], kind="stable")
+            r = rows[keep][order]
+            sides.append(ScanSide(side, x[keep][order], m.value[r],
+                                  None if m.sigma is None else m.sigma[r],
+                                  ch.fitted[sel][keep][order], preds[sel][keep][order], xd, best,
+                                  band, floor))
+        label = f"θi = {inc.theta_i:g}°" + (f", φi = {inc.phi_i:g}°" if inc.phi_i else "")
+        if not sides:
+            body_parts.append(note_html(f"{label}: no measured rows within "
+                                        f"±{geo.IN_PLANE_TOL_DEG:g}° of the plane of incidence "
+                                        "(see the hemisphere maps)."))
+            continue
+        fig = scan_figure(sides, title=f"{label} (channel {ch.name})", ylabel=_value_label(inp))
+        n_in = int(mask.sum())
+        role = "fitted" if ch.fitted[sel].all() else (
+            "predicted (not fitted)" if not ch.fitted[sel].any() else "partly fitted")
+        band_txt = (f"Shaded: 68% and 95% posterior bands of the model (scale·f at "
+                    f"{ch.samples.shape[0]} posterior samples; parameter uncertainty, not "
+                    "measurement noise)." if ch.samples is not None else
+                    "No posterior band (no chain).")
+        cap = (f"In-plane scan at {label}, channel {ch.name}, {role}: {n_in} measured rows within "
+               f"±{geo.IN_PLANE_TOL_DEG:g}° of the plane of incidence (points; red fitted, "
+               f"orange predicted) and the best-fit model (black line), on linear and log axes. "
+               f"{band_txt} Bottom: relative residual (model − data)/data in %, for rows above "
+               f"{REL_ERR_FLOOR:g} × this incidence's maximum. x: angle of wo from the normal of "
+               "its hemisphere, positive on the forward (specular/refracted) side.")
+        alt = (f"Scan at {label}: data points and model curve for "
+               f"{' and '.join(s.side for s in sides)}, linear and log, with residuals")
+        body_parts.append(rep.figure(f"scan_{tag}_theta{_angle_tag(inc.theta_i)}_phi"
+                                     f"{_angle_tag(inc.phi_i)}", fig, cap, alt))
+    return body + "".join(body_parts)
+
+
+def _maps(rep, inp, ch, preds, tag):
+    from fitlab.report.maps import MapRow, hemisphere_figure
+
+    m = inp.measurement
+    if not geo.is_out_of_plane(m, ch.rows):
+        return None
+    incs = geo.pick_evenly(geo.incidences(m, ch.rows), MAX_MAPS)
+    rows_fig = []
+    for inc in incs:
+        sel = np.isin(ch.rows, inc.rows)
+        rows = ch.rows[sel]
+        p = preds[sel]
+        sides = geo.side_of(m, rows)
+        floor = REL_ERR_FLOOR * np.max(np.abs(m.value[rows]))
+        for side in (geo.REFLECTION, geo.TRANSMISSION):
+            keep = sides == side
+            if keep.sum() < 3:
+                continue
+            idx = np.flatnonzero(keep)
+            if idx.size > MAX_MAP_POINTS:
+                idx = idx[np.round(np.linspace(0, idx.size - 1, MAX_MAP_POINTS)).astype(int)]
+            r = rows[idx]
+            x, y = geo.disc_xy(m.theta_o[r], m.phi_o[r])
+            rows_fig.append(MapRow(f"θi = {inc.theta_i:g}°, {side}", x, y, m.value[r], p[idx],
+                                   floor))
+    if not rows_fig:
+        return None
+    unit = _value_label(inp)
+    fig = hemisphere_figure(rows_fig, unit=unit)
+    cap = (f"Hemispherical maps, channel {ch.name}, for {len(rows_fig)} incidence(s): measured "
+           f"{unit} (left), the model at the same directions (middle), both on one logarithmic, "
+           "perceptually uniform colour scale (viridis), and the relative residual "
+           "(model − data)/data in % (right) on a diverging map centred on zero (grey: rows "
+           f"below {REL_ERR_FLOOR:g} × the maximum, or not measured). Projection: radius = angle "
+           "of wo from the normal (rings at 30°, 60°, 90°), angle = φo; the light comes from "
+           "φ = φi, the specular peak lies near φo = φi + 180°.")
+    alt = "Hemisphere maps of data, model and relative residual for " + \
+        ", ".join(r.label for r in rows_fig)
+    return rep.figure(f"hemisphere_{tag}", fig, cap, alt)
+
+
+def _lobes(rep, inp, ch, tag):
+    from fitlab.report.lobes import Lobe, lobe_figure
+
+    m = inp.measurement
+    thetas = sorted({float(inc.theta_i) if inc.theta_i <= 90 else 180.0 - inc.theta_i
+                     for inc in geo.incidences(m, ch.rows)})
+    thetas = [t for t in thetas if t < 90.0] or [0.0]
+    thetas = geo.pick_evenly(thetas, MAX_LOBES)
+    model_sides = [geo.REFLECTION] + ([geo.TRANSMISSION] if "transmission" in inp.model.lobes
+                                      else [])
+    sides = {}
+    for side in model_sides:
+        lobes = []
+        for t in thetas:
+            x, wi, wo = geo.dense_scan(t, 0.0, side, n=721)
+            f = model_f(inp, ch.params, wi, wo)
+            lobes.append(Lobe(t, x, f * np.abs(wo[:, 2])))
+        sides[side] = lobes
+    fig = lobe_figure(sides, title=f"fitted {inp.model.name}, channel {ch.name} (best fit; "
+                      "the scale of relative data is not applied)")
+    cap = (f"Polar lobes of the fitted BSDF in the plane of incidence, channel {ch.name}: "
+           "f·|cos θo| in 1/sr (radius) against the direction of wo, at θi = "
+           + ", ".join(f"{t:g}°" for t in thetas)
+           + ". Reflection above the surface (0° = normal, dotted: incident directions), "
+           + ("transmission below it (0° = −normal). " if len(sides) > 1 else
+              "the model has no transmission lobe. ")
+           + "The right side is forward scattering. Model values only, without the fit's "
+           "relative-data scale.")
+    alt = f"Polar plots of the fitted BSDF lobes ({', '.join(sides)}) for " \
+          f"{len(thetas)} incidence angles"
+    return rep.figure(f"lobes_{tag}", fig, cap, alt)
+
+
+# --------------------------------------------------------------------------------------------
+# Posterior and MCMC
+# --------------------------------------------------------------------------------------------
+
+
+def _posterior(rep, inp, ch, tag):
+    from fitlab.report.posterior import corner_figure, trace_figure
+
+    mc = ch.fit.get("mcmc")
+    if not mc:
+        return note_html("No MCMC run for this fit: the uncertainties are the least-squares "
+                         "standard errors (fitlab fit --mcmc samples the posterior).")
+    tau = mc.get("autocorrelation_time") or []
+    rows = [["walkers", mc["nwalkers"]], ["steps per walker", mc["nsteps"]],
+            ["burn-in (steps)", mc["burn_in"]], ["thinning", mc["thin"]],
+            ["autocorrelation time τ (steps)",
+             ", ".join(f"{c}: {_fmt(t, 4)}" for c, t in zip(mc["coordinates"], tau))],
+            ["steps / longest τ (≥ 50 to trust)",
+             _fmt(mc["nsteps"] / max(t for t in tau if t) if any(tau) else None, 4)],
+            ["acceptance fraction", _fmt(mc["acceptance_fraction"], 3)],
+            ["effective sample size", _fmt(mc["effective_sample_size"], 5)],
+            ["stored samples", mc["samples"]],
+            ["trustworthy", "yes" if mc["trustworthy"] else "NO"],
+            ["prior", mc.get("prior", "")]]
+    body = ""
+    if not mc["trustworthy"]:
+        body += warning_html("This chain is not trustworthy: its intervals and bands are not "
+                             "reliable", mc.get("warnings") or ["chain shorter than 50 τ"])
+    elif mc.get("warnings"):
+        body += warning_html("MCMC warnings", mc["warnings"])
+    body += table_html(["MCMC diagnostic", "value"], rows)
+    if ch.samples is None:
+        return body + note_html("No corner or trace plots: " + (inp.chain_note or "no chain")
+                                + ".")
+    units = [ch.fit["parameters"][n].get("unit", "") for n in ch.free]
+    best = np.array([ch.fit["parameters"][n]["value"] for n in ch.free])
+    fig = corner_figure(ch.samples_all, list(ch.free), units, best)
+    body += rep.figure(
+        f"corner_{tag}", fig,
+        f"Posterior corner plot, channel {ch.name}: marginal histograms (diagonal; blue lines at "
+        f"the median, 68% and 95% interval ends) and pairwise 2-D histograms of the "
+        f"{ch.samples_all.shape[0]} stored posterior samples; red: the least-squares best fit.",
+        f"Corner plot of the posterior of {', '.join(ch.free)}")
+    # Trace plots in native units (free parameters) and log σ_r (noise scale), if sampled.
+    nfree = len(ch.free)
+    native = ch.space.to_native(ch.chain[:, :, :nfree])
+    extra = ch.chain[:, :, nfree:]
+    vals = np.concatenate([native, extra], axis=2)
+    labels = [f"{n} ({u})" if u not in ("", "1") else n for n, u in zip(ch.free, units)]
+    labels += ["log σ_r (noise)" if c == "log_noise" else c for c in ch.chain_coordinates[nfree:]]
+    fig = trace_figure(vals, labels, burn=int(mc["burn_in"]),
+                       tau=[t or 0.0 for t in tau], log_prob=ch.log_prob)
+    body += rep.figure(
+        f"trace_{tag}", fig,
+        f"MCMC traces, channel {ch.name}: every coordinate of up to 6 walkers against the step "
+        "(thin lines) and the walker mean (black), and the log posterior; shaded: the discarded "
+        "burn-in. A trustworthy chain looks like stationary noise after the burn-in, with τ "
+        "much shorter than the chain.",
+        f"Trace plots of {len(labels)} MCMC coordinates and the log posterior")
+    return body
+
+
+def _walter(rep, inp, ch, tag):
+    from fitlab.report.walter import distribution_curves, empirical_D_figure
+
+    diag = (ch.fit.get("diagnostics") or {}).get("empirical_D")
+    if not diag:
+        return None
+    if "skipped" in diag:
+        return note_html(f"Empirical D: {diag['skipped']}.")
+    if not diag.get("points"):
+        return note_html("Empirical D: no data point qualified (|i·n|, |o·n| > 0.5, ≥ 1% of "
+                         "the maximum).")
+    th, D = np.asarray(diag["theta_m_deg"]), np.asarray(diag["D_empirical"])
+    dist = inp.options.get("distribution", "ggx")
+    curves = distribution_curves(th, D, dist, ch.params["alpha"])
+    fig = empirical_D_figure(th, D, curves)
+    rows = [[label, _fmt(rms, 4)] for label, _, _, rms in curves]
+    cap = (f"Walter 2007 §6.1 (Fig. 12): empirical microfacet distribution, channel {ch.name}: "
+           f"{diag['points']} points D = f / K with G = 1 (|i·n|, |o·n| > 0.5, values ≥ 1% of "
+           "the maximum; eq. 20 or 21 solved for D) against θm, with the BSDF fit's distribution "
+           "and every registry distribution matched to the points (α minimizing the RMS log "
+           "ratio). Points on a curve mean the data follow that microfacet distribution.")
+    return (rep.figure(f"empirical_D_{tag}", fig, cap,
+                       f"Empirical D points against {len(curves)} microfacet distributions")
+            + table_html(["distribution", "RMS log ratio to the points"], rows, numeric=(1,)))
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
+                 progress=True) -> dict:
+    """Write ``out_dir/index.html`` and the figures; returns a summary dict
+    (``files``, ``figures``, ``warnings``)."""
+    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
+    inp = load_inputs(fit_path, data_path, chain_path, progress=say)
+    rep = _Report(say)
+    m = inp.measurement
+    meta = inp.record["data"].get("metadata", {})
+    title = f"Fit report: {inp.model.name} on {meta.get('sample') or Path(inp.data_path).name}"
+    sections = [("warnings", None, _warnings(inp)),
+                ("header", "Fit, data and provenance", _header(inp))]
+    for ch in inp.channels:
+        tag = ch.name
+        ctitle = f" (channel {ch.name})" if len(inp.channels) > 1 else ""
+        say(f"report: channel {ch.name}: predictions and bands ({BAND_SAMPLES} samples at most)")
+        preds = prediction(inp, ch, m.wi[ch.rows], m.wo[ch.rows])
+        body = _parameter_table(ch) + _correlation(rep, ch, tag)
+        sections.append((f"parameters-{tag}", "Parameters" + ctitle, body))
+        sections.append((f"errors-{tag}", "Errors per incidence" + ctitle,
+                         _error_tables(inp, ch, preds)))
+        sections.append((f"scans-{tag}", "In-plane scans" + ctitle, _scans(rep, inp, ch, preds,
+                                                                          tag)))
+        maps = _maps(rep, inp, ch, preds, tag)
+        if maps:
+            sections.append((f"maps-{tag}", "Hemispherical maps" + ctitle, maps))
+        sections.append((f"lobes-{tag}", "Polar lobes of the fitted BSDF" + ctitle,
+                         _lobes(rep, inp, ch, tag)))
+        sections.append((f"posterior-{tag}", "Posterior and MCMC diagnostics" + ctitle,
+                         _posterior(rep, inp, ch, tag)))
+        walter = _walter(rep, inp, ch, tag)
+        if walter:
+            sections.append((f"walter-{tag}", "Walter diagnostics: empirical D" + ctitle, walter))
+    if luts:
+        from fitlab.report.luts import lut_section
+
+        sections.append(("luts", "Lookup tables", lut_section(rep, inp, luts)))
+    page = document(title, sections)
+    files = {}
+    for f in rep.figures:
+        files[f"{f.name}.png"] = f.png
+        files[f"{f.name}.svg"] = f.svg
+    if len(files) != 2 * len(rep.figures):
+        raise FitlabError("internal error: two report figures share a name")
+    files["index.html"] = page.encode("utf-8")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FitlabError(f"--out {out}: is a file, not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    for name in sorted(files, key=lambda n: (n == "index.html", n)):  # index.html last
+        with atomic_open(out / name, "wb") as fh:
+            fh.write(files[name])
+    say(f"report: wrote {out / 'index.html'} and {len(rep.figures)} figures (PNG + SVG)")
+    return {"files": sorted(files), "figures": [f.name for f in rep.figures],
+            "index": str(out / "index.html"), "has_chain": any(c.samples is not None
+                                                                for c in inp.channels)}

@@ -1,0 +1,299 @@
+"""What a report is made of: the fit record, its data and its MCMC chain, validated against each
+other, plus the model predictions the figures show. Plain NumPy/JAX, no plotting.
+
+Model values come from :mod:`fitlab.api` (``eval_bsdf``); posterior bands evaluate the model at
+a few hundred chain samples in one broadcast call (samples × directions).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+import fitlab
+from fitlab.errors import FitlabError, InputFileError
+from fitlab.fit.space import SCALE, FitSpace, FreeParameter, StaticSpace
+
+#: Posterior samples used for predictive bands (evenly spaced through the stored samples).
+BAND_SAMPLES = 300
+#: Quantiles of the bands: 95% and 68% central intervals and the median.
+BAND_QUANTILES = (2.5, 16.0, 50.0, 84.0, 97.5)
+#: Relative tolerance when checking a chain's samples against the medians the fit recorded.
+CHAIN_MATCH_RTOL = 1e-9
+
+
+class ChannelInputs(NamedTuple):
+    name: str
+    fit: dict  # the record's fits[k]
+    params: dict  # native values of the model parameters (fixed and free), scale excluded
+    scale: float  # 1 for absolute data
+    free: tuple  # free parameter names in the covariance / sample order (scale last)
+    space: FitSpace  # to map chain coordinates to native values
+    rows: np.ndarray  # indices of this channel's rows in the measurement
+    fitted: np.ndarray  # bool per row of ``rows``: inside the fit subset
+    samples: np.ndarray | None  # (S, len(free)) thinned posterior samples, native units
+    samples_all: np.ndarray | None  # every stored post-burn-in sample (corner plot)
+    chain: np.ndarray | None  # (steps, walkers, coords) in sampler coordinates
+    chain_coordinates: tuple
+    log_prob: np.ndarray | None
+
+
+class ReportInputs(NamedTuple):
+    fit_path: str
+    record: dict
+    measurement: object  # fitlab.io.measurement.Measurement
+    data_path: str
+    chain_path: str | None
+    chain_note: str | None  # why there is no chain, when there is none
+    model: object  # fitlab.models.Model
+    options: dict
+    channels: tuple  # of ChannelInputs
+
+
+def _resolve(recorded: str, fit_path: Path) -> Path | None:
+    """A path recorded in a fit file: as given (relative to the working folder), else relative
+    to the fit file's folder or one of its parents (the fit was made from a project root)."""
+    p = Path(recorded)
+    if p.is_absolute() or p.exists():
+        return p if p.exists() else None
+    for base in [fit_path.resolve().parent, *fit_path.resolve().parents]:
+        if (base / p).exists():
+            return base / p
+    return None
+
+
+def load_data(record: dict, fit_path: Path, data_path=None):
+    """The measurement the fit was made from, checked by its SHA-256."""
+    from fitlab.io.formats import read_any
+    from fitlab.io.measurement import sha256_of
+
+    recorded = record["data"].get("path")
+    if data_path is None:
+        if not recorded:
+            raise InputFileError(fit_path, "records no data file", column="data.path",
+                                 hint="give the data file with --data FILE")
+        found = _resolve(recorded, fit_path)
+        if found is None:
+            raise InputFileError(fit_path, f"names the data file {recorded!r}, which does not "
+                                 "exist (relative to this folder or the fit file's folders)",
+                                 column="data.path", hint="give the data file with --data FILE")
+        data_path = found
+    data_path = Path(data_path)
+    if not data_path.is_file():
+        raise InputFileError(data_path, "no such data file", hint="check the --data path")
+    want = record["data"].get("sha256")
+    if want and sha256_of(data_path) != want:
+        raise InputFileError(data_path, f"is not the file {fit_path} was fitted to (its SHA-256 "
+                             "differs from the one recorded in data.sha256)",
+                             hint="give the original data file with --data, or refit")
+    m = read_any(data_path)
+    if m.n != record["data"].get("rows", m.n):
+        raise InputFileError(data_path, f"has {m.n} rows; the fit recorded "
+                             f"{record['data']['rows']}", hint="give the original data file")
+    names = [f["channel"] for f in record["fits"]]
+    missing = [c for c in names if c not in m.channel_names]
+    if missing:
+        raise InputFileError(data_path, f"lacks the fitted channel(s) {', '.join(missing)}",
+                             hint="give the data file the fit was made from")
+    return m, str(data_path)
+
+
+def _space_of(fit: dict, record: dict) -> FitSpace:
+    free = []
+    for name in fit["covariance"]["parameters"]:
+        p = fit["parameters"][name]
+        free.append(FreeParameter(name, float(p["bounds"][0]), float(p["bounds"][1]),
+                                  p.get("transform") == "log", p.get("unit", "")))
+    fixed = {k: v["value"] for k, v in fit["parameters"].items() if v["fixed"]}
+    static = StaticSpace(record["model"]["name"], tuple(sorted(record["model"]["options"].items())),
+                         tuple(f.name for f in free), tuple(f.log for f in free),
+                         tuple(sorted(fixed)), SCALE in fit["parameters"])
+    return FitSpace(static, tuple(free), fixed)
+
+
+def _open_chain(chain_path: Path):
+    try:
+        npz = np.load(chain_path, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputFileError(chain_path, "no such chain file", hint="check the --chain path, or "
+                             "rerun `fitlab fit ... --mcmc --chain FILE.npz`") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputFileError(chain_path, f"is not a NumPy .npz chain file ({exc})",
+                             hint="give the file `fitlab fit --chain` wrote") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise InputFileError(chain_path, "is a single array, not a .npz chain file",
+                             hint="give the file `fitlab fit --chain` wrote")
+    return npz
+
+
+def _channel_chain(npz, chain_path, fit, free, fit_path):
+    """(samples, chain, coordinates, log_prob) of one channel, checked against the fit."""
+    tag = fit["channel"]
+    need = [f"{k}_{tag}" for k in ("samples", "chain", "coordinates", "log_prob")]
+    absent = [k for k in need if k not in npz.files]
+    if absent:
+        raise InputFileError(chain_path, f"has no array(s) {', '.join(absent)} for channel "
+                             f"{tag} (arrays: {', '.join(sorted(npz.files))})",
+                             hint=f"give the chain written together with {fit_path}")
+    samples = np.asarray(npz[f"samples_{tag}"], dtype=float)
+    coords = tuple(str(c) for c in npz[f"coordinates_{tag}"])
+    chain = np.asarray(npz[f"chain_{tag}"], dtype=float)
+    log_prob = np.asarray(npz[f"log_prob_{tag}"], dtype=float)
+    if coords[: len(free)] != tuple(free):
+        raise InputFileError(chain_path, f"channel {tag}: the chain's coordinates "
+                             f"({', '.join(coords)}) do not match the fit's free parameters "
+                             f"({', '.join(free)})", column=f"coordinates_{tag}",
+                             hint=f"give the chain written together with {fit_path}")
+    if samples.ndim != 2 or samples.shape[1] != len(free) or samples.shape[0] < 2:
+        raise InputFileError(chain_path, f"channel {tag}: samples have shape {samples.shape}; "
+                             f"expected (n, {len(free)})", column=f"samples_{tag}")
+    if chain.ndim != 3 or chain.shape[2] != len(coords) or log_prob.shape != chain.shape[:2]:
+        raise InputFileError(chain_path, f"channel {tag}: chain shape {chain.shape} and log_prob "
+                             f"shape {log_prob.shape} are inconsistent with "
+                             f"{len(coords)} coordinates", column=f"chain_{tag}")
+    if not np.all(np.isfinite(samples)):
+        raise InputFileError(chain_path, f"channel {tag}: samples contain NaN or infinity",
+                             column=f"samples_{tag}")
+    mc = fit.get("mcmc")
+    if mc:
+        if mc.get("samples") is not None and mc["samples"] != samples.shape[0]:
+            raise InputFileError(chain_path, f"channel {tag}: holds {samples.shape[0]} samples; "
+                                 f"{fit_path} recorded {mc['samples']}",
+                                 hint=f"give the chain written together with {fit_path}")
+        for k, name in enumerate(free):
+            post = fit["parameters"][name].get("posterior")
+            if post is None:
+                continue
+            med = float(np.percentile(samples[:, k], 50))
+            if not np.isclose(med, post["median"], rtol=CHAIN_MATCH_RTOL, atol=0.0):
+                raise InputFileError(
+                    chain_path, f"channel {tag}: is not this fit's chain (its posterior median "
+                    f"of {name} is {med:.9g}; {fit_path} records {post['median']:.9g})",
+                    hint=f"give the chain written together with {fit_path}, or rerun the fit")
+    return samples, chain, coords, log_prob
+
+
+def thin_samples(samples: np.ndarray, n: int = BAND_SAMPLES) -> np.ndarray:
+    """At most ``n`` samples, evenly spaced through the stored ones (deterministic)."""
+    if samples.shape[0] <= n:
+        return samples
+    idx = np.round(np.linspace(0, samples.shape[0] - 1, n)).astype(int)
+    return samples[idx]
+
+
+def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> ReportInputs:
+    """Read and cross-check the fit record, its data file and (if any) its chain file."""
+    from fitlab.export.paramfile import read_fit
+    from fitlab.fit.subset import subset_mask
+
+    say = progress or (lambda msg: None)
+    fit_path = Path(fit_path)
+    record = read_fit(fit_path)
+    model = fitlab.get_model(record["model"]["name"])
+    try:
+        options = fitlab.api.resolve_options(model, record["model"].get("options"))
+    except ValueError as exc:
+        raise InputFileError(fit_path, str(exc), column="model.options") from None
+    if not record["fits"]:
+        raise InputFileError(fit_path, "holds no fitted channel", column="fits")
+    for fit in record["fits"]:
+        for key in ("channel", "parameters", "covariance", "statistics"):
+            if key not in fit:
+                raise InputFileError(fit_path, f"a fit entry lacks {key!r}", column=f"fits.{key}")
+    say(f"report: reading the data of {fit_path}")
+    m, data_used = load_data(record, fit_path, data_path)
+
+    note = None
+    has_mcmc = any(f.get("mcmc") for f in record["fits"])
+    recorded_chain = (record.get("chain") or {}).get("path")
+    if chain_path is None and recorded_chain:
+        found = _resolve(recorded_chain, fit_path)
+        if found is not None:
+            chain_path = found
+        else:
+            note = (f"no chain: the fit records the chain file {recorded_chain}, which is not "
+                    "there (chains are not committed; rerun the fit's command with --chain, or "
+                    "give --chain FILE.npz)")
+    if chain_path is None and note is None:
+        note = ("no chain: the fit ran without MCMC (fitlab fit --mcmc --chain FILE.npz gives "
+                "posterior bands, a corner plot and MCMC diagnostics)" if not has_mcmc else
+                "no chain: the fit ran with MCMC but its chain file was not given (--chain "
+                "FILE.npz); the posterior table comes from the parameter file")
+    npz = None
+    if chain_path is not None:
+        chain_path = Path(chain_path)
+        if not has_mcmc:
+            raise InputFileError(chain_path, f"was given, but {fit_path} records no MCMC run",
+                                 hint="give the parameter file of the --mcmc fit that wrote it")
+        npz = _open_chain(chain_path)
+
+    rows_fit = (np.ones(m.n, dtype=bool) if not record["data"].get("fit_subset")
+                else subset_mask(record["data"]["fit_subset"], m))
+    channels = []
+    for fit in record["fits"]:
+        idx = m.channel_names.index(fit["channel"])
+        rows = np.flatnonzero(m.channel == idx)
+        free = tuple(fit["covariance"]["parameters"])
+        params = {k: float(v["value"]) for k, v in fit["parameters"].items() if k != SCALE}
+        scale = float(fit["parameters"][SCALE]["value"]) if SCALE in fit["parameters"] else 1.0
+        try:
+            fitlab.api.check_params(model, params)
+        except ValueError as exc:
+            raise InputFileError(fit_path, f"channel {fit['channel']}: {exc}",
+                                 column="fits.parameters") from None
+        samples = samples_all = chain = log_prob = None
+        coords = ()
+        if npz is not None and fit.get("mcmc"):
+            samples_all, chain, coords, log_prob = _channel_chain(npz, chain_path, fit, free,
+                                                                  fit_path)
+            samples = thin_samples(samples_all)
+        channels.append(ChannelInputs(fit["channel"], fit, params, scale, free,
+                                      _space_of(fit, record), rows, rows_fit[rows], samples,
+                                      samples_all, chain, coords, log_prob))
+    return ReportInputs(str(fit_path), record, m, data_used,
+                        None if chain_path is None else str(chain_path), note, model, options,
+                        tuple(channels))
+
+
+# --------------------------------------------------------------------------------------------
+# Model values
+# --------------------------------------------------------------------------------------------
+
+
+def model_f(inputs: ReportInputs, params: dict, wi, wo) -> np.ndarray:
+    """The fitted model's f (1/sr, no cosine) at direction pairs, via fitlab.api."""
+    return np.asarray(fitlab.eval_bsdf(inputs.model.name, params, np.asarray(wi, float),
+                                       np.asarray(wo, float), inputs.options))
+
+
+def prediction(inputs: ReportInputs, ch: ChannelInputs, wi, wo) -> np.ndarray:
+    """What the fit predicts for the data: scale · f at the best fit."""
+    return ch.scale * model_f(inputs, ch.params, wi, wo)
+
+
+def sample_params(ch: ChannelInputs):
+    """(params, scale) with a leading sample axis of shape (S, 1), from the thinned samples."""
+    params = {k: np.full((ch.samples.shape[0], 1), v) for k, v in ch.params.items()}
+    scale = np.ones((ch.samples.shape[0], 1))
+    for k, name in enumerate(ch.free):
+        if name == SCALE:
+            scale = ch.samples[:, k:k + 1]
+        else:
+            params[name] = ch.samples[:, k:k + 1]
+    return params, scale
+
+
+def predictive_band(inputs: ReportInputs, ch: ChannelInputs, wi, wo) -> np.ndarray | None:
+    """Quantiles BAND_QUANTILES (5, P) over the posterior samples of scale · f at P direction
+    pairs: the model evaluated at every thinned sample in one broadcast (S, P) call. None
+    without a chain."""
+    if ch.samples is None:
+        return None
+    params, scale = sample_params(ch)
+    wi = np.asarray(wi, float)[None, ...]
+    wo = np.asarray(wo, float)[None, ...]
+    vals = scale * model_f(inputs, params, wi, wo)
+    return np.percentile(vals, BAND_QUANTILES, axis=0)
