@@ -1,0 +1,133 @@
+"""The effect plan: what a scene asks the walk to simulate, what fitlab derives from the scene
+itself, and every effect skipped with its reason (data_formats/scene_toml.md, "Effects").
+
+The plan decides what is compiled into the walk (walk.WalkConfig) and is written into the
+output's metadata, so a simulated file says which physics it holds.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from fitlab.simulate.scene import CHANNEL_NAMES_RGB, Scene
+
+
+class EffectPlan(NamedTuple):
+    reflection: bool  # exits into the outside are tallied
+    transmission: bool  # exits into the medium below are tallied (else such paths end at once)
+    max_bounces: int | None  # None = all orders
+    russian_roulette: bool
+    volume: bool  # volume scattering code compiled
+    volume_limit: int | None  # volume events allowed per path: 0 (none), 1 (single), None (all)
+    absorption: bool  # σa attenuation compiled
+    extinction_only: bool  # σs attenuates without scattering (volume_scattering = "none")
+    delta: bool  # paths without any non-specular event are tallied
+    channels: int  # channels simulated (1 or 3)
+    channel_names: tuple
+    walk_per_channel: bool  # σs differs by channel: one walk per channel
+    end_downward_after_last_bounce: bool
+    simulated: tuple  # (effect, detail)
+    skipped: tuple  # (effect, reason)
+
+    def describe(self) -> str:
+        sim = "; ".join(f"{k} ({v})" if v else k for k, v in self.simulated)
+        skip = "; ".join(f"{k}: {v}" for k, v in self.skipped)
+        return f"simulated: {sim}\nskipped: {skip or 'nothing'}"
+
+
+def _any(values):
+    return any(v > 0 for v in values)
+
+
+def derive_effects(scene: Scene) -> EffectPlan:
+    """The effect plan of ``scene``: the requested effects (``[effects]``, detector sides) narrowed
+    by what the scene implies (no medium, σa = 0, grey properties, opaque substrate)."""
+    eff = scene.effects
+    sim, skip = [], []
+    sides = scene.detector.sides
+    reflection = "reflection" in sides
+    transmission = "transmission" in sides and not scene.opaque_substrate
+    if reflection:
+        sim.append(("reflection", "paths leaving into the outside are tallied"))
+    else:
+        skip.append(("reflection", "no reflection detector: paths leaving upward are not tallied"))
+    if transmission:
+        sim.append(("transmission", "paths entering the medium below are tallied"))
+    elif scene.opaque_substrate:
+        skip.append(("transmission", "the substrate is opaque: no transmitted paths exist"))
+    else:
+        skip.append(("transmission", "no transmission detector: paths entering the medium "
+                     "below end at once"))
+
+    media = scene.media
+    thick = [m for m in media if m.thickness > 0]
+    # volume scattering
+    scattering = [m for m in thick if _any(m.sigma_s)]
+    if not media:
+        skip.append(("volume scattering", "no medium in the stack: no volume code"))
+        volume, limit, ext_only = False, 0, False
+    elif not scattering:
+        skip.append(("volume scattering", "every sigma_s is 0: no volume code"))
+        volume, limit, ext_only = False, 0, False
+    elif eff.volume_scattering == "none":
+        skip.append(("volume scattering", "volume_scattering = \"none\": scattered light is "
+                     "removed from the paths (extinction by sigma_a + sigma_s)"))
+        volume, limit, ext_only = False, 0, True
+    else:
+        limit = 1 if eff.volume_scattering == "single" else None
+        volume, ext_only = True, False
+        phases = sorted({m.phase.type for m in scattering})
+        sim.append(("volume scattering", f"{eff.volume_scattering} ({', '.join(phases)})"))
+    # absorption
+    absorbing = [m for m in thick if _any(m.sigma_a)]
+    if not media:
+        skip.append(("absorption", "no medium in the stack: no attenuation code"))
+        absorption = False
+    elif not absorbing:
+        skip.append(("absorption", "every sigma_a is 0: no attenuation code"))
+        absorption = False
+    elif not eff.absorption:
+        skip.append(("absorption", "absorption = false in [effects]"))
+        absorption = False
+    else:
+        absorption = True
+        sim.append(("absorption", "Beer-Lambert attenuation along every flight"))
+    # bounces
+    if eff.max_bounces is None:
+        rr = eff.russian_roulette
+        sim.append(("bounces", "all orders" + (" with Russian roulette" if rr else "")))
+    else:
+        rr = False
+        sim.append(("bounces", f"at most {eff.max_bounces} below the top surface"))
+        skip.append(("higher bounces", f"max_bounces = {eff.max_bounces}: paths making bounce "
+                     f"{eff.max_bounces + 1} end there"))
+    end_down = eff.max_bounces is not None and not transmission
+    if end_down:
+        sim.append(("early termination", "a path that has used its bounces and travels "
+                    "downward ends at once (no transmission detector)"))
+    # delta
+    top = scene.boundaries[0]
+    if top.kind in ("lambertian",) or (top.kind in ("dielectric", "conductor")
+                                        and top.distribution != "smooth"):
+        skip.append(("delta", "the top surface is rough or diffuse: every path has a "
+                     "non-specular event, no delta paths exist"))
+    elif eff.delta:
+        sim.append(("delta", "unscattered transmission and specular reflection included"))
+    else:
+        skip.append(("delta", "delta = false: paths without a non-specular event are not tallied"))
+    # colour
+    if scene.channels == 3:
+        channels, names = 3, CHANNEL_NAMES_RGB
+        per_channel = any(len(set(m.sigma_s)) > 1 for m in scattering) and volume
+        sim.append(("color", "R, G, B" + ("; one walk per channel (sigma_s differs by channel)"
+                                          if per_channel else "; one walk carries all channels")))
+    else:
+        channels, names, per_channel = 1, ("Y",), False
+        if eff.color == "rgb":
+            skip.append(("color", "rgb requested but every property is grey: one channel "
+                         "simulated, its value holds for R, G and B"))
+        else:
+            sim.append(("color", "one channel (grey properties)"))
+    return EffectPlan(reflection, transmission, eff.max_bounces, rr, volume, limit, absorption,
+                      ext_only, eff.delta, channels, names, per_channel, end_down, tuple(sim),
+                      tuple(skip))

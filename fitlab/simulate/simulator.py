@@ -1,0 +1,309 @@
+"""``simulate(scene, samples, seed)``: the Monte Carlo estimate of a scene's BSDF per detector bin
+with standard errors, the split by bounce order, the effect plan and the time taken.
+
+Batches of ``batch_size`` paths are traced one after the other (walk.run_batch, one compiled
+kernel per walk configuration) and their float64 tallies summed on the host, so memory stays
+bounded for any sample count. Results are deterministic for a given seed and batch size.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fitlab.phase import sggx_matrix
+from fitlab.simulate import detectors
+from fitlab.simulate.effects import EffectPlan, derive_effects
+from fitlab.simulate.scene import Scene
+from fitlab.simulate.walk import ORDER_CLASSES, Detector, WalkArrays, WalkConfig, run_batch
+
+#: Default paths per batch (memory ~ a few hundred bytes per path).
+BATCH_SIZE = 1 << 15
+#: Events per path after which a path still alive is dropped (reported as truncated).
+MAX_EVENTS = 512
+
+
+class SimulationResult(NamedTuple):
+    """One row per (incidence, bin or cone); channels along the last axis."""
+
+    theta_i: np.ndarray  # degrees, (rows,)
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+    value: np.ndarray  # (rows, C) BSDF f in 1/sr (cosine-weighted mean over the bin)
+    sigma: np.ndarray  # (rows, C) standard error of value
+    by_order: np.ndarray  # (4, rows, C): bounce orders 0, 1, 2, >= 3 (sum = value)
+    sigma_by_order: np.ndarray
+    energy: np.ndarray  # (incidences, 2, C): flux fraction leaving up (0) and down (1), tallied sides
+    energy_sigma: np.ndarray
+    incidences: np.ndarray  # (incidences, 2) θi, φi in degrees
+    channel_names: tuple
+    plan: EffectPlan
+    samples: int  # paths per incidence
+    seed: int
+    time_s: float
+    events: int  # scattering events traced in total
+    truncated: int  # paths still alive after MAX_EVENTS events (dropped)
+    scene: Scene
+
+    @property
+    def paths_per_s(self) -> float:
+        return self.samples * len(self.incidences) / max(self.time_s, 1e-12)
+
+    def metadata(self) -> dict:
+        """Metadata lines of the output CSV (data_formats/scene_toml.md, "Output")."""
+        sides = self.scene.detector.sides
+        scatter = "brdf" if sides == ("reflection",) else "btdf" if sides == ("transmission",) \
+            else "bsdf"
+        return {
+            "scatter": scatter,
+            "generator": "fitlab simulate",
+            "scene": self.scene.source,
+            "scene_name": self.scene.name,
+            "samples": str(self.samples),
+            "seed": str(self.seed),
+            "time_s": f"{self.time_s:.3f}",
+            "paths_per_s": f"{self.paths_per_s:.4g}",
+            "effects_simulated": "; ".join(f"{k} ({v})" for k, v in self.plan.simulated),
+            "effects_skipped": "; ".join(f"{k}: {v}" for k, v in self.plan.skipped) or "nothing",
+            "truncated_paths": str(self.truncated),
+            "eta_outside": f"{self.scene.outside_index:g}",
+            "eta_inside": f"{self.scene.below_index:g}",
+            "value": "cosine-weighted mean BSDF over each bin or cone (1/sr); sigma = Monte "
+                     "Carlo standard error",
+        }
+
+    def to_measurement(self, orders: bool = False):
+        """The result as a :class:`fitlab.io.measurement.Measurement` (quantity bsdf). Rows with
+        no tallied path (sigma 0) are left out. ``orders``: one channel per bounce-order class
+        (and colour channel) instead of the total."""
+        from fitlab.io.directions import degrees_to_direction
+        from fitlab.io.measurement import Measurement
+
+        if orders:
+            val = np.concatenate([self.by_order[k] for k in range(len(ORDER_CLASSES))], axis=1)
+            sig = np.concatenate([self.sigma_by_order[k] for k in range(len(ORDER_CLASSES))], axis=1)
+            names = tuple(o if len(self.channel_names) == 1 else f"{c}_{o}"
+                          for o in ORDER_CLASSES for c in self.channel_names)
+        else:
+            val, sig, names = self.value, self.sigma, self.channel_names
+        R, C = val.shape
+        keep = (sig > 0).reshape(-1)
+        rep = lambda a: np.repeat(a, C)[keep]  # noqa: E731
+        ti, pi_, to, po = rep(self.theta_i), rep(self.phi_i), rep(self.theta_o), rep(self.phi_o)
+        meta = self.metadata()
+        meta["empty_bins"] = str(int((~keep).sum()))
+        return Measurement(
+            path="<simulated>", sha256="", theta_i=ti, phi_i=pi_, theta_o=to, phi_o=po,
+            wi=degrees_to_direction(ti, pi_), wo=degrees_to_direction(to, po),
+            value=val.reshape(-1)[keep], sigma=sig.reshape(-1)[keep],
+            channel=np.tile(np.arange(C), R)[keep], channel_names=names, wavelength_nm=None,
+            quantity="bsdf", file_quantity="bsdf", metadata=meta,
+            lines=np.zeros(int(keep.sum()), dtype=int))
+
+
+# --------------------------------------------------------------------------------------------
+# Scene → walk configuration and arrays
+# --------------------------------------------------------------------------------------------
+
+
+def _channel_values(values, C, channel=None):
+    v = np.broadcast_to(np.asarray(values, dtype=float), (3,) if len(values) == 3 else (1,))
+    if channel is not None:
+        return np.array([v[channel] if v.size == 3 else v[0]])
+    return np.broadcast_to(v, (C,)) if v.size == 1 else v
+
+
+def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
+    """WalkConfig and WalkArrays; ``channel``: the single channel of a per-channel walk."""
+    C = 1 if channel is not None else plan.channels
+    M = len(scene.media)
+    R = M + 2
+    idx = scene.region_indices
+    thickness = np.zeros(R)
+    sigma_a = np.zeros((R, C))
+    sigma_s = np.zeros(R)
+    sigma_s_c = np.zeros((R, C))
+    hg_g = np.zeros(R)
+    S = np.broadcast_to(np.eye(3), (R, 3, 3)).copy()
+    phases = [None] * R
+    for j, m in enumerate(scene.media, start=1):
+        thickness[j] = m.thickness
+        if m.thickness == 0:
+            continue
+        sigma_a[j] = _channel_values(m.sigma_a, C, channel)
+        ss = _channel_values(m.sigma_s, C, channel)
+        sigma_s_c[j] = ss
+        sigma_s[j] = ss[0]
+        if max(m.sigma_s) > 0 or max(m.sigma_a) > 0:
+            phases[j] = "sggx" if m.phase.type.startswith("sggx") else m.phase.type
+        hg_g[j] = m.phase.g
+        if m.phase.type.startswith("sggx"):
+            S[j] = np.asarray(sggx_matrix(m.phase.type[5:], jnp.asarray(m.phase.roughness),
+                                          jnp.asarray(m.phase.orientation)))
+    Bd = len(scene.boundaries)
+    alpha = np.zeros(Bd)
+    eta = np.ones(Bd)
+    albedo = np.zeros((Bd, C))
+    cn = np.ones((Bd, C))
+    ck = np.zeros((Bd, C))
+    groups = []
+    for b, bd in enumerate(scene.boundaries):
+        alpha[b] = bd.alpha
+        eta[b] = idx[b + 1] / idx[b]
+        if bd.kind == "pass":
+            groups.append("pass")
+        elif bd.kind == "dielectric":
+            groups.append("smooth" if bd.distribution == "smooth" else f"rough:{bd.distribution}")
+        elif bd.kind == "lambertian":
+            groups.append("lambertian")
+            albedo[b] = _channel_values(bd.albedo, C, channel)
+        else:
+            groups.append(f"conductor:{bd.distribution}")
+            cn[b] = _channel_values(bd.n, C, channel) / idx[b]
+            ck[b] = _channel_values(bd.k, C, channel) / idx[b]
+    det = scene.detector
+    cfg = WalkConfig(
+        n_media=M, boundary_groups=tuple(groups), region_phase=tuple(phases), channels=C,
+        reflection=plan.reflection, transmission=plan.transmission,
+        max_bounces=-1 if plan.max_bounces is None else plan.max_bounces,
+        russian_roulette=plan.russian_roulette, volume=plan.volume,
+        volume_limit=-1 if plan.volume_limit is None else plan.volume_limit,
+        absorption=plan.absorption, extinction_only=plan.extinction_only, delta=plan.delta,
+        end_downward_after_last_bounce=plan.end_downward_after_last_bounce,
+        max_events=int(max_events), detector="bins" if det.type == "hemisphere" else "cones",
+        theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype)
+    dt = jnp.dtype(dtype)
+    f = lambda a: jnp.asarray(a, dtype=dt)  # noqa: E731
+    arr = WalkArrays(f(thickness), f(sigma_a), f(sigma_s), f(sigma_s_c), f(hg_g), f(S), f(alpha),
+                     f(eta), f(albedo), f(cn), f(ck))
+    return cfg, arr
+
+
+def _incidence_rows(scene: Scene):
+    """[(θi, φi, Rows, cone axes or None)] for every incidence of the scene."""
+    det = scene.detector
+    out = []
+    if det.type == "measurement":
+        from fitlab.io.measurement import read_measurement
+
+        m = read_measurement(det.file)
+        key = np.stack([m.theta_i, np.mod(m.phi_i, 360.0), m.theta_o, np.mod(m.phi_o, 360.0)], 1)
+        key = np.unique(key, axis=0)
+        for ti, pi_ in np.unique(key[:, :2], axis=0):
+            sel = (key[:, 0] == ti) & (key[:, 1] == pi_)
+            rows, d = detectors.measurement_rows(key[sel, 2], key[sel, 3], det.acceptance_sr)
+            out.append((float(ti), float(pi_), rows, d))
+        return out
+    for ti, pi_ in zip(scene.theta_i, scene.phi_i):
+        if det.type == "hemisphere":
+            out.append((ti, pi_, detectors.hemisphere_rows(det.theta_bins, det.phi_bins,
+                                                           det.sides), None))
+        else:
+            rows, d = detectors.inplane_rows(det.theta_o, pi_, det.acceptance_sr)
+            out.append((ti, pi_, rows, d))
+    return out
+
+
+class _Progress:
+    def __init__(self, total, enabled):
+        self.total, self.enabled, self.done = total, enabled, 0
+        self.t0 = self.last = time.perf_counter()
+
+    def add(self, n, what):
+        self.done += n
+        now = time.perf_counter()
+        if self.enabled and (now - self.last > 0.5 or self.done == self.total):
+            self.last = now
+            rate = self.done / max(now - self.t0, 1e-9)
+            tty = sys.stderr.isatty()
+            print(f"{'\r' if tty else ''}simulate: {what}: {self.done}/{self.total} paths "
+                  f"({rate:,.0f} paths/s)", end="" if tty and self.done < self.total else "\n",
+                  file=sys.stderr, flush=True)
+
+
+def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BATCH_SIZE,
+             max_events: int = MAX_EVENTS, dtype: str = "float32",
+             progress: bool = False) -> SimulationResult:
+    """Trace ``samples`` paths per incident direction of ``scene`` and estimate the BSDF of every
+    detector bin (data_formats/scene_toml.md).
+
+    Parameters: ``seed`` fixes every random number (results are identical for the same seed and
+    ``batch_size``); ``batch_size`` paths are traced at a time (memory bound); ``max_events``
+    caps the events of one path (paths still alive are dropped and counted in ``truncated``);
+    ``dtype`` of the paths (float32 for throughput; tallies are float64); ``progress`` prints
+    progress on stderr. Returns a :class:`SimulationResult`.
+    """
+    if samples < 2:
+        raise ValueError("samples must be at least 2 (a standard error needs two paths)")
+    plan = derive_effects(scene)
+    t0 = time.perf_counter()
+    incid = _incidence_rows(scene)
+    channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [None]
+    setups = [_walk_setup(scene, plan, c, max_events, dtype) for c in channel_walks]
+    C = plan.channels
+    n_batches = -(-samples // batch_size)
+    batch = min(batch_size, samples)
+    prog = _Progress(samples * len(incid) * len(channel_walks), progress)
+    root = jax.random.PRNGKey(seed)
+    all_rows = []
+    energy = np.zeros((len(incid), 2, C))
+    energy_sig = np.zeros((len(incid), 2, C))
+    events = truncated = 0
+    for ii, (ti, pi_, rows, axes) in enumerate(incid):
+        n_out = (2 * scene.detector.theta_bins * scene.detector.phi_bins
+                 if axes is None else len(rows.tally))
+        if axes is None:
+            det = Detector(jnp.zeros((1, 3)), jnp.full((1,), 2.0))
+        else:
+            det = Detector(jnp.asarray(axes, dtype=jnp.float64),
+                           jnp.full((len(axes),), detectors.cone_half_angle_cos(
+                               scene.detector.acceptance_sr), dtype=jnp.float64))
+        wi = jnp.asarray(detectors.direction(ti, pi_), dtype=jnp.float64)
+        S1 = np.zeros((len(ORDER_CLASSES), n_out, C))
+        S2 = np.zeros_like(S1)
+        E1 = np.zeros((2, 2, C))
+        for ci, (cfg, arr) in enumerate(setups):
+            sl = slice(None) if len(setups) == 1 else slice(ci, ci + 1)
+            for k in range(n_batches):
+                n_valid = min(batch, samples - k * batch)
+                key = jax.random.fold_in(jax.random.fold_in(root, ii), k)
+                s1, s2, side, alive, ev = run_batch(cfg, arr, det, key, wi, n_valid, batch=batch,
+                                                    n_out=n_out)
+                S1[..., sl] += np.asarray(s1)
+                S2[..., sl] += np.asarray(s2)
+                E1[..., sl] += np.asarray(side)
+                truncated += int(alive)
+                events += int(ev)
+                prog.add(n_valid, f"θi = {ti:g}°")
+        N = float(samples)
+        mean = S1 / N
+        var = np.maximum(S2 / N - mean * mean, 0.0) / (N - 1.0)
+        cw = rows.cos_solid_angle[None, :, None]
+        by_order = mean[:, rows.tally] / cw
+        sig_order = np.sqrt(var[:, rows.tally]) / cw
+        tot = S1.sum(0) / N
+        tot_var = np.maximum(S2.sum(0) / N - tot * tot, 0.0) / (N - 1.0)
+        value = tot[rows.tally] / cw[0]
+        sigma = np.sqrt(tot_var[rows.tally]) / cw[0]
+        all_rows.append((ti, pi_, rows, value, sigma, by_order, sig_order))
+        energy[ii] = E1[0] / N
+        energy_sig[ii] = np.sqrt(np.maximum(E1[1] / N - (E1[0] / N) ** 2, 0.0) / (N - 1.0))
+    elapsed = time.perf_counter() - t0
+    cat = lambda f: np.concatenate([f(r) for r in all_rows])  # noqa: E731
+    return SimulationResult(
+        theta_i=cat(lambda r: np.full(len(r[2].tally), r[0])),
+        phi_i=cat(lambda r: np.full(len(r[2].tally), r[1])),
+        theta_o=cat(lambda r: r[2].theta_o), phi_o=cat(lambda r: r[2].phi_o),
+        value=cat(lambda r: r[3]), sigma=cat(lambda r: r[4]),
+        by_order=np.concatenate([r[5] for r in all_rows], axis=1),
+        sigma_by_order=np.concatenate([r[6] for r in all_rows], axis=1),
+        energy=energy, energy_sigma=energy_sig,
+        incidences=np.array([[r[0], r[1]] for r in all_rows]),
+        channel_names=plan.channel_names, plan=plan, samples=int(samples), seed=int(seed),
+        time_s=elapsed, events=events, truncated=truncated, scene=scene)

@@ -1,0 +1,363 @@
+"""Vectorized random walk through a layer stack, in JAX.
+
+One call of :func:`run_batch` traces a fixed-size batch of paths for one incident direction
+inside a ``lax.while_loop`` (one scattering event per iteration, every path masked by ``alive``)
+and returns the batch's tallies in float64: per bounce-order class and detector bin, the sum and
+the sum of squares of the path contributions. Paths are float32 (``WalkConfig.dtype``); only
+what the effect plan asks for is compiled (``WalkConfig`` is static).
+
+Geometry (scene.py): regions 0..M+1 (0 = outside, M+1 = below), boundary b between regions b
+and b+1. A path has a region, a depth ``z`` below the region's top, a propagation direction
+``w`` and a weight per channel. Each iteration: a path in a medium flies (free-flight sampling
+by σs when volume scattering is compiled, Beer–Lambert weights for absorption); it either
+scatters in the volume (phase function sampled exactly, fitlab/phase.py) or meets a boundary,
+where the boundary's BSDF is sampled with the existing models (rough dielectric: Walter
+section 5.3 through fitlab.models.rough_dielectric.sample, weight eq. 41; rough conductor:
+fitlab.models.rough_conductor.sample; Lambertian: cosine sampling; smooth dielectric: Fresnel
+choice between mirror and Snell directions). Paths that leave into region 0 upward or region M+1
+downward exit; their final direction and weight are tallied after the loop.
+
+Bounce order: the number of turns from downward to upward travel below the top interface (the
+extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface reflection);
+tallied in four classes 0, 1, 2, ≥3.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric_Walter2007
+from fitlab.frame import normalize
+from fitlab.models import rough_conductor, rough_dielectric
+from fitlab.phase import PHASE_FUNCTIONS, sggx_sigma
+
+#: Bounce-order classes tallied separately: 0, 1, 2, ≥ 3.
+ORDER_CLASSES = ("order0", "order1", "order2", "rest")
+#: Russian roulette starts after this many events of a path.
+RR_START = 3
+#: Smallest survival probability of Russian roulette.
+RR_MIN_Q = 0.05
+
+
+class WalkConfig(NamedTuple):
+    """Static description of the walk (hashable: one compilation per distinct config)."""
+
+    n_media: int
+    boundary_groups: tuple  # per boundary: "pass", "smooth", "rough:<dist>", "lambertian", "conductor:<dist|smooth>"
+    region_phase: tuple  # per region 0..M+1: None, "isotropic", "hg", "sggx"
+    channels: int
+    reflection: bool
+    transmission: bool
+    max_bounces: int  # -1 = all
+    russian_roulette: bool
+    volume: bool
+    volume_limit: int  # -1 = unlimited
+    absorption: bool
+    extinction_only: bool
+    delta: bool
+    end_downward_after_last_bounce: bool
+    max_events: int
+    detector: str  # "bins" or "cones"
+    theta_bins: int
+    phi_bins: int
+    dtype: str = "float32"
+
+
+class WalkArrays(NamedTuple):
+    """Per-region and per-boundary properties (a pytree of arrays, float32)."""
+
+    thickness: jax.Array  # (R,)
+    sigma_a: jax.Array  # (R, C)
+    sigma_s: jax.Array  # (R,) scattering coefficient used for free flights
+    sigma_s_c: jax.Array  # (R, C) σs per channel (extinction-only attenuation)
+    hg_g: jax.Array  # (R,)
+    sggx_S: jax.Array  # (R, 3, 3)
+    alpha: jax.Array  # (Bd,)
+    eta: jax.Array  # (Bd,) n_below / n_above
+    albedo: jax.Array  # (Bd, C)
+    cond_n: jax.Array  # (Bd, C) relative to the medium above
+    cond_k: jax.Array  # (Bd, C)
+
+
+class Detector(NamedTuple):
+    """Per-incidence detector arrays: cones (R, 3) directions and cos of the half angle (R,);
+    for bins these are unused (size-1 placeholders)."""
+
+    cone_dir: jax.Array
+    cone_cos: jax.Array
+
+
+class State(NamedTuple):
+    region: jax.Array
+    z: jax.Array
+    w: jax.Array
+    weight: jax.Array
+    alive: jax.Array
+    exited: jax.Array
+    bounces: jax.Array
+    vol_events: jax.Array
+    events: jax.Array
+    diffuse: jax.Array
+
+
+def _flip_z(w):
+    return w * jnp.asarray([1.0, 1.0, -1.0], dtype=w.dtype)
+
+
+def _smooth_dielectric(w, eta_side, u):
+    """Smooth interface met by propagation direction w: reflect with probability F (Walter
+    eq. 22, TIR included), else refract by Snell's law. eta_side = η_t/η_i for this side."""
+    cos_i = jnp.abs(w[..., 2])
+    F = fresnel_dielectric_Walter2007(cos_i, eta_side)
+    inv = 1.0 / eta_side
+    sin2_t = inv * inv * (w[..., 0] ** 2 + w[..., 1] ** 2)
+    cos_t = jnp.sqrt(jnp.maximum(1.0 - sin2_t, 0.0))
+    sgn = jnp.where(w[..., 2] < 0, -1.0, 1.0).astype(w.dtype)
+    w_t = jnp.stack([w[..., 0] * inv, w[..., 1] * inv, sgn * cos_t], axis=-1)
+    reflect = u < F
+    return jnp.where(reflect[..., None], _flip_z(w), w_t)
+
+
+def _boundary_event(cfg, arr, st, b, u):
+    """New propagation direction, weight factor (B, C) and whether the event is non-specular,
+    for every path meeting boundary b (B,)."""
+    dt = st.w.dtype
+    B = st.w.shape[0]
+    C = cfg.channels
+    w = st.w
+    wi = -w  # toward where the light came from
+    new_w = w
+    factor = jnp.ones((B, C), dtype=dt)
+    diffuse = jnp.zeros((B,), dtype=bool)
+    groups = cfg.boundary_groups
+    for g in sorted(set(groups)):
+        ids = [j for j, gj in enumerate(groups) if gj == g]
+        sel = functools.reduce(jnp.logical_or, [b == j for j in ids])
+        if g == "pass":
+            continue
+        if g == "smooth":
+            eta = arr.eta[b]
+            eta_side = jnp.where(w[..., 2] < 0, eta, 1.0 / eta)
+            gw = _smooth_dielectric(w, eta_side, u[:, 2])
+            gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
+        elif g.startswith("rough:"):
+            params = {"alpha": arr.alpha[b], "eta": arr.eta[b]}
+            gw, wt, _ = rough_dielectric.sample(params, wi, u[:, 0:3], distribution=g[6:])
+            gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
+        elif g == "lambertian":
+            # cosine-weighted hemisphere (Malley), weight = albedo
+            r = jnp.sqrt(u[:, 0])
+            phi = 2.0 * jnp.pi * u[:, 1]
+            z = jnp.sqrt(jnp.maximum(1.0 - u[:, 0], 0.0))
+            gw = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi), z], axis=-1)
+            gf, gd = arr.albedo[b], jnp.ones((B,), dtype=bool)
+        elif g == "conductor:smooth":
+            gw = _flip_z(w)
+            gf = fresnel_conductor_exact(jnp.abs(w[:, 2:3]), arr.cond_n[b], arr.cond_k[b])
+            gd = jnp.zeros((B,), dtype=bool)
+        elif g.startswith("conductor:"):
+            params = {"alpha": arr.alpha[b][:, None], "n": arr.cond_n[b], "k": arr.cond_k[b]}
+            wo, wt, _ = rough_conductor.sample(params, wi[:, None, :], u[:, None, 0:3],
+                                               distribution=g[10:])
+            gw, gf, gd = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool)
+        else:  # pragma: no cover - scene.py admits no other kind
+            raise ValueError(g)
+        new_w = jnp.where(sel[:, None], gw, new_w)
+        factor = jnp.where(sel[:, None], gf, factor)
+        diffuse = jnp.where(sel, gd, diffuse)
+    return new_w, factor, diffuse
+
+
+def _volume_event(cfg, arr, st, u):
+    """Phase-function sampling for every path (selected by the caller)."""
+    wi = -st.w
+    new_w = st.w
+    for kind in sorted({p for p in cfg.region_phase if p is not None}):
+        sel = functools.reduce(jnp.logical_or, [st.region == j for j, p in
+                                               enumerate(cfg.region_phase) if p == kind])
+        sample = PHASE_FUNCTIONS[kind][1]
+        if kind == "hg":
+            params = {"g": arr.hg_g[st.region]}
+        elif kind == "sggx":
+            params = {"S": arr.sggx_S[st.region]}
+        else:
+            params = {}
+        wo, _ = sample(params, wi, u)
+        new_w = jnp.where(sel[:, None], wo, new_w)
+    return new_w
+
+
+def _projected_area(cfg, arr, st):
+    """σ(w) of SGGX media (SpongeCake eq. 3/7): the directional factor of their coefficients."""
+    if "sggx" not in cfg.region_phase:
+        return jnp.ones_like(st.z)
+    sel = functools.reduce(jnp.logical_or, [st.region == j for j, p in
+                                           enumerate(cfg.region_phase) if p == "sggx"])
+    return jnp.where(sel, sggx_sigma(arr.sggx_S[st.region], st.w), 1.0)
+
+
+def _step(cfg, arr, key, i, st):
+    dt = st.w.dtype
+    B = st.w.shape[0]
+    M = cfg.n_media
+    u = jax.random.uniform(jax.random.fold_in(key, i), (B, 8), dtype=dt)
+    wz = st.w[:, 2]
+    down = wz < 0
+    in_medium = st.alive & (st.region >= 1) & (st.region <= M)
+
+    # --- flight through the current medium -------------------------------------------------
+    thick = arr.thickness[st.region]
+    abs_wz = jnp.abs(wz)
+    horizontal = abs_wz < 1e-7
+    safe_wz = jnp.where(horizontal, 1.0, abs_wz)
+    d_boundary = jnp.where(down, thick - st.z, st.z) / safe_wz
+    d_boundary = jnp.where(in_medium, jnp.maximum(d_boundary, 0.0), 0.0)
+    proj = _projected_area(cfg, arr, st) if (cfg.volume or cfg.absorption or cfg.extinction_only) \
+        else None
+    scatter = jnp.zeros((B,), dtype=bool)
+    d = d_boundary
+    factor = jnp.ones_like(st.weight)
+    if cfg.volume:
+        sig_s = arr.sigma_s[st.region] * proj
+        can = sig_s > 0
+        if cfg.volume_limit >= 0:
+            can = can & (st.vol_events < cfg.volume_limit)
+        t = -jnp.log1p(-u[:, 3]) / jnp.where(can, sig_s, 1.0)
+        scatter = in_medium & can & (t < d_boundary)
+        d = jnp.where(scatter, t, d_boundary)
+        if cfg.volume_limit >= 0:
+            # after the allowed events σs only attenuates (the unscattered part of the light)
+            lost = in_medium & ~can
+            factor = factor * jnp.exp(-jnp.where(lost, sig_s * d, 0.0))[:, None]
+    if cfg.absorption:
+        sig_a = arr.sigma_a[st.region] * proj[:, None]
+        factor = factor * jnp.exp(-jnp.where(in_medium[:, None], sig_a * d[:, None], 0.0))
+    if cfg.extinction_only:
+        sig = arr.sigma_s_c[st.region] * proj[:, None]
+        factor = factor * jnp.exp(-jnp.where(in_medium[:, None], sig * d[:, None], 0.0))
+    z = jnp.where(in_medium, st.z - d * wz, st.z)
+    weight = st.weight * factor
+    alive = st.alive & ~(in_medium & horizontal & ~scatter)  # a horizontal flight never ends
+
+    # --- volume scattering -------------------------------------------------------------------
+    w = st.w
+    vol_events = st.vol_events
+    diffuse = st.diffuse
+    if cfg.volume:
+        w_v = _volume_event(cfg, arr, st, u[:, 4:6])
+        w = jnp.where(scatter[:, None], w_v, w)
+        vol_events = vol_events + scatter.astype(jnp.int32)
+        diffuse = diffuse | scatter
+
+    # --- boundary events ---------------------------------------------------------------------
+    hit = alive & ~scatter
+    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
+    w_b, f_b, diff_b = _boundary_event(cfg, arr, st._replace(w=st.w), b, jnp.stack(
+        [u[:, 0], u[:, 1], u[:, 2]], axis=-1))
+    w = jnp.where(hit[:, None], w_b, w)
+    weight = jnp.where(hit[:, None], weight * f_b, weight)
+    diffuse = diffuse | (hit & diff_b)
+    # float32 rounding of the sampled directions would compound over long paths (the phase
+    # functions' local frames assume unit vectors): renormalize after every event
+    w = normalize(w)
+    up_new = w[:, 2] > 0
+    region = jnp.where(hit, jnp.where(up_new, b, b + 1), st.region)
+    z = jnp.where(hit, jnp.where(up_new, arr.thickness[b], 0.0), z)
+
+    # --- bounce order: a downward → upward turn below the top interface --------------------
+    turned = alive & down & up_new & (scatter | (b >= 1))
+    bounces = st.bounces + turned.astype(jnp.int32)
+
+    # --- exits -------------------------------------------------------------------------------
+    out_top = alive & (region == 0) & up_new
+    out_bottom = alive & (region == M + 1) & ~up_new
+    leaving = out_top | out_bottom
+    tallied = (out_top & cfg.reflection) | (out_bottom & cfg.transmission)
+    if not cfg.delta:
+        tallied = tallied & diffuse
+    if cfg.max_bounces >= 0:
+        tallied = tallied & (bounces <= cfg.max_bounces)
+    exited = st.exited | tallied
+    alive = alive & ~leaving
+
+    # --- what can no longer reach an observed quantity ends here ---------------------------
+    if cfg.max_bounces >= 0:
+        alive = alive & (bounces <= cfg.max_bounces)
+        if cfg.end_downward_after_last_bounce:
+            alive = alive & ~((bounces == cfg.max_bounces) & ~up_new & (region >= 1))
+    alive = alive & jnp.any(weight > 0, axis=1)
+    events = st.events + alive.astype(jnp.int32)
+    if cfg.russian_roulette:
+        q = jnp.clip(jnp.max(weight, axis=1), RR_MIN_Q, 1.0)
+        play = alive & (events > RR_START)
+        survive = u[:, 7] < q
+        alive = alive & (~play | survive)
+        weight = jnp.where((play & survive)[:, None], weight / q[:, None], weight)
+    return State(region, z, w, weight, alive, exited, bounces, vol_events, events, diffuse)
+
+
+def _bin_index(cfg, w):
+    """Hemisphere bin of exit directions w: side (0 = reflection, 1 = transmission), θ bin
+    over [0°, 90°] from the side's pole, φ bin over [0°, 360°)."""
+    side = (w[:, 2] < 0).astype(jnp.int32)
+    ct = jnp.clip(jnp.abs(w[:, 2]), 0.0, 1.0)
+    st = jnp.sqrt(w[:, 0] ** 2 + w[:, 1] ** 2)
+    theta = jnp.arctan2(st, ct)
+    tb = jnp.clip((theta / (0.5 * jnp.pi) * cfg.theta_bins).astype(jnp.int32), 0, cfg.theta_bins - 1)
+    phi = jnp.mod(jnp.arctan2(w[:, 1], w[:, 0]), 2.0 * jnp.pi)
+    pb = jnp.clip((phi / (2.0 * jnp.pi) * cfg.phi_bins).astype(jnp.int32), 0, cfg.phi_bins - 1)
+    return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "batch", "n_out"))
+def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid, *, batch: int,
+              n_out: int):
+    """Trace ``batch`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit,
+    z > 0, pointing toward the light). Returns float64 (4, n_out, C) sums and sums of squares
+    of the path contributions per order class and bin, the (2, 2, C) sums and sums of squares of
+    the flux leaving per side (up, down), the number
+    of paths still alive after ``cfg.max_events`` events and the total number of events."""
+    dt = jnp.dtype(cfg.dtype)
+    C = cfg.channels
+    wi = wi.astype(dt)
+    idx = jnp.arange(batch, dtype=jnp.int32)
+    st = State(
+        region=jnp.zeros((batch,), jnp.int32), z=jnp.zeros((batch,), dt),
+        w=jnp.broadcast_to(-wi, (batch, 3)), weight=jnp.ones((batch, C), dt),
+        alive=idx < n_valid, exited=jnp.zeros((batch,), bool),
+        bounces=jnp.zeros((batch,), jnp.int32), vol_events=jnp.zeros((batch,), jnp.int32),
+        events=jnp.zeros((batch,), jnp.int32), diffuse=jnp.zeros((batch,), bool))
+
+    def cond(carry):
+        i, s = carry
+        return (i < cfg.max_events) & jnp.any(s.alive)
+
+    def body(carry):
+        i, s = carry
+        return i + 1, _step(cfg, arr, key, i, s)
+
+    _, st = jax.lax.while_loop(cond, body, (jnp.int32(0), st))
+    x = jnp.where(st.exited[:, None], st.weight, 0.0).astype(jnp.float64)
+    order = jnp.minimum(st.bounces, len(ORDER_CLASSES) - 1)
+    onehot = (order[:, None] == jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)[None, :]) & st.exited[:, None]
+    oh = onehot.astype(jnp.float64)
+    if cfg.detector == "bins":
+        bins = _bin_index(cfg, st.w)
+        seg = jnp.where(st.exited, order * n_out + bins, len(ORDER_CLASSES) * n_out)
+        n_seg = len(ORDER_CLASSES) * n_out + 1
+        s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg)[:-1].reshape(-1, n_out, C)
+        s2 = jax.ops.segment_sum(x * x, seg, num_segments=n_seg)[:-1].reshape(-1, n_out, C)
+    else:
+        wd = st.w.astype(jnp.float64)
+        cosang = wd @ det.cone_dir.T  # (B, R)
+        inside = (cosang >= det.cone_cos[None, :]).astype(jnp.float64)
+        s1 = jnp.einsum("bo,br,bc->orc", oh, inside, x)
+        s2 = jnp.einsum("bo,br,bc->orc", oh, inside, x * x)
+    down = st.w[:, 2] < 0
+    xs = jnp.stack([jnp.where(down[:, None], 0.0, x), jnp.where(down[:, None], x, 0.0)])
+    side = jnp.stack([jnp.sum(xs, axis=1), jnp.sum(xs * xs, axis=1)])  # (2 moments, 2 sides, C)
+    return s1, s2, side, jnp.sum(st.alive), jnp.sum(st.events)
