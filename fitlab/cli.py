@@ -215,6 +215,9 @@ def cmd_fit(args):
             raise FitlabError(f"--free {name}: model {model.name!r} has no parameter {name!r}")
     if args.chain and not args.mcmc:
         raise FitlabError("--chain needs --mcmc: there is no chain to write")
+    if args.report and not args.out:
+        raise FitlabError("--report needs --out FILE.json: the report is built from the "
+                          "parameter file")
     if args.mcmc and args.mcmc_steps < 100:
         raise FitlabError("--mcmc-steps must be at least 100")
     m = read_any(args.data, args.format)
@@ -250,6 +253,13 @@ def cmd_fit(args):
             _print_summary(record)
             print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
                   file=sys.stderr)
+        if args.report:
+            from fitlab.report import build_report
+
+            summary = build_report(args.out, args.report, data_path=args.data,
+                                   chain_path=args.chain, progress=not args.quiet)
+            if not args.quiet:
+                print(f"wrote the report {summary['index']}", file=sys.stderr)
     else:
         if chains:
             from fitlab.io.atomic import atomic_open
@@ -514,9 +524,38 @@ def build_parser():
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
     p.add_argument("--chain", metavar="FILE.npz", help="also write the MCMC chain")
+    p.add_argument("--report", metavar="DIR",
+                   help="then write an HTML report of the fit into DIR (as `fitlab report`; "
+                   "needs --out; with --chain it shows posterior bands and MCMC plots)")
     p.add_argument("--quiet", action="store_true", help="no progress or summary on the terminal")
     p.add_argument("--format", help="input format (default: detected from the content)")
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser(
+        "report", help="write a self-contained HTML report of a fit (figures as PNG and SVG)",
+        description="Turn a parameter file (data_formats/fit_json.md), its data file and its "
+        "MCMC chain into OUT/index.html: header and provenance, parameter table (best fit, "
+        "posterior median, 68% and 95% intervals) and correlations, errors per incidence "
+        "(fit subset against prediction), in-plane scans of data against the model with "
+        "posterior bands and residuals, hemispherical maps for out-of-plane data, polar lobes, "
+        "corner plot, MCMC diagnostics and traces, Walter's empirical D. The page embeds every "
+        "figure (no network needed); each figure is also written beside it as NAME.png and "
+        "NAME.svg. Same inputs, same bytes. Layout: data_formats/report_html.md.",
+        epilog="example: fitlab report fits/walter_rough_glass.json --chain "
+        "fits/walter_rough_glass_chain.npz --out reports/walter_rough_glass/",
+    )
+    p.add_argument("fit", metavar="FIT.json", help="parameter file written by `fitlab fit --out`")
+    p.add_argument("--data", metavar="FILE",
+                   help="the data file (default: the path recorded in FIT.json; its SHA-256 "
+                   "must match the recorded one)")
+    p.add_argument("--chain", metavar="FILE.npz",
+                   help="the MCMC chain written by `fitlab fit --chain` (default: the path "
+                   "recorded in FIT.json, if that file exists); without one the report has no "
+                   "posterior bands, corner or trace plots and says so")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder (created if missing; files of the same names replaced)")
+    p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("info", help="show what a data, parameter or table file holds",
                        description="Describe a file fitlab reads: format, angles, channels, units, "

@@ -4,6 +4,7 @@ optional chain files (NPZ). Both are built in memory and written atomically."""
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import io
 import json
 import platform
@@ -123,13 +124,17 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
 
 
 def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -> None:
-    """Write the JSON (and the NPZ chain file) atomically; nothing is left on failure."""
-    text = json.dumps(record, indent=2, allow_nan=False) + "\n"
+    """Write the JSON (and the NPZ chain file) atomically; nothing is left on failure. With a
+    chain, the record gains ``chain`` = {path, sha256} so that later tools (``fitlab report``)
+    find it and can check it is this fit's chain."""
     blob = None
     if chains:
         buf = io.BytesIO()
         np.savez_compressed(buf, **chains)
         blob = buf.getvalue()
+        record = {**record, "chain": {"path": str(chain_path),
+                                      "sha256": hashlib.sha256(blob).hexdigest()}}
+    text = json.dumps(record, indent=2, allow_nan=False) + "\n"
     if blob is not None:
         with atomic_open(chain_path, "wb") as fh:
             fh.write(blob)

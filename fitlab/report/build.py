@@ -5,6 +5,8 @@ sorted iteration, deterministic figure bytes)."""
 
 from __future__ import annotations
 
+import os
+import re
 import sys
 from pathlib import Path
 
@@ -54,13 +56,13 @@ class _Report:
         self.figures: list[FigureEntry] = []
         self.say = progress
 
-    def figure(self, name, fig, caption, alt):
+    def figure(self, name, fig, caption, alt, half=False):
         png, svg = render(fig)
         fig.clear()
         entry = FigureEntry(name, caption, alt, png, svg)
         self.figures.append(entry)
         self.say(f"report: figure {len(self.figures)}: {name}.png")
-        return figure_html(entry)
+        return figure_html(entry, half)
 
 
 # --------------------------------------------------------------------------------------------
@@ -99,9 +101,9 @@ def _header(inp):
     conv = sorted(rec.get("conventions", {}).items())
     soft = sorted((rec.get("software") or {}).items())
     chain = inp.chain_path or inp.chain_note
-    body = table_html(["", ""], rows)
-    body += "<h3>Data provenance</h3>\n" + table_html(["", ""], prov)
-    body += "<h3>Conventions</h3>\n" + table_html(["", ""], conv)
+    body = table_html([], rows)
+    body += "<h3>Data provenance</h3>\n" + table_html([], prov)
+    body += "<h3>Conventions</h3>\n" + table_html([], conv)
     body += "<h3>Software (of the fit)</h3>\n" + table_html(["package", "version"], soft)
     body += paragraph(f"Report made by fitlab {fitlab.__version__}. MCMC chain: {chain}.")
     for note in rec.get("notes", []):
@@ -240,6 +242,17 @@ def _scans(rep, inp, ch, preds, tag):
     if ch.samples is None:
         body += note_html("No posterior bands: " + (inp.chain_note or "no chain for this "
                                                     "channel") + ".")
+    body = paragraph(
+        "Each figure: one incidence direction. Top two panels: the data in the plane of "
+        f"incidence (points within ±{geo.IN_PLANE_TOL_DEG:g}°; red: fitted rows, orange: "
+        "predicted rows) and the best-fit model (black line), on linear and logarithmic axes; "
+        "shaded, when the chain is available: the 68% and 95% posterior bands of the model "
+        "(scale·f evaluated at posterior samples: parameter uncertainty, not measurement "
+        "noise). Bottom panel: relative residual (model − data)/data in %, for rows above "
+        f"{REL_ERR_FLOOR:g} × the incidence's maximum (shaded: the 95% band relative to the "
+        "best fit). x axis: angle of wo from the normal of its hemisphere, positive on the "
+        "forward side (φo = φi + 180°, where the specular or refracted peak lies), negative on "
+        "the backward side.") + body
     body_parts = []
     for inc in shown:
         sel = np.isin(ch.rows, inc.rows)
@@ -271,20 +284,15 @@ def _scans(rep, inp, ch, preds, tag):
         n_in = int(mask.sum())
         role = "fitted" if ch.fitted[sel].all() else (
             "predicted (not fitted)" if not ch.fitted[sel].any() else "partly fitted")
-        band_txt = (f"Shaded: 68% and 95% posterior bands of the model (scale·f at "
-                    f"{ch.samples.shape[0]} posterior samples; parameter uncertainty, not "
-                    "measurement noise)." if ch.samples is not None else
-                    "No posterior band (no chain).")
+        band_txt = (f"bands from {ch.samples.shape[0]} posterior samples" if ch.samples
+                    is not None else "no posterior band (no chain)")
         cap = (f"In-plane scan at {label}, channel {ch.name}, {role}: {n_in} measured rows within "
-               f"±{geo.IN_PLANE_TOL_DEG:g}° of the plane of incidence (points; red fitted, "
-               f"orange predicted) and the best-fit model (black line), on linear and log axes. "
-               f"{band_txt} Bottom: relative residual (model − data)/data in %, for rows above "
-               f"{REL_ERR_FLOOR:g} × this incidence's maximum. x: angle of wo from the normal of "
-               "its hemisphere, positive on the forward (specular/refracted) side.")
+               f"±{geo.IN_PLANE_TOL_DEG:g}° of the plane of incidence; {band_txt}.")
         alt = (f"Scan at {label}: data points and model curve for "
                f"{' and '.join(s.side for s in sides)}, linear and log, with residuals")
         body_parts.append(rep.figure(f"scan_{tag}_theta{_angle_tag(inc.theta_i)}_phi"
-                                     f"{_angle_tag(inc.phi_i)}", fig, cap, alt))
+                                     f"{_angle_tag(inc.phi_i)}", fig, cap, alt,
+                                     half=len(sides) == 1))
     return body + "".join(body_parts)
 
 
@@ -301,7 +309,6 @@ def _maps(rep, inp, ch, preds, tag):
         rows = ch.rows[sel]
         p = preds[sel]
         sides = geo.side_of(m, rows)
-        floor = REL_ERR_FLOOR * np.max(np.abs(m.value[rows]))
         for side in (geo.REFLECTION, geo.TRANSMISSION):
             keep = sides == side
             if keep.sum() < 3:
@@ -312,7 +319,7 @@ def _maps(rep, inp, ch, preds, tag):
             r = rows[idx]
             x, y = geo.disc_xy(m.theta_o[r], m.phi_o[r])
             rows_fig.append(MapRow(f"θi = {inc.theta_i:g}°, {side}", x, y, m.value[r], p[idx],
-                                   floor))
+                                   0.0))
     if not rows_fig:
         return None
     unit = _value_label(inp)
@@ -320,8 +327,9 @@ def _maps(rep, inp, ch, preds, tag):
     cap = (f"Hemispherical maps, channel {ch.name}, for {len(rows_fig)} incidence(s): measured "
            f"{unit} (left), the model at the same directions (middle), both on one logarithmic, "
            "perceptually uniform colour scale (viridis), and the relative residual "
-           "(model − data)/data in % (right) on a diverging map centred on zero (grey: rows "
-           f"below {REL_ERR_FLOOR:g} × the maximum, or not measured). Projection: radius = angle "
+           "(model − data)/data in % (right) on a diverging map centred on zero, its range the "
+           "98th percentile of |residual| (grey: zero data or not measured; unlike the error "
+           "table, rows below 1% of the maximum are shown). Projection: radius = angle "
            "of wo from the normal (rings at 30°, 60°, 90°), angle = φo; the light comes from "
            "φ = φi, the specular peak lies near φo = φi + 180°.")
     alt = "Hemisphere maps of data, model and relative residual for " + \
@@ -416,10 +424,11 @@ def _posterior(rep, inp, ch, tag):
                        tau=[t or 0.0 for t in tau], log_prob=ch.log_prob)
     body += rep.figure(
         f"trace_{tag}", fig,
-        f"MCMC traces, channel {ch.name}: every coordinate of up to 6 walkers against the step "
-        "(thin lines) and the walker mean (black), and the log posterior; shaded: the discarded "
-        "burn-in. A trustworthy chain looks like stationary noise after the burn-in, with τ "
-        "much shorter than the chain.",
+        f"MCMC traces, channel {ch.name}, for every sampled coordinate and the log posterior: "
+        "per step, the band holding 68% and 95% of the walkers, their median (black) and three "
+        "single walkers (every step shown for chains up to 600 steps, else evenly thinned); grey: "
+        "the discarded burn-in. A trustworthy chain looks like stationary noise after the "
+        "burn-in, with τ much shorter than the chain.",
         f"Trace plots of {len(labels)} MCMC coordinates and the log posterior")
     return body
 
@@ -451,6 +460,24 @@ def _walter(rep, inp, ch, tag):
 
 
 # --------------------------------------------------------------------------------------------
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _previous_files(index: Path) -> set:
+    """Figure files an earlier report in this folder listed in its index.html (so that a
+    rebuild removes figures that no longer exist, and nothing else)."""
+    if not index.is_file():
+        return set()
+    text = index.read_text(encoding="utf-8", errors="replace")
+    found = re.search(r'<meta name="fitlab-report-files" content="([^"]*)">', text)
+    if not found:
+        return set()
+    return {n for n in found.group(1).split() if re.fullmatch(r"[A-Za-z0-9_.-]+\.(png|svg)", n)}
 
 
 def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
@@ -490,7 +517,8 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         from fitlab.report.luts import lut_section
 
         sections.append(("luts", "Lookup tables", lut_section(rep, inp, luts)))
-    page = document(title, sections)
+    names = [f"{f.name}.{ext}" for f in rep.figures for ext in ("png", "svg")]
+    page = document(title, sections, files=sorted(names))
     files = {}
     for f in rep.figures:
         files[f"{f.name}.png"] = f.png
@@ -502,9 +530,14 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
     if out.exists() and not out.is_dir():
         raise FitlabError(f"--out {out}: is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)
+    previous = _previous_files(out / "index.html")
+    mode = 0o666 & ~_umask()
     for name in sorted(files, key=lambda n: (n == "index.html", n)):  # index.html last
         with atomic_open(out / name, "wb") as fh:
             fh.write(files[name])
+        os.chmod(out / name, mode)  # readable like any other file (mkstemp makes it 0600)
+    for name in sorted(previous - set(files)):  # figures of an earlier report of this folder
+        (out / name).unlink(missing_ok=True)
     say(f"report: wrote {out / 'index.html'} and {len(rep.figures)} figures (PNG + SVG)")
     return {"files": sorted(files), "figures": [f.name for f in rep.figures],
             "index": str(out / "index.html"), "has_chain": any(c.samples is not None

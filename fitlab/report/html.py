@@ -21,6 +21,7 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 figure { margin: 1em 0 1.6em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption { font-size: .86em; color: #333; max-width: 60em; }
+figure.half { display: inline-block; vertical-align: top; width: 48%; margin-right: 1.5%; }
 .warning { background: #fff3cd; border: 2px solid #c9302c; padding: .5em 1em; margin: 1em 0; }
 .warning strong { color: #a00; }
 .note { background: #eef4fb; border-left: 4px solid #4a7ab5; padding: .4em .8em; margin: .8em 0; }
@@ -49,10 +50,12 @@ def png_size(png: bytes) -> tuple[int, int]:
     return struct.unpack(">II", png[16:24])
 
 
-def figure_html(fig: FigureEntry) -> str:
+def figure_html(fig: FigureEntry, half: bool = False) -> str:
+    """A figure with its caption; ``half``: two such figures share a row on a wide screen."""
     w, h = png_size(fig.png)
     data = base64.b64encode(fig.png).decode("ascii")
-    return (f'<figure id="{esc(fig.name)}">\n<img src="data:image/png;base64,{data}" '
+    cls = ' class="half"' if half else ""
+    return (f'<figure id="{esc(fig.name)}"{cls}>\n<img src="data:image/png;base64,{data}" '
             f'width="{w}" height="{h}" alt="{esc(fig.alt)}">\n'
             f"<figcaption>{esc(fig.caption)} <span class=\"small\">(Files: "
             f"<code>{esc(fig.name)}.png</code>, <code>{esc(fig.name)}.svg</code>.)</span>"
@@ -60,9 +63,11 @@ def figure_html(fig: FigureEntry) -> str:
 
 
 def table_html(header: list, rows: list, numeric: tuple = ()) -> str:
-    """A table; cells are plain text (escaped); columns whose index is in ``numeric`` align
-    right."""
-    out = ["<table>", "<tr>" + "".join(f"<th>{esc(h)}</th>" for h in header) + "</tr>"]
+    """A table (no header row when ``header`` is empty); cells are plain text (escaped);
+    columns whose index is in ``numeric`` align right."""
+    out = ["<table>"]
+    if header:
+        out.append("<tr>" + "".join(f"<th>{esc(h)}</th>" for h in header) + "</tr>")
     for row in rows:
         cells = []
         for k, cell in enumerate(row):
@@ -86,8 +91,10 @@ def paragraph(text: str) -> str:
     return f"<p>{esc(text)}</p>\n"
 
 
-def document(title: str, sections: list) -> str:
-    """``sections``: list of (anchor, heading, body HTML). Returns the whole page."""
+def document(title: str, sections: list, files: list = ()) -> str:
+    """``sections``: list of (anchor, heading, body HTML); ``files``: the figure files written
+    beside the page (listed in a meta element, so a rebuild can remove stale ones). Returns the
+    whole page."""
     nav = "".join(f'<li><a href="#{esc(a)}">{esc(h)}</a></li>' for a, h, _ in sections if h)
     body = []
     for anchor, heading, content in sections:
@@ -98,6 +105,8 @@ def document(title: str, sections: list) -> str:
             body.append(content)
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+            '<meta name="generator" content="fitlab report">\n'
+            f'<meta name="fitlab-report-files" content="{esc(" ".join(files))}">\n'
             f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
             f"<h1>{esc(title)}</h1>\n<nav><ul>{nav}</ul></nav>\n" + "".join(body)
             + "</body>\n</html>\n")

@@ -229,6 +229,15 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
             raise InputFileError(chain_path, f"was given, but {fit_path} records no MCMC run",
                                  hint="give the parameter file of the --mcmc fit that wrote it")
         npz = _open_chain(chain_path)
+        want = (record.get("chain") or {}).get("sha256")
+        if want:
+            from fitlab.io.measurement import sha256_of
+
+            if sha256_of(chain_path) != want:
+                raise InputFileError(chain_path, f"is not the chain written with {fit_path} (its "
+                                     "SHA-256 differs from the one recorded in chain.sha256)",
+                                     hint="give the chain file written together with the fit, "
+                                     "or rerun the fit with --chain")
 
     rows_fit = (np.ones(m.n, dtype=bool) if not record["data"].get("fit_subset")
                 else subset_mask(record["data"]["fit_subset"], m))

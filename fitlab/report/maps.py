@@ -18,7 +18,7 @@ class MapRow(NamedTuple):
     y: np.ndarray
     value: np.ndarray
     pred: np.ndarray
-    floor: float  # |value| below this: no relative residual (grey)
+    floor: float  # value at or below this: no relative residual (grey)
 
 
 def _frame(ax):
@@ -68,7 +68,7 @@ def hemisphere_figure(rows: list, *, unit: str):
             _frame(ax)
             ax.set_title(f"{what}: {row.label}")
             fig.colorbar(pc, ax=ax, shrink=0.85, label=unit)
-        ok = np.abs(row.value) >= row.floor
+        ok = row.value > row.floor
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(ok, 100.0 * (row.pred - row.value) / row.value, 0.0)
         lim = max(5.0, float(np.percentile(np.abs(rel[ok]), 98))) if ok.any() else 10.0

@@ -82,15 +82,20 @@ def trace_figure(chain: np.ndarray, labels: list, *, burn: int, tau: list, log_p
     axes = fig.subplots(rows, 1, squeeze=False, sharex=True)[:, 0]
     t = np.arange(steps)
     step = max(1, steps // 600)  # at most ~600 points per drawn line
-    show = np.unique(np.round(np.linspace(0, walkers - 1, min(walkers, 6))).astype(int))
+    show = np.unique(np.round(np.linspace(0, walkers - 1, min(walkers, 3))).astype(int))
     series = [(chain[:, :, k], labels[k], tau[k] if k < len(tau) else None) for k in range(d)]
     if log_prob is not None:
         series.append((log_prob, "log posterior", None))
+    ts = t[::step]
     for ax, (vals, label, tk) in zip(axes, series):
-        ax.plot(t[::step], vals[::step, show], lw=0.4, alpha=0.6, rasterized=True)
         finite = np.where(np.isfinite(vals), vals, np.nan)
-        ax.plot(t[::step], np.nanmean(finite, axis=1)[::step], color="k", lw=0.9,
-                label="walker mean")
+        q = np.nanpercentile(finite[::step], [2.5, 16, 50, 84, 97.5], axis=1)
+        ax.fill_between(ts, q[0], q[4], color="#1f77b4", alpha=0.2, lw=0,
+                        label="95% of walkers")
+        ax.fill_between(ts, q[1], q[3], color="#1f77b4", alpha=0.35, lw=0,
+                        label="68% of walkers")
+        ax.plot(ts, vals[::step, show], lw=0.5, alpha=0.8)
+        ax.plot(ts, q[2], color="k", lw=0.8, label="walker median")
         ax.axvspan(0, burn, color="0.85", zorder=0)
         ax.set_ylabel(label, fontsize=8)
         if tk is not None:
@@ -100,6 +105,7 @@ def trace_figure(chain: np.ndarray, labels: list, *, burn: int, tau: list, log_p
         lo, hi = np.nanpercentile(finite[burn:] if burn < steps else finite, [0.5, 99.5])
         pad = (hi - lo) * 0.3 or abs(hi) * 0.01 or 1.0
         ax.set_ylim(lo - pad, hi + pad)
-    axes[-1].set_xlabel(f"step (burn-in shaded: first {burn} steps; {len(show)} of {walkers} "
-                        "walkers drawn)")
+    axes[-1].set_xlabel(f"step (grey: burn-in, first {burn} steps; blue: spread of the "
+                        f"{walkers} walkers; coloured lines: {len(show)} single walkers)")
+    axes[0].legend(loc="upper right", ncol=3, frameon=False, fontsize=7)
     return fig

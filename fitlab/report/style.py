@@ -52,6 +52,8 @@ def render(fig: Figure) -> tuple[bytes, bytes]:
     with matplotlib.rc_context(RC):
         png = io.BytesIO()
         fig.savefig(png, format="png", dpi=PNG_DPI, metadata={"Software": None})
+        # The PNG's draw placed every axes; keep those positions rather than lay out again.
+        fig.set_layout_engine("none")
         svg = io.BytesIO()
         fig.savefig(svg, format="svg", dpi=PNG_DPI, metadata={"Date": None, "Creator": None})
     return png.getvalue(), svg.getvalue()

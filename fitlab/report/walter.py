@@ -4,6 +4,9 @@ each with the α that best matches the points."""
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -17,23 +20,41 @@ ALPHA_GRID = np.geomspace(1e-3, 1.0, 1201)
 LOG_RATIO_CAP = 10.0
 
 
+@functools.lru_cache(maxsize=None)
+def _D_jitted(distribution: str):
+    return jax.jit(DISTRIBUTIONS[distribution].D)
+
+
 def D_curve(distribution: str, alpha, theta_m_deg) -> np.ndarray:
     """D(m) (1/sr) of a named distribution for microfacet normals at θm (degrees, in a plane)."""
     t = np.radians(np.asarray(theta_m_deg, float))
-    m = jnp.asarray(np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], axis=-1))
-    return np.asarray(DISTRIBUTIONS[distribution].D(m, jnp.asarray(alpha, dtype=m.dtype)))
+    m = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], axis=-1)
+    return np.asarray(_D_jitted(distribution)(jnp.asarray(m),
+                                               jnp.asarray(alpha, dtype=jnp.asarray(m).dtype)))
 
 
 def best_alpha(distribution: str, theta_m_deg, D_points) -> tuple[float, float]:
     """(α, RMS log ratio): the α on ALPHA_GRID whose D best matches the points in log space."""
     th, D = np.asarray(theta_m_deg, float), np.asarray(D_points, float)
-    grid = D_curve(distribution, ALPHA_GRID[:, None], th[None, :])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.log(D[None, :] / grid)
-    r = np.clip(np.where(np.isnan(r), LOG_RATIO_CAP, r), -LOG_RATIO_CAP, LOG_RATIO_CAP)
-    rms = np.sqrt(np.mean(r**2, axis=1))
+
+    def rms_of(alphas):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.log(D[None, :] / D_curve(distribution, alphas[:, None], th[None, :]))
+        r = np.clip(np.where(np.isnan(r), LOG_RATIO_CAP, r), -LOG_RATIO_CAP, LOG_RATIO_CAP)
+        return np.sqrt(np.mean(r**2, axis=1))
+
+    rms = rms_of(ALPHA_GRID)
     k = int(np.argmin(rms))
-    return float(ALPHA_GRID[k]), float(rms[k])
+    # Golden-section search in log α between the grid neighbours of the best grid point.
+    lo, hi = np.log(ALPHA_GRID[max(k - 1, 0)]), np.log(ALPHA_GRID[min(k + 1, ALPHA_GRID.size - 1)])
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(40):
+        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+        ra, rb = rms_of(np.exp(np.array([a, b])))
+        lo, hi = (lo, b) if ra <= rb else (a, hi)
+    best = float(np.exp(0.5 * (lo + hi)))
+    r_best = float(rms_of(np.array([best]))[0])
+    return (best, r_best) if r_best <= rms[k] else (float(ALPHA_GRID[k]), float(rms[k]))
 
 
 def distribution_curves(theta_m_deg, D_points, fitted_distribution: str, fitted_alpha: float):
