@@ -453,10 +453,13 @@ def _walter(rep, inp, ch, tag):
            f"{diag['points']} points D = f / K with G = 1 (|i·n|, |o·n| > 0.5, values ≥ 1% of "
            "the maximum; eq. 20 or 21 solved for D) against θm, with the BSDF fit's distribution "
            "and every registry distribution matched to the points (α minimizing the RMS log "
-           "ratio). Points on a curve mean the data follow that microfacet distribution.")
+           "ratio, each point's |log ratio| capped at ln 100). Points on a curve mean the data "
+           "follow that microfacet distribution; a distribution that cannot follow the points' "
+           "tails is pushed to a wide α.")
     return (rep.figure(f"empirical_D_{tag}", fig, cap,
                        f"Empirical D points against {len(curves)} microfacet distributions")
-            + table_html(["distribution", "RMS log ratio to the points"], rows, numeric=(1,)))
+            + table_html(["distribution", "RMS log ratio to the points (capped at ln 100)"], rows,
+                         numeric=(1,)))
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,9 +15,10 @@ from fitlab.report.style import new_figure, styled
 
 #: α grid for matching each distribution to the points (log-spaced, fine enough for 3 digits).
 ALPHA_GRID = np.geomspace(1e-3, 1.0, 1201)
-#: |log ratio| is capped here when matching (a distribution that is 0 at a point, e.g. Beckmann's
-#: underflowing tail, would otherwise count as infinitely wrong and decide the match alone).
-LOG_RATIO_CAP = 10.0
+#: |log ratio| is capped here (a factor of 100) when matching and reporting: a distribution that
+#: is 0 at a point, e.g. Beckmann's underflowing tail, would otherwise count as infinitely wrong
+#: and decide the match alone.
+LOG_RATIO_CAP = float(np.log(100.0))
 
 
 @functools.lru_cache(maxsize=None)
@@ -62,7 +63,10 @@ def distribution_curves(theta_m_deg, D_points, fitted_distribution: str, fitted_
     then every distinct distribution of the registry matched to the points."""
     grid = np.linspace(0.0, min(89.0, max(60.0, float(np.max(theta_m_deg)) + 5.0)), 241)
     D_fit = D_curve(fitted_distribution, fitted_alpha, theta_m_deg)
-    rms_fit = float(np.sqrt(np.mean(np.log(np.asarray(D_points) / D_fit) ** 2)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(np.asarray(D_points) / D_fit)
+    r = np.clip(np.where(np.isnan(r), LOG_RATIO_CAP, r), -LOG_RATIO_CAP, LOG_RATIO_CAP)
+    rms_fit = float(np.sqrt(np.mean(r**2)))
     out = [(f"{fitted_distribution}, fitted α = {fitted_alpha:.4g} (the BSDF fit)", grid,
             D_curve(fitted_distribution, fitted_alpha, grid), rms_fit)]
     seen = set()
