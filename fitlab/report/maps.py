@@ -39,12 +39,19 @@ def _frame(ax):
     ax.grid(False)
 
 
+#: Triangles with an edge longer than this angle between directions are not drawn: they would
+#: bridge regions the instrument did not measure.
+MAX_EDGE_DEG = 35.0
+
+
 def _triangulation(row: MapRow):
     tri = Triangulation(row.x, row.y)
-    # Drop long triangles that bridge regions the instrument did not measure.
-    p = np.stack([row.x, row.y], axis=1)[tri.triangles]
-    edges = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-    tri.set_mask(edges > 0.25)
+    theta = np.radians(90.0 * np.hypot(row.x, row.y))
+    phi = np.arctan2(row.y, row.x)
+    w = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+    v = w[tri.triangles]  # (T, 3 corners, 3)
+    cos_edge = np.sum(v * np.roll(v, 1, axis=1), axis=2).min(axis=1)
+    tri.set_mask(cos_edge < np.cos(np.radians(MAX_EDGE_DEG)))
     return tri
 
 
