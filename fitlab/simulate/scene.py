@@ -442,8 +442,9 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
     stack = d.get("stack", [])
     if not isinstance(stack, list):
         ctx.fail("stack", "must be an array of tables", "write each item as [[stack]]")
-    media, boundaries = [], []
+    media, boundaries, origin = [], [], []
     pending = None  # an interface waiting for the region under it
+    pending_field = None
     last_index = n_out
     for j, item in enumerate(stack):
         field = f"stack[{j}]"
@@ -456,7 +457,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
                 ctx.fail(field, "two interfaces in a row", "put a [[stack]] type = \"medium\" "
                          "between them (an interface separates two media)")
             dist, alpha = _roughness(ctx, item, field)
-            pending = Boundary("dielectric", dist, alpha)
+            pending, pending_field = Boundary("dielectric", dist, alpha), field
         else:
             med = _medium(ctx, item, field)
             if pending is None:
@@ -465,8 +466,9 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
                              f"({last_index:g}) but no interface separates them",
                              "add a [[stack]] type = \"interface\" above this medium, or make "
                              "the indices equal")
-                pending = Boundary("pass")
+                pending, pending_field = Boundary("pass"), field
             boundaries.append(pending)
+            origin.append(pending_field)
             media.append(med)
             pending = None
             last_index = med.index
@@ -487,9 +489,11 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
                 ctx.fail("substrate.index", "equals the index above it, so there is no interface",
                          "use [below] index = ... instead, or change the index")
             boundaries.append(b)
+            origin.append("substrate")
             n_below = index
         else:
             boundaries.append(b)
+            origin.append("substrate")
             n_below = last_index
             opaque = True
     else:
@@ -499,12 +503,14 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
                           hint="give the refractive index of the medium under the stack")
         if pending is not None:
             boundaries.append(pending)
+            origin.append(pending_field)
         else:
             if n_below != last_index:
                 ctx.fail("below.index", f"{n_below:g} differs from the index above it "
                          f"({last_index:g}) but no interface separates them",
                          "end the stack with a [[stack]] type = \"interface\"")
             boundaries.append(Boundary("pass"))
+            origin.append("below")
     if not any(b.kind != "pass" for b in boundaries) and not media:
         ctx.fail("stack", "the scene has no interface, medium or substrate",
                  "describe at least one [[stack]] item or a [substrate]")
@@ -513,7 +519,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
             above = (n_out, *(m.index for m in media))[j]
             under = (*(m.index for m in media), n_below)[j]
             if above == under:
-                ctx.fail(f"stack (interface above region {j + 1})",
+                ctx.fail(origin[j],
                          f"both sides have index {above:g}: the interface would be invisible",
                          "remove the interface or change an index")
 

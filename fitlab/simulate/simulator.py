@@ -222,7 +222,8 @@ class _Progress:
             self.last = now
             rate = self.done / max(now - self.t0, 1e-9)
             tty = sys.stderr.isatty()
-            print(f"{'\r' if tty else ''}simulate: {what}: {self.done}/{self.total} paths "
+            lead = "\r" if tty else ""
+            print(f"{lead}simulate: {what}: {self.done}/{self.total} paths "
                   f"({rate:,.0f} paths/s)", end="" if tty and self.done < self.total else "\n",
                   file=sys.stderr, flush=True)
 
