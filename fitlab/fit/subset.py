@@ -5,7 +5,9 @@
     not (abs(phi_o) < 1) or channel == 'R'
 
 Names: theta_i, phi_i, theta_o, phi_o (degrees), value, channel, row (0-based row index, so
-``row % 10 == 0`` thins large scans deterministically); numbers, strings, arithmetic
+``row % 10 == 0`` thins large scans deterministically), specular_deg (angle in degrees between
+wo and the mirror direction of wi about the normal: ``specular_deg > 2`` leaves out the delta
+reflection of a smooth coating, data_formats/layered_models.md); numbers, strings, arithmetic
 (+ - * / %), comparisons, and/or/not, parentheses and abs(). Nothing else is evaluated.
 """
 
@@ -23,6 +25,14 @@ _CMP = {ast.Eq: np.equal, ast.NotEq: np.not_equal, ast.Lt: np.less, ast.LtE: np.
         ast.Gt: np.greater, ast.GtE: np.greater_equal}
 
 
+def _specular_deg(wi, wo):
+    """Angle (degrees) between wo and the mirror direction (-wi_x, -wi_y, wi_z)."""
+    mirror = np.asarray(wi, dtype=float) * np.array([-1.0, -1.0, 1.0])
+    wo = np.asarray(wo, dtype=float)
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(mirror, wo), axis=-1),
+                                 np.sum(mirror * wo, axis=-1)))
+
+
 def subset_mask(expr: str, measurement) -> np.ndarray:
     try:
         tree = ast.parse(expr, mode="eval")
@@ -32,7 +42,7 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
     m = measurement
     names = {"theta_i": m.theta_i, "phi_i": m.phi_i, "theta_o": m.theta_o, "phi_o": m.phi_o,
              "value": m.value, "channel": np.asarray(m.channel_names, dtype=object)[m.channel],
-             "row": np.arange(m.n)}
+             "row": np.arange(m.n), "specular_deg": _specular_deg(m.wi, m.wo)}
 
     def ev(node):
         if isinstance(node, ast.Expression):

@@ -1,0 +1,264 @@
+"""Weidlich–Wilkie layered BRDF, as reviewed by Elek 2010 section 2.2 (eqs 2-4) and section 3.
+
+``weidlich_wilkie(BASE)`` is the paper's two-layer stack (Algorithm 1): one microfacet interface
+(layer 1) over a base (layer 2) that is ``lambertian``, ``oren_nayar`` or ``rough_conductor``;
+``weidlich_wilkie(BASE,layers=K)`` stacks K-1 interfaces over the base. Layer i (1 = top) has a
+Torrance–Sparrow / Walter microfacet BRDF (Walter eq. 20, GGX or Beckmann) with complex index
+(n_i, k_i) relative to vacuum (n_0 = 1 outside) and the optical depth τ_i = σ_i d_i of eq. 3.
+The recursion (eq. 2), evaluated from the top with L, V the directions above layer i:
+
+    f^(i)(L, V) = f_ri(L, V) + T_i · f^(i+1)(L', V') · a_i · t_i [· (n_{i-1}/n_i)²]
+
+* f_ri: microfacet reflection of interface i with Fresnel of the relative index
+  (n_i + i k_i)/n_{i-1} (Elek's shader uses the absolute (n_i, κ_i); relative is what the
+  interface sees and reduces to it for the top layer);
+* T_i = T_{i→i+1} = T_{i+1→i} = 1 - F_i(L·H) (Algorithm 1 lines 23-24);
+* L', V': Snell refraction through the macro normal with n_i/n_{i-1} (lines 7-8); a ray that
+  cannot enter (or leave) the layer contributes nothing below;
+* a_i = exp(-τ_i (1/N·L' + 1/N·V')), eq. 3;
+* t_i = (1 - G_i) + T_i G_i, eq. 4, G_i the Smith shadowing G1(L)G1(V) of layer i;
+* [·(n_{i-1}/n_i)²]: option ``radiance_scaling``. ``eta2`` (default) multiplies each crossing
+  by the solid-angle compression of the smooth-interface derivation (the same factor as the
+  coated model); ``none`` is eq. 2 exactly as printed, which is not energy conserving (the
+  lower lobe, widened by refraction, is integrated over the outside hemisphere without the
+  1/η² of the solid angle: up to η² too bright; measured in tests/test_layered_ww.py).
+
+Option ``roughness_clamp=clamp`` applies section 3's fix m_{i+1} ≥ m_i (α of every layer, and
+of a rough-conductor base, at least the largest α above it; Algorithm 1 line 21).
+The base's parameters are the registry model's, numbered as layer K: albedoK, sigmaK (Oren–Nayar)
+or alphaK, nK, kK (rough conductor, relative to vacuum; evaluated relative to n_{K-1}).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+
+from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
+from fitlab.frame import dot, normalize
+from fitlab.interface import beer_lambert, refract_down, refract_up
+from fitlab.microfacet import get_distribution, smith_G1
+from fitlab.models import rough_conductor
+from fitlab.models.base import Model, Option, Parameter
+from fitlab.numerics import safe_div
+
+NAME = "weidlich_wilkie"
+BASES = ("lambertian", "oren_nayar", "rough_conductor")
+MAX_LAYERS = 6
+
+#: sample() reflects at interface i with probability clip(F_i(cos θ_L), 0.1, 0.9).
+_P_MIN, _P_MAX = 0.1, 0.9
+
+OPTIONS = (
+    Option("distribution", ("ggx", "beckmann"), "ggx",
+           "microfacet distribution of every interface and of a rough-conductor base"),
+    Option("fresnel", tuple(CONDUCTOR_FRESNEL_METHODS), "exact",
+           "Fresnel of the interfaces (complex index): exact, schlick, or lazanyi (Elek "
+           "appendix B, the paper's shader)"),
+    Option("radiance_scaling", ("eta2", "none"), "eta2",
+           "eta2: lower-layer term times (n_{i-1}/n_i)^2 per interface (solid-angle compression, "
+           "energy conserving); none: eq. 2 as printed (up to eta^2 too bright)"),
+    Option("roughness_clamp", ("none", "clamp"), "none",
+           "clamp: alpha of each lower layer at least the alpha above it (Elek section 3, "
+           "m2 >= m1)"),
+)
+
+
+def layer_parameters(i: int) -> tuple[Parameter, ...]:
+    return (
+        Parameter(f"alpha{i}", 1e-4, 1.0, 0.05, "1", f"microfacet width α of interface {i} (m_{i})"),
+        Parameter(f"n{i}", 1.0, 5.0, 1.5, "1", f"refractive index of layer {i} (real part, vacuum = 1)"),
+        Parameter(f"k{i}", 0.0, 5.0, 0.0, "1", f"extinction coefficient κ_{i} of layer {i} (Fresnel only)"),
+        Parameter(f"tau{i}", 0.0, 20.0, 0.0, "1",
+                  f"optical depth of layer {i} at normal incidence τ = σ_{i} d_{i} (eq. 3)"),
+    )
+
+
+def canonical_name(base_name: str, layers: int = 2) -> str:
+    return f"{NAME}({base_name})" if layers == 2 else f"{NAME}({base_name},layers={layers})"
+
+
+def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
+    if base.name not in BASES:
+        raise ValueError(f"{NAME}({base.name}): the base must be one of {', '.join(BASES)}")
+    if not 2 <= layers <= MAX_LAYERS:
+        raise ValueError(f"{NAME}(...,layers={layers}): layers counts the base too and must be "
+                         f"2..{MAX_LAYERS}")
+    n_if = layers - 1
+    K = layers
+    base_params = tuple(p._replace(name=f"{p.name}{K}",
+                                   description=f"{p.description} (base, layer {K})")
+                        for p in base.parameters)
+    if base.name == "rough_conductor":  # (n, k) relative to vacuum, like the interfaces
+        base_params = tuple(p._replace(lower=0.01, upper=10.0) if p.name == f"n{K}" else p
+                            for p in base_params)
+    parameters = sum((layer_parameters(i) for i in range(1, K)), ()) + base_params
+
+    def stack(params, opts):
+        """Per interface: (α, n_rel, k_rel, η = n_i/n_{i-1}, τ); and the base's parameters."""
+        out, n_above, a_max = [], 1.0, None
+        for i in range(1, K):
+            alpha = params[f"alpha{i}"]
+            if opts["roughness_clamp"] == "clamp":
+                a_max = alpha if a_max is None else jnp.maximum(a_max, alpha)
+                alpha = a_max
+            n = params[f"n{i}"]
+            out.append((alpha, n / n_above, params[f"k{i}"] / n_above, n / n_above,
+                        params[f"tau{i}"]))
+            n_above = n
+        pb = {p.name: params[f"{p.name}{K}"] for p in base.parameters}
+        if base.name == "rough_conductor":
+            pb["n"] = pb["n"] / n_above
+            pb["k"] = pb["k"] / n_above
+            if opts["roughness_clamp"] == "clamp":
+                pb["alpha"] = jnp.maximum(pb["alpha"], a_max)
+        return out, pb
+
+    def base_options(opts):
+        if base.name == "rough_conductor":
+            return {"distribution": opts["distribution"], "fresnel": opts["fresnel"]}
+        return {}
+
+    def interface_terms(layer, L, V, opts):
+        """f_ri (Walter eq. 20), T_i = 1 - F_i(L·H) and t_i (eq. 4) of one interface."""
+        alpha, n_rel, k_rel, _, _ = layer
+        dist = get_distribution(opts["distribution"])
+        lp = {"alpha": alpha, "n": n_rel, "k": k_rel}
+        f = rough_conductor.eval(lp, L, V, distribution=opts["distribution"],
+                                 fresnel=opts["fresnel"])
+        H = normalize(L + V)
+        F = CONDUCTOR_FRESNEL_METHODS[opts["fresnel"]](dot(L, H), n_rel, k_rel)
+        T = 1.0 - F
+        G = smith_G1(dist, L, H, alpha) * smith_G1(dist, V, H, alpha)
+        t = (1.0 - G) + T * G  # eq. 4
+        return f, T, t
+
+    def eval(params, wi, wo, **opts):
+        layers_, pb = stack(params, opts)
+        L, V = wi, wo
+        total = 0.0
+        carry = jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), 1.0, 0.0)
+        for layer in layers_:
+            f, T, t = interface_terms(layer, L, V, opts)
+            total = total + carry * f
+            eta, tau = layer[3], layer[4]
+            Lp, ok_l = refract_down(L, eta)
+            Vp, ok_v = refract_down(V, eta)
+            a = beer_lambert(tau, Lp[..., 2], Vp[..., 2])  # eq. 3
+            scale = 1.0 / (eta * eta) if opts["radiance_scaling"] == "eta2" else 1.0
+            carry = jnp.where(ok_l & ok_v, carry * T * a * t * scale, 0.0)  # eq. 2
+            L, V = Lp, Vp
+        f_base = base.eval(pb, L, V, **base_options(opts))
+        return total + carry * f_base
+
+    def levels(params, wi, opts):
+        """Incoming direction at each level, probability of choosing each level, validity."""
+        layers_, pb = stack(params, opts)
+        Ls, probs, oks = [wi], [], [wi[..., 2] > 0]
+        remaining = jnp.ones_like(wi[..., 2])
+        L = wi
+        for layer in layers_:
+            alpha, n_rel, k_rel, eta, _ = layer
+            F = CONDUCTOR_FRESNEL_METHODS[opts["fresnel"]](L[..., 2], n_rel, k_rel)
+            P = jnp.clip(F, _P_MIN, _P_MAX)
+            L, ok = refract_down(L, eta)
+            P = jnp.where(ok, P, 1.0)  # nothing enters: always the interface's own lobe
+            probs.append(remaining * P)
+            remaining = remaining * (1.0 - P)
+            Ls.append(L)
+            oks.append(oks[-1] & ok)
+        probs.append(remaining)
+        return layers_, pb, Ls, probs, oks
+
+    def pdf(params, wi, wo, **opts):
+        """Σ_levels P(level) p_level(V_level) |dω_level/dω_o|, with
+        dω'/dω = cos θ / (η² cos θ') per crossing (Snell)."""
+        layers_, pb, Ls, probs, oks = levels(params, wi, opts)
+        V = wo
+        jac = jnp.ones_like(wo[..., 2])
+        okv = wo[..., 2] > 0
+        total = 0.0
+        for j, layer in enumerate(layers_):
+            lp = {"alpha": layer[0], "n": layer[1], "k": layer[2]}
+            p = rough_conductor.pdf(lp, Ls[j], V, distribution=opts["distribution"])
+            total = total + jnp.where(okv & oks[j], probs[j] * p * jac, 0.0)
+            eta = layer[3]
+            Vp, ok = refract_down(V, eta)
+            jac = jac * safe_div(V[..., 2], eta * eta * Vp[..., 2])
+            okv = okv & ok
+            V = Vp
+        p = base.pdf(pb, Ls[-1], V, **base_options(opts))
+        total = total + jnp.where(okv & oks[-1], probs[-1] * p * jac, 0.0)
+        return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), total, 0.0)
+
+    def sample(params, wi, u, **opts):
+        """Choose a level with u[2] (interface i with probability P_i ∏_{j<i}(1-P_j), the base
+        with the rest), sample its lobe at the refracted incoming direction, refract the result
+        up through the interfaces above it; weight = f|cos θo|/pdf of the whole mixture."""
+        layers_, pb, Ls, probs, oks = levels(params, wi, opts)
+        cum = jnp.zeros_like(wi[..., 2])
+        wo = jnp.zeros_like(wi)
+        valid = jnp.zeros(wi.shape[:-1], dtype=bool)
+        n_levels = len(layers_) + 1
+        for j in range(n_levels):
+            lo = cum
+            cum = cum + probs[j]
+            chosen = (u[..., 2] >= lo) & ((u[..., 2] < cum) | (j == n_levels - 1))
+            u3 = jnp.clip(safe_div(u[..., 2] - lo, probs[j]), 0.0, 1.0)
+            uu = jnp.concatenate([u[..., :2], u3[..., None]], axis=-1)
+            if j < len(layers_):
+                lp = {"alpha": layers_[j][0], "n": layers_[j][1], "k": layers_[j][2]}
+                w, _, p_s = rough_conductor.sample(lp, Ls[j], uu,
+                                                   distribution=opts["distribution"])
+            else:
+                w, _, p_s = base.sample(pb, Ls[j], uu, **base_options(opts))
+            ok = oks[j] & (p_s > 0)
+            for layer in reversed(layers_[:j]):  # back out through the interfaces above
+                w, ok_up = refract_up(w, layer[3])
+                ok = ok & ok_up
+            wo = jnp.where(chosen[..., None], w, wo)
+            valid = jnp.where(chosen, ok, valid)
+        p = pdf(params, wi, wo, **opts)
+        f = eval(params, wi, wo, **opts)
+        valid = valid & (p > 0)
+        weight = safe_div(f * jnp.abs(wo[..., 2]), p)
+        return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
+
+    return Model(
+        name=canonical_name(base.name, layers),
+        summary=(f"Weidlich–Wilkie layered BRDF: {n_if} microfacet interface"
+                 f"{'s' if n_if > 1 else ''} over a {base.name} base (Elek 2010 eqs 2-4)"),
+        parameters=parameters,
+        options=OPTIONS,
+        eval=eval,
+        sample=sample,
+        pdf=pdf,
+        lobes="reflection",
+        reference=("Elek 2010 section 2.2 eqs 2 (recursion), 3 (absorption), 4 (TIR term), "
+                   "section 3 (m2 >= m1 clamp), Algorithm 1; interfaces: Walter 2007 eq. 20 "
+                   f"with complex Fresnel; base: {base.reference}"),
+    )
+
+
+def from_call(call, get_model) -> Model:
+    """Build from the parsed name ``weidlich_wilkie(BASE[,layers=K])`` (models/syntax.py)."""
+    kwargs = dict(call.kwargs)
+    if len(call.args) != 1:
+        raise ValueError(f"{NAME}(...) takes one base model ({', '.join(BASES)}), e.g. "
+                         f"{NAME}(rough_conductor)")
+    unknown = set(kwargs) - {"layers"}
+    if unknown:
+        raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; the "
+                         "only one is layers=K (interfaces + base, default 2)")
+    try:
+        layers = int(kwargs.get("layers", "2"))
+    except ValueError:
+        raise ValueError(f"{NAME}(...,layers={kwargs['layers']}): layers must be an integer") \
+            from None
+    return _cached(get_model(call.args[0]), layers)
+
+
+@functools.lru_cache(maxsize=None)
+def _cached(base: Model, layers: int) -> Model:
+    return make_weidlich_wilkie(base, layers)
