@@ -383,15 +383,25 @@ def _print_info(info, indent=""):
 
 
 def cmd_info(args):
+    from fitlab.export.exr import describe_exr, is_exr
     from fitlab.io.formats import describe_any
 
-    info = _describe_fit(args.file) if _is_fit_json(args.file) and not args.format \
-        else describe_any(args.file, args.format)
+    if is_exr(args.file) and not args.format:
+        info = describe_exr(args.file)  # a fitlab LUT (data_formats/lut_exr.md)
+    else:
+        info = _describe_fit(args.file) if _is_fit_json(args.file) and not args.format \
+            else describe_any(args.file, args.format)
     if args.json:
         print(json.dumps(info, indent=2, default=str))
     else:
         _print_info(info)
     return 0
+
+
+def cmd_lut(args):
+    from fitlab.export.lut_files import run
+
+    return run(args)
 
 
 _ZEMAX_ONLY = ("model", "param", "option", "grid", "aoi", "azimuth", "radial", "scatter", "channel")
@@ -606,6 +616,61 @@ def build_parser():
     p.add_argument("--radial", metavar="ANGLES", help="ScatterRadial list, 0..180")
     p.add_argument("--channel", help="the channel of a multi-channel fit to write")
     p.set_defaults(func=cmd_convert)
+
+    p = sub.add_parser(
+        "lut", help="bake a lookup table (OpenEXR) and the GLSL that reads it",
+        description="Bake a 1D/2D/3D lookup table for shaders and write it as OpenEXR (half or "
+        "float channels; axes, mappings, texel convention, model, parameters and the measured "
+        "accuracy in fitlab.* header attributes) plus a GLSL snippet beside it (OUT.glsl) with "
+        "the exact index mapping. KIND: D (pi alpha^2 D(cos theta_h; alpha), 512x512, u8 axis as "
+        "in Elek 2010), fresnel (F(cos theta) per channel: conductor n,k, --preset or dielectric "
+        "eta; 128), albedo_conductor (E(mu, alpha) with F = 1 and E_avg; 32x32), "
+        "albedo_dielectric (R and T from outside and inside over mu x alpha x eta; 32x32x16), "
+        "dfg (split-sum scale and bias; 64x64), model (a model's or fit's BRDF over "
+        "(cos theta_h, cos theta_d) at phi_d = 90 deg; 256x256). Integrals use deterministic "
+        "quadrature; every table's accuracy against direct evaluation is measured and stored. "
+        "Spec: data_formats/lut_exr.md. Nothing is written on error.",
+        epilog="examples: fitlab lut D --option distribution=ggx --out d_ggx.exr; fitlab lut "
+        "fresnel --preset copper --out copper_F.exr; fitlab lut fresnel --param eta=1.5 --out "
+        "glass_F.exr; fitlab lut albedo_conductor --dtype float --out E_ggx.exr; fitlab lut "
+        "model --from-fit fits/walter_rough_glass.json --out glass_brdf.exr; fitlab lut model "
+        "--model rough_conductor --param alpha=0.2 --param n=0.2,1.0,1.2 --param k=3.9,2.6,2.4 "
+        "--out metal.exr",
+    )
+    p.add_argument("kind", metavar="KIND",
+                   help="D, fresnel, albedo_conductor, albedo_dielectric, dfg or model")
+    p.add_argument("--from-fit", metavar="FIT.json",
+                   help="take the model, options and parameters from a parameter file "
+                   "(data_formats/fit_json.md); its path is recorded in the EXR header")
+    p.add_argument("--channel", help="with --from-fit: only this channel of the fit")
+    p.add_argument("--model", help="registry model (see `fitlab models`)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE[,G,B]",
+                   help="a parameter; three comma-separated values make R, G, B channels")
+    p.add_argument("--option", action="append", metavar="NAME=VALUE",
+                   help="a model option, e.g. distribution=beckmann (D, albedo and dfg tables "
+                   "read distribution; fresnel reads fresnel=exact|schlick|lazanyi)")
+    p.add_argument("--preset", help="fresnel only: conductor (n, k) per RGB from Elek 2010 "
+                   "appendix A: copper, chromium or cuprite")
+    p.add_argument("--size", metavar="NxN[xN]",
+                   help="samples per axis, 2..4096 (one number: every axis); default per kind")
+    p.add_argument("--mapping", action="append", metavar="AXIS=MAPPING",
+                   help="axis mapping: linear, u8 (x = hi - (hi-lo) t^8), sqrt (x = lo + "
+                   "(hi-lo) t^2) or log, e.g. cos_theta_h=linear or alpha=log")
+    p.add_argument("--alpha-range", metavar="LO:HI",
+                   help="range of the alpha axis within [1e-4, 1] (default 1e-4:1)")
+    p.add_argument("--eta-range", metavar="LO:HI",
+                   help="albedo_dielectric: range of eta = n_inside/n_outside within [1.001, 5] "
+                   "(default 1.05:3; incidence from inside covers 1/eta)")
+    p.add_argument("--dtype", choices=("half", "float"), default="half",
+                   help="EXR channel type (default half; half refuses values above 65504)")
+    p.add_argument("--check-points", type=int, metavar="N",
+                   help="random points for the accuracy check against direct evaluation "
+                   "(default per kind; 0 skips it)")
+    p.add_argument("--out", required=True, metavar="FILE.exr", help="output table")
+    p.add_argument("--no-shader", action="store_true", help="do not write FILE.glsl")
+    p.add_argument("--hlsl", action="store_true", help="also write FILE.hlsl")
+    p.add_argument("--quiet", action="store_true", help="no progress or summary on stderr")
+    p.set_defaults(func=cmd_lut)
 
     p = sub.add_parser(
         "simulate", help="Monte Carlo ground truth of a layer stack (scene TOML) as measurement CSV",

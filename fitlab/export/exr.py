@@ -1,0 +1,266 @@
+"""OpenEXR files of fitlab lookup tables (data_formats/lut_exr.md): write, read, describe.
+
+API (also what ``fitlab report`` uses to preview LUTs)::
+
+    write_exr(path, table)        # atomic: a temporary file beside ``path``, then a rename
+    table = read_exr(path)        # -> fitlab.lut.Table (values float64 (H, W, C), axes, accuracy…)
+    info = describe_exr(path)     # header only -> JSON-ready dict (what `fitlab info` prints)
+
+Channels are stored as HALF or FLOAT (never 8-bit), one EXR channel per table channel, ZIP
+compressed. All metadata lives in header attributes named ``fitlab.*`` (strings; structured
+values are JSON). :func:`read_exr` validates everything and raises
+:class:`fitlab.errors.InputFileError` naming the file and the attribute at fault.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+import fitlab
+from fitlab.errors import FitlabError, InputFileError
+from fitlab.lut import KINDS, MAPPINGS, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN, TEXEL_CONVENTION, Axis, Table
+
+#: First four bytes of every OpenEXR file.
+MAGIC = b"\x76\x2f\x31\x01"
+PREFIX = "fitlab."
+#: Attributes every fitlab LUT carries (JSON-encoded unless noted).
+REQUIRED = ("schema", "schema_version", "kind", "channels", "dtype", "axes", "quantity", "model",
+            "params", "accuracy", "texel_convention", "conventions", "version")
+
+
+def _conventions() -> dict:
+    from fitlab.export.paramfile import CONVENTIONS
+
+    return CONVENTIONS
+
+
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def header_attributes(table: Table) -> dict:
+    """The ``fitlab.*`` header attributes of a table (all strings)."""
+    attrs = {
+        "schema": SCHEMA,
+        "schema_version": str(SCHEMA_VERSION),
+        "kind": table.kind,
+        "channels": json.dumps(list(table.channels)),
+        "dtype": table.dtype,
+        "axes": json.dumps([a._asdict() for a in table.axes]),
+        "quantity": table.quantity,
+        "model": json.dumps(table.model),
+        "params": json.dumps(table.params),
+        "accuracy": json.dumps(table.accuracy, allow_nan=False),
+        "texel_convention": TEXEL_CONVENTION,
+        "conventions": json.dumps(_conventions()),
+        "version": fitlab.__version__,
+        "notes": json.dumps(list(table.notes)),
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+    for k, a in enumerate(table.axes):  # readable copies for exrheader & co.
+        attrs[f"axis{k}"] = (f"{a.name} in [{a.lo!r}, {a.hi!r}], {a.size} samples, mapping "
+                             f"{a.mapping} ({MAPPINGS[a.mapping].formula})")
+    if table.source_fit:
+        attrs["source_fit"] = str(table.source_fit)
+        with contextlib.suppress(OSError):
+            attrs["source_fit_sha256"] = _sha256(table.source_fit)
+    return {PREFIX + k: v for k, v in attrs.items()}
+
+
+def write_exr(path, table: Table) -> None:
+    """Write ``table`` to ``path`` atomically (nothing is left behind on failure)."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.parent.exists():
+        raise FitlabError(f"{path}: the output folder {path.parent} does not exist; create it first")
+    np_type = np.float16 if table.dtype == "half" else np.float32
+    values = np.asarray(table.values)
+    if not np.all(np.isfinite(values)):
+        raise FitlabError(f"{path}: refusing to write a table with NaN or Inf values")
+    channels = {name: np.ascontiguousarray(values[:, :, k].astype(np_type))
+                for k, name in enumerate(table.channels)}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              **header_attributes(table)}
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.exr", dir=path.parent)
+    os.close(fd)
+    try:
+        with OpenEXR.File(header, channels) as f:
+            f.write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def _open(path, header_only: bool):
+    import OpenEXR
+
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, "no such file", hint="check the path")
+    if path.is_dir():
+        raise InputFileError(path, "is a folder, not a file")
+    with open(path, "rb") as fh:
+        if fh.read(4) != MAGIC:
+            raise InputFileError(path, "is not an OpenEXR file (wrong magic number)")
+    try:
+        return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
+    except Exception as exc:  # the binding raises RuntimeError for any damage
+        raise InputFileError(path, f"cannot be read as OpenEXR ({exc})",
+                             hint="the file is damaged or truncated; write it again with "
+                             "`fitlab lut`") from None
+
+
+def _attrs(path, header) -> dict:
+    out = {k[len(PREFIX):]: v for k, v in header.items() if k.startswith(PREFIX)}
+    if "schema" not in out:
+        raise InputFileError(path, "is an OpenEXR file but not a fitlab lookup table (no "
+                             "fitlab.schema attribute)", hint="see data_formats/lut_exr.md")
+    if out["schema"] != SCHEMA:
+        raise InputFileError(path, f"has schema {out['schema']!r}, expected {SCHEMA!r}",
+                             column="fitlab.schema")
+    if out.get("schema_version") != str(SCHEMA_VERSION):
+        raise InputFileError(path, f"has schema_version {out.get('schema_version')!r}; this "
+                             f"fitlab reads version {SCHEMA_VERSION}", column="fitlab.schema_version",
+                             hint="write the table again with this fitlab version")
+    for key in REQUIRED:
+        if key not in out:
+            raise InputFileError(path, "lacks a required attribute", column=PREFIX + key,
+                                 hint="see data_formats/lut_exr.md for the attributes")
+        if not isinstance(out[key], str):
+            raise InputFileError(path, f"must be a string attribute, got {type(out[key]).__name__}",
+                                 column=PREFIX + key)
+    return out
+
+
+def _json(path, attrs, key, kind):
+    try:
+        value = json.loads(attrs[key])
+    except json.JSONDecodeError as exc:
+        raise InputFileError(path, f"is not valid JSON ({exc.msg})", column=PREFIX + key) from None
+    if not isinstance(value, kind):
+        raise InputFileError(path, f"must be a JSON {kind.__name__ if isinstance(kind, type) else 'value'}",
+                             column=PREFIX + key)
+    return value
+
+
+def _axes(path, attrs):
+    raw = _json(path, attrs, "axes", list)
+    axes = []
+    for k, a in enumerate(raw):
+        col = f"{PREFIX}axes[{k}]"
+        if not isinstance(a, dict) or set(a) != set(Axis._fields):
+            raise InputFileError(path, f"each axis needs exactly the fields {', '.join(Axis._fields)}",
+                                 column=col)
+        if a["mapping"] not in MAPPINGS:
+            raise InputFileError(path, f"unknown mapping {a['mapping']!r}", column=col,
+                                 hint=f"mappings: {', '.join(MAPPINGS)}")
+        size = a["size"]
+        if not isinstance(size, int) or not SIZE_MIN <= size <= SIZE_MAX:
+            raise InputFileError(path, f"size must be an integer in [{SIZE_MIN}, {SIZE_MAX}]",
+                                 column=col)
+        try:
+            lo, hi = float(a["lo"]), float(a["hi"])
+        except (TypeError, ValueError):
+            raise InputFileError(path, "lo and hi must be numbers", column=col) from None
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi) or (a["mapping"] == "log" and lo <= 0):
+            raise InputFileError(path, f"invalid range [{lo}, {hi}] for mapping {a['mapping']}",
+                                 column=col)
+        axes.append(Axis(str(a["name"]), lo, hi, size, a["mapping"], str(a["description"])))
+    return tuple(axes)
+
+
+def read_exr(path) -> Table:
+    """Read and validate a fitlab LUT → :class:`fitlab.lut.Table` (values as float64)."""
+    path = Path(path)
+    f = _open(path, header_only=False)
+    header = f.header()
+    attrs = _attrs(path, header)
+    kind = attrs["kind"]
+    if kind not in KINDS:
+        raise InputFileError(path, f"unknown table kind {kind!r}", column=PREFIX + "kind",
+                             hint=f"kinds: {', '.join(KINDS)}")
+    channels = _json(path, attrs, "channels", list)
+    axes = _axes(path, attrs)
+    if len(axes) != KINDS[kind].n_axes:
+        raise InputFileError(path, f"a {kind} table has {KINDS[kind].n_axes} axes, the header "
+                             f"declares {len(axes)}", column=PREFIX + "axes")
+    dtype = attrs["dtype"]
+    if dtype not in ("half", "float"):
+        raise InputFileError(path, f"dtype must be half or float, got {dtype!r}",
+                             column=PREFIX + "dtype")
+    pixels = {name: c.pixels for name, c in f.channels().items()}
+    if sorted(pixels) != sorted(channels):
+        raise InputFileError(path, f"the file holds channels {sorted(pixels)} but the header "
+                             f"declares {channels}", column=PREFIX + "channels")
+    if len(axes) == 1:
+        shape = (1, axes[0].size)
+    else:
+        shape = (axes[1].size * (axes[2].size if len(axes) == 3 else 1), axes[0].size)
+    want = np.float16 if dtype == "half" else np.float32
+    cols = []
+    for name in channels:
+        p = pixels[name]
+        if p.dtype != want:
+            raise InputFileError(path, f"channel is {p.dtype}, the header says {dtype}",
+                                 column=name, hint="only HALF or FLOAT channels are valid")
+        if p.shape != shape:
+            raise InputFileError(path, f"channel has {p.shape[1]} x {p.shape[0]} pixels; the "
+                                 f"axes need {shape[1]} x {shape[0]}", column=name)
+        if not np.all(np.isfinite(p)):
+            raise InputFileError(path, f"channel holds {int(np.sum(~np.isfinite(p)))} NaN or Inf "
+                                 "values", column=name)
+        cols.append(p.astype(np.float64))
+    model = _json(path, attrs, "model", (dict, type(None)))
+    params = _json(path, attrs, "params", dict)
+    accuracy = _json(path, attrs, "accuracy", dict)
+    notes = tuple(_json(path, attrs, "notes", list)) if "notes" in attrs else ()
+    return Table(kind, np.stack(cols, axis=-1), tuple(channels), axes, dtype, attrs["quantity"],
+                 model, params, accuracy, attrs.get("source_fit"), notes)
+
+
+def describe_exr(path) -> dict:
+    """What ``fitlab info`` shows: every fitlab attribute, decoded, plus the image layout."""
+    path = Path(path)
+    f = _open(path, header_only=True)
+    header = f.header()
+    attrs = _attrs(path, header)
+    (x0, y0), (x1, y1) = (tuple(int(v) for v in w) for w in header["dataWindow"])
+    info = {"format": "fitlab-lut-exr", "format_description": "fitlab lookup table (OpenEXR)",
+            "spec": "data_formats/lut_exr.md", "width": x1 - x0 + 1, "height": y1 - y0 + 1,
+            "exr_channels": [c.name for c in header["channels"]]}
+    for key, value in attrs.items():
+        try:
+            decoded = json.loads(value) if key in ("channels", "axes", "model", "params",
+                                                   "accuracy", "conventions", "notes") else value
+        except json.JSONDecodeError:
+            decoded = value
+        info[key] = decoded
+    if isinstance(info.get("axes"), list):
+        info["axes"] = {f"axis{k}": a for k, a in enumerate(info["axes"])}
+    return info
+
+
+def is_exr(path) -> bool:
+    p = Path(path)
+    if not p.is_file():
+        return False
+    with open(p, "rb") as fh:
+        return fh.read(4) == MAGIC
+
+
+__all__ = ["write_exr", "read_exr", "describe_exr", "header_attributes", "is_exr"]

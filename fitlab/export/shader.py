@@ -1,0 +1,191 @@
+"""GLSL (and HLSL) readers for fitlab lookup tables, with the exact index mapping of
+``fitlab.lut`` (texel centres at the ends of every axis, the u⁸ / sqrt / log axis mappings,
+linear interpolation between the slices of a third axis). data_formats/lut_exr.md documents the
+layout; tests/test_lut_glsl.py compiles the GLSL in Mesa's llvmpipe and compares it with direct
+evaluation.
+
+Texture set-up the code expects: the table's channels, in the order of the ``fitlab.channels``
+attribute, packed four at a time into 2D textures (texture g holds channels 4g .. 4g+3, R G B A);
+full width × height of the EXR, row 0 of the EXR at texture coordinate v = 0 (upload the rows in
+file order); FLOAT or HALF internal format; GL_LINEAR filtering without mipmaps; CLAMP_TO_EDGE.
+Hardware bilinear filtering keeps only about 8 fractional bits of the weights on many GPUs
+(llvmpipe keeps full precision): ``#define FITLAB_LUT_TEXELFETCH`` before the snippet to
+interpolate with four texelFetch taps and full-precision weights instead.
+"""
+
+from __future__ import annotations
+
+import re
+
+from fitlab.lut import MAPPINGS, Table
+
+
+def _f(x: float) -> str:
+    """A float literal valid in GLSL and HLSL that round-trips float32."""
+    s = repr(float(x))
+    if s in ("inf", "-inf", "nan"):
+        raise ValueError(f"cannot write {s} into shader code")
+    return s if ("." in s or "e" in s) else s + ".0"
+
+
+def _mapping_expr(axis, var: str) -> str:
+    lo, hi = axis.lo, axis.hi
+    inv = 1.0 / (hi - lo)
+    if axis.mapping == "linear":
+        t = f"({var} - {_f(lo)}) * {_f(inv)}"
+    elif axis.mapping == "u8":
+        t = f"sqrt(sqrt(sqrt(max(({_f(hi)} - {var}) * {_f(inv)}, 0.0))))"
+    elif axis.mapping == "sqrt":
+        t = f"sqrt(max(({var} - {_f(lo)}) * {_f(inv)}, 0.0))"
+    elif axis.mapping == "log":
+        import math
+
+        t = f"log(max({var}, {_f(lo)}) * {_f(1.0 / lo)}) * {_f(1.0 / math.log(hi / lo))}"
+    else:  # pragma: no cover - Axis validation forbids it
+        raise ValueError(axis.mapping)
+    return f"clamp({t}, 0.0, 1.0)"
+
+
+_ARGS = {
+    "D": ("cos_theta_h", "alpha"),
+    "fresnel": ("cos_theta",),
+    "albedo_conductor": ("mu", "alpha"),
+    "dfg": ("mu", "alpha"),
+    "albedo_dielectric": ("mu", "alpha", "eta"),
+    "model": ("cos_theta_h", "cos_theta_d"),
+}
+
+_HLSL = [(r"\bvec2\b", "float2"), (r"\bvec3\b", "float3"), (r"\bvec4\b", "float4"),
+         (r"\bivec2\b", "int2"), (r"\bmix\b", "lerp"), (r"\bfract\b", "frac")]
+
+
+def texture_groups(table: Table):
+    """Channel names per texture: [[c0..c3], [c4..c7], ...]."""
+    ch = list(table.channels)
+    return [ch[i:i + 4] for i in range(0, len(ch), 4)]
+
+
+def glsl(table: Table, *, prefix: str | None = None, source: str = "") -> str:
+    """GLSL 3.30+ code: ``vec4 PREFIX_tex<g>(sampler2D tex, <axis coordinates>)`` per texture
+    and a convenience function per kind (below)."""
+    return _generate(table, prefix or f"fitlab_{table.kind}", source, "glsl")
+
+
+def hlsl(table: Table, *, prefix: str | None = None, source: str = "") -> str:
+    """The same functions in HLSL (Texture2D + SamplerState, SampleLevel at mip 0). Generated
+    from the GLSL text by a fixed substitution; not compiled by fitlab's tests."""
+    return _generate(table, prefix or f"fitlab_{table.kind}", source, "hlsl")
+
+
+def _generate(table: Table, p: str, source: str, lang: str) -> str:
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", p):
+        raise ValueError(f"shader prefix {p!r} must be an identifier")
+    ax = table.axes
+    args = _ARGS[table.kind][: len(ax)]
+    W = ax[0].size
+    N1 = ax[1].size if len(ax) > 1 else 1
+    H = table.values.shape[0]
+    groups = texture_groups(table)
+    L = []
+    L.append(f"// fitlab lookup table reader: kind {table.kind}{' (' + source + ')' if source else ''}")
+    L.append(f"// {table.quantity}")
+    L.append(f"// {W} x {H} texels; channels {', '.join(table.channels)}")
+    for g, chans in enumerate(groups):
+        slots = ", ".join(f"{'rgba'[i]} = {c}" for i, c in enumerate(chans))
+        L.append(f"//   texture {g}: {slots}")
+    for k, a in enumerate(ax):
+        L.append(f"//   axis {k}: {a.name} in [{a.lo!r}, {a.hi!r}], {a.size} samples, "
+                 f"{a.mapping}: {MAPPINGS[a.mapping].formula}")
+    L.append("// Sample i of an N-sample axis is at t = i/(N-1); texture coordinate s = (t(N-1)+0.5)/N.")
+    L.append("// Spec: data_formats/lut_exr.md. Define FITLAB_LUT_TEXELFETCH for full-precision weights.")
+    if lang == "hlsl":
+        tex_t, tex_arg, tex_pass = "Texture2D", "Texture2D tex, SamplerState smp", "tex, smp"
+    else:
+        tex_t, tex_arg, tex_pass = "sampler2D", "sampler2D tex", "tex"
+    L.append("")
+    for k, a in enumerate(ax):
+        L.append(f"float {p}_t{k}(float x) {{ return {_mapping_expr(a, 'x')}; }}")
+    L.append("")
+    # 2D fetch at (t0, t1) within the slice starting at row `row0`
+    L.append(f"vec4 {p}_fetch({tex_arg}, float t0, float t1, float row0) {{")
+    L.append(f"    float px = t0 * {_f(W - 1)};")
+    L.append(f"    float py = t1 * {_f(N1 - 1)} + row0;")
+    L.append("#ifdef FITLAB_LUT_TEXELFETCH")
+    L.append(f"    float ix = min(floor(px), {_f(max(W - 2, 0))});")
+    L.append(f"    float iy = min(floor(py), row0 + {_f(max(N1 - 2, 0))});")
+    L.append("    float fx = px - ix, fy = py - iy;")
+    if lang == "hlsl":
+        fetch = "tex.Load(int3(int(ix) + {dx}, int(iy) + {dy}, 0))"
+    else:
+        fetch = "texelFetch(tex, ivec2(int(ix) + {dx}, int(iy) + {dy}), 0)"
+    dy1 = "1" if N1 > 1 else "0"
+    L.append(f"    vec4 a = mix({fetch.format(dx=0, dy=0)}, {fetch.format(dx=1, dy=0)}, fx);")
+    L.append(f"    vec4 b = mix({fetch.format(dx=0, dy=dy1)}, {fetch.format(dx=1, dy=dy1)}, fx);")
+    L.append("    return mix(a, b, fy);")
+    L.append("#else")
+    uv = f"vec2((px + 0.5) * {_f(1.0 / W)}, (py + 0.5) * {_f(1.0 / H)})"
+    if lang == "hlsl":
+        L.append(f"    return tex.SampleLevel(smp, {uv}, 0.0);")
+    else:
+        L.append(f"    return textureLod(tex, {uv}, 0.0);")
+    L.append("#endif")
+    L.append("}")
+    L.append("")
+    coord_args = ", ".join(f"float {a}" for a in args)
+    ts = ", ".join(f"{p}_t{k}({a})" for k, a in enumerate(args))
+    for g, chans in enumerate(groups):
+        L.append(f"// texture {g}: ({', '.join(chans)})")
+        L.append(f"vec4 {p}_tex{g}({tex_arg}, {coord_args}) {{")
+        if len(ax) == 1:
+            L.append(f"    return {p}_fetch({tex_pass}, {p}_t0({args[0]}), 0.0, 0.0);")
+        elif len(ax) == 2:
+            L.append(f"    return {p}_fetch({tex_pass}, {ts}, 0.0);")
+        else:
+            N2 = ax[2].size
+            L.append(f"    float t0 = {p}_t0({args[0]}), t1 = {p}_t1({args[1]});")
+            L.append(f"    float pz = {p}_t2({args[2]}) * {_f(N2 - 1)};")
+            L.append(f"    float k = min(floor(pz), {_f(N2 - 2)});")
+            L.append(f"    vec4 a = {p}_fetch({tex_pass}, t0, t1, k * {_f(N1)});")
+            L.append(f"    vec4 b = {p}_fetch({tex_pass}, t0, t1, (k + 1.0) * {_f(N1)});")
+            L.append("    return mix(a, b, pz - k);")
+        L.append("}")
+        L.append("")
+    L += _convenience(table, p, tex_arg, tex_pass, coord_args, args)
+    text = "\n".join(L) + "\n"
+    if lang == "hlsl":
+        for pat, rep in _HLSL:
+            text = re.sub(pat, rep, text)
+        text = text.replace("sampler2D", tex_t)
+    return text
+
+
+def _convenience(table, p, tex_arg, tex_pass, coord_args, args):
+    call = ", ".join(args)
+    k = table.kind
+    if k == "D":
+        a = table.axes[1]
+        return [
+            "// D(m) in 1/sr: the table stores pi alpha^2 D; alpha is clamped to the table's range.",
+            f"float {p}({tex_arg}, float cos_theta_h, float alpha) {{",
+            f"    float a = clamp(alpha, {_f(a.lo)}, {_f(a.hi)});",
+            f"    return {p}_tex0({tex_pass}, cos_theta_h, a).r / (3.14159265358979 * a * a);",
+            "}",
+        ]
+    if k == "model":
+        return [
+            "// (cos theta_h, cos theta_d) of unit directions in the local frame (normal = +z).",
+            f"vec2 {p}_halfdiff(vec3 wi, vec3 wo) {{",
+            "    vec3 h = normalize(wi + wo);",
+            "    return vec2(clamp(h.z, 0.0, 1.0), clamp(dot(wi, h), 0.0, 1.0));",
+            "}",
+            "// BRDF f(wi, wo) in 1/sr (no cosine) of the first <= 4 channels, 0 below the horizon.",
+            f"vec4 {p}({tex_arg}, vec3 wi, vec3 wo) {{",
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec4(0.0);",
+            f"    vec2 c = {p}_halfdiff(wi, wo);",
+            f"    return {p}_tex0({tex_pass}, c.x, c.y);",
+            "}",
+        ]
+    return [f"vec4 {p}({tex_arg}, {coord_args}) {{ return {p}_tex0({tex_pass}, {call}); }}"]
+
+
+__all__ = ["glsl", "hlsl", "texture_groups"]
