@@ -418,3 +418,18 @@ def test_in_plane_geometry():
     assert mask.tolist() == [True, True, False, True, True]
     assert xs[0] == 40.0 and xs[1] == -40.0 and xs[4] == 40.0
     assert geo.side_of(m, np.arange(5)).tolist() == ["reflection"] * 4 + ["transmission"]
+
+
+@pytest.mark.slow
+def test_report_of_committed_real_data_fit(tmp_path):
+    """The brown vinyl fit (Zemax IS-BSDF, 13 incidences, out-of-plane, MCMC recorded but its
+    chain not committed): scans, hemisphere maps and a note in place of the posterior plots."""
+    fit = ROOT / "fits" / "brown_vinyl_lambert_ggx_dielectric.json"
+    out = tmp_path / "vinyl"
+    assert main(["report", str(fit), "--out", str(out), "--quiet"]) == 0
+    names = sorted(p.stem for p in out.glob("*.png"))
+    assert sum(n.startswith("scan_Y_theta") for n in names) == 13
+    assert "hemisphere_Y" in names and "corner_Y" not in names
+    text = (out / "index.html").read_text(encoding="utf-8")
+    assert "its chain file was not given" in text
+    assert "Hemispherical maps" in text and "0.12352" in text  # albedo, best fit

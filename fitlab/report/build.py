@@ -30,6 +30,10 @@ MAX_MAPS = 4
 MAX_LOBES = 4
 #: Hemisphere maps: at most this many points per incidence (evenly thinned).
 MAX_MAP_POINTS = 20000
+#: Hemisphere residual maps leave out rows below this fraction of the incidence's median
+#: positive value (not of its maximum, as the error tables do: next to a strong specular peak the
+#: diffuse floor would vanish), so near-zero readings do not swamp the map.
+MAP_FLOOR = 1e-2
 
 
 def _fmt(x, digits=5):
@@ -274,7 +278,7 @@ def _scans(rep, inp, ch, preds, tag):
                                   None if m.sigma is None else m.sigma[r],
                                   ch.fitted[sel][keep][order], preds[sel][keep][order], xd, best,
                                   band, floor))
-        label = f"θi = {inc.theta_i:g}°" + (f", φi = {inc.phi_i:g}°" if inc.phi_i else "")
+        label = f"θi = {inc.theta_i:.4g}°" + (f", φi = {inc.phi_i:.4g}°" if inc.phi_i else "")
         if not sides:
             body_parts.append(note_html(f"{label}: no measured rows within "
                                         f"±{geo.IN_PLANE_TOL_DEG:g}° of the plane of incidence "
@@ -297,7 +301,7 @@ def _scans(rep, inp, ch, preds, tag):
 
 
 def _maps(rep, inp, ch, preds, tag):
-    from fitlab.report.maps import MapRow, hemisphere_figure
+    from fitlab.report.maps import RESIDUAL_MAX, MapRow, hemisphere_figure
 
     m = inp.measurement
     if not geo.is_out_of_plane(m, ch.rows):
@@ -318,8 +322,10 @@ def _maps(rep, inp, ch, preds, tag):
                 idx = idx[np.round(np.linspace(0, idx.size - 1, MAX_MAP_POINTS)).astype(int)]
             r = rows[idx]
             x, y = geo.disc_xy(m.theta_o[r], m.phi_o[r])
-            rows_fig.append(MapRow(f"θi = {inc.theta_i:g}°, {side}", x, y, m.value[r], p[idx],
-                                   0.0))
+            vals = m.value[rows]
+            floor = MAP_FLOOR * float(np.median(vals[vals > 0])) if (vals > 0).any() else 0.0
+            rows_fig.append(MapRow(f"θi = {inc.theta_i:.4g}°, {side}", x, y, m.value[r],
+                                   p[idx], floor))
     if not rows_fig:
         return None
     unit = _value_label(inp)
@@ -328,8 +334,9 @@ def _maps(rep, inp, ch, preds, tag):
            f"{unit} (left), the model at the same directions (middle), both on one logarithmic, "
            "perceptually uniform colour scale (viridis), and the relative residual "
            "(model − data)/data in % (right) on a diverging map centred on zero, its range the "
-           "98th percentile of |residual| (grey: zero data or not measured; unlike the error "
-           "table, rows below 1% of the maximum are shown). Projection: radius = angle "
+           f"95th percentile of |residual| (at most ±{RESIDUAL_MAX:g}%; beyond it the colours "
+           f"saturate; grey: rows below {MAP_FLOOR:g} × the incidence's median value, or not "
+           "measured). Projection: radius = angle "
            "of wo from the normal (rings at 30°, 60°, 90°), angle = φo; the light comes from "
            "φ = φi, the specular peak lies near φo = φi + 180°.")
     alt = "Hemisphere maps of data, model and relative residual for " + \

@@ -18,7 +18,7 @@ class MapRow(NamedTuple):
     y: np.ndarray
     value: np.ndarray
     pred: np.ndarray
-    floor: float  # value at or below this: no relative residual (grey)
+    floor: float  # |value| below this: no relative residual (grey)
 
 
 def _frame(ax):
@@ -39,6 +39,10 @@ def _frame(ax):
     ax.grid(False)
 
 
+#: Residual colour range: at most this many percent.
+RESIDUAL_MAX = 200.0
+#: Measured directions are dotted on the maps up to this many points.
+MAX_DOTS = 3000
 #: Triangles with an edge longer than this angle between directions are not drawn: they would
 #: bridge regions the instrument did not measure.
 MAX_EDGE_DEG = 35.0
@@ -65,20 +69,25 @@ def hemisphere_figure(rows: list, *, unit: str):
     for k, row in enumerate(rows):
         tri = _triangulation(row)
         pos = np.concatenate([row.value[row.value > 0], row.pred[row.pred > 0]])
-        top = pos.max() if pos.size else 1.0
+        # Robust top (99.9th percentile): a few outliers at the horizon must not set the scale.
+        top = float(np.percentile(pos, 99.9)) if pos.size else 1.0
         norm = LogNorm(vmin=max(pos.min() if pos.size else top * 1e-3, top * 1e-3), vmax=top)
         for ax, vals, what in ((axes[k, 0], row.value, "data"), (axes[k, 1], row.pred, "model")):
             shown = np.clip(vals, norm.vmin, norm.vmax)
             pc = ax.tripcolor(tri, shown, norm=norm, cmap=CMAP_VALUES, shading="gouraud",
                               rasterized=True)
-            ax.plot(row.x, row.y, ",", color="w", alpha=0.4, rasterized=True)
+            if row.x.size <= MAX_DOTS:  # where the measurements are (a blur beyond that)
+                ax.plot(row.x, row.y, ",", color="w", alpha=0.4, rasterized=True)
             _frame(ax)
             ax.set_title(f"{what}: {row.label}")
-            fig.colorbar(pc, ax=ax, shrink=0.85, label=unit)
-        ok = row.value > row.floor
+            fig.colorbar(pc, ax=ax, shrink=0.85, label=unit, extend="both")
+        ok = (row.value > 0) & (np.abs(row.value) >= row.floor)
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(ok, 100.0 * (row.pred - row.value) / row.value, 0.0)
-        lim = max(5.0, float(np.percentile(np.abs(rel[ok]), 98))) if ok.any() else 10.0
+        # Robust range: the 95th percentile of |residual|, at most RESIDUAL_MAX (a few grazing
+        # points off by 100x must not wash out the rest); beyond it the colours saturate.
+        lim = min(RESIDUAL_MAX, max(5.0, float(np.percentile(np.abs(rel[ok]), 95)))) \
+            if ok.any() else 10.0
         rt = _triangulation(row)
         bad = ~ok[rt.triangles].all(axis=1)
         rt.set_mask(rt.mask | bad)
@@ -87,6 +96,7 @@ def hemisphere_figure(rows: list, *, unit: str):
                           cmap=CMAP_RESIDUAL, shading="gouraud", rasterized=True)
         ax.set_facecolor("0.85")
         _frame(ax)
-        ax.set_title(f"(model − data)/data: {row.label}")
-        fig.colorbar(pc, ax=ax, shrink=0.85, label="relative residual (%)")
+        ax.set_title(f"residual: {row.label}")
+        fig.colorbar(pc, ax=ax, shrink=0.85, extend="both",
+                     label="(model − data)/data (%)")
     return fig
