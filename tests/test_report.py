@@ -433,3 +433,41 @@ def test_report_of_committed_real_data_fit(tmp_path):
     text = (out / "index.html").read_text(encoding="utf-8")
     assert "its chain file was not given" in text
     assert "Hemispherical maps" in text and "0.12352" in text  # albedo, best fit
+
+
+def test_noise_scales_come_from_the_chain(made):
+    """The per-sample σ_r is read from the full chain at the rows emcee kept; its median is
+    the fit's residual noise scale (a posterior over σ_r centred on the least-squares value)."""
+    from fitlab.report.inputs import load_inputs
+
+    fit, chain = made["fits"]["walter"]
+    (ch,) = load_inputs(fit, chain_path=chain).channels
+    assert ch.noise is not None and ch.noise.shape == (ch.samples.shape[0],)
+    s_ls = ch.fit["statistics"]["residual_noise_scale"]
+    assert np.median(ch.noise) == pytest.approx(s_ls, rel=0.15)
+    # chi2 fits sample no noise scale: no predictive band.
+    (ch2,) = load_inputs(made["fits"]["brdf"][0], chain_path=made["fits"]["brdf"][1]).channels
+    assert ch2.samples is not None and ch2.noise is None
+
+
+@pytest.mark.parametrize("loss", ["relative", "log", "cos_l2"])
+def test_replicated_data_follow_the_loss_noise_model(loss):
+    """Residuals of replicated data, computed with the fit's own residual function, have the
+    sampled σ_r as their standard deviation."""
+    import jax.numpy as jnp
+
+    from fitlab.fit.losses import loss_weights, residuals
+    from fitlab.report.inputs import replicate_data
+
+    rng = np.random.default_rng(5)
+    m = np.array([0.5, 2.0, 8.0])
+    cos_o = np.array([0.9, 0.5, 0.2])
+    sigma = np.full(20000, 0.03)
+    v = replicate_data(loss, np.broadcast_to(m, (20000, 3)).copy(), sigma, cos_o, 0.08, rng)
+    for k in range(3):
+        consts = loss_weights(loss, v[:, k], None, np.full(20000, cos_o[k]))
+        if loss == "relative":  # the fitter's floor is relative to the data it sees
+            consts = {"w": 1.0 / np.maximum(np.abs(v[:, k]), 0.08)}
+        r = np.asarray(residuals(loss, jnp.full(20000, m[k]), jnp.asarray(v[:, k]),
+                                 {q: jnp.asarray(w) for q, w in consts.items()}))
+        assert np.std(r) == pytest.approx(0.03, rel=0.05), (loss, k)

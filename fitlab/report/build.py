@@ -251,10 +251,13 @@ def _scans(rep, inp, ch, preds, tag):
         f"incidence (points within ±{geo.IN_PLANE_TOL_DEG:g}°; red: fitted rows, orange: "
         "predicted rows) and the best-fit model (black line), on linear and logarithmic axes; "
         "shaded, when the chain is available: the 68% and 95% posterior bands of the model "
-        "(scale·f evaluated at posterior samples: parameter uncertainty, not measurement "
-        "noise). Bottom panel: relative residual (model − data)/data in %, for rows above "
-        f"{REL_ERR_FLOOR:g} × the incidence's maximum (shaded: the 95% band relative to the "
-        "best fit). x axis: angle of wo from the normal of its hemisphere, positive on the "
+        "(scale·f evaluated at posterior samples: parameter uncertainty only); grey dashed and "
+        "dotted lines, when the fit sampled a noise scale σ_r (every loss but chi2): the 68% "
+        "and 95% posterior predictive bands, where new measurements should fall (the model "
+        "at each sample plus a draw of the loss's noise model with that sample's σ_r). Bottom "
+        "panel: relative residual (model − data)/data in %, for rows above "
+        f"{REL_ERR_FLOOR:g} × the incidence's maximum, with the same bands relative to the "
+        "best fit. x axis: angle of wo from the normal of its hemisphere, positive on the "
         "forward side (φo = φi + 180°, where the specular or refracted peak lies), negative on "
         "the backward side.") + body
     body_parts = []
@@ -272,12 +275,13 @@ def _scans(rep, inp, ch, preds, tag):
             xd, wi, wo = geo.dense_scan(inc.theta_i, inc.phi_i, side)
             best = prediction(inp, ch, wi, wo)
             band = predictive_band(inp, ch, wi, wo)
+            band_new = predictive_band(inp, ch, wi, wo, with_noise=True)
             order = np.argsort(x[keep], kind="stable")
             r = rows[keep][order]
             sides.append(ScanSide(side, x[keep][order], m.value[r],
                                   None if m.sigma is None else m.sigma[r],
                                   ch.fitted[sel][keep][order], preds[sel][keep][order], xd, best,
-                                  band, floor))
+                                  band, floor, band_new))
         label = f"θi = {inc.theta_i:.4g}°" + (f", φi = {inc.phi_i:.4g}°" if inc.phi_i else "")
         if not sides:
             body_parts.append(note_html(f"{label}: no measured rows within "

@@ -36,6 +36,8 @@ class ChannelInputs(NamedTuple):
     fitted: np.ndarray  # bool per row of ``rows``: inside the fit subset
     samples: np.ndarray | None  # (S, len(free)) thinned posterior samples, native units
     samples_all: np.ndarray | None  # every stored post-burn-in sample (corner plot)
+    noise: np.ndarray | None  # σ_r of the loss's noise model at each thinned sample, if sampled
+    noise_floor: float  # the relative loss's floor (1% of the fitted rows' max |value|)
     chain: np.ndarray | None  # (steps, walkers, coords) in sampler coordinates
     chain_coordinates: tuple
     log_prob: np.ndarray | None
@@ -176,12 +178,31 @@ def _channel_chain(npz, chain_path, fit, free, fit_path):
     return samples, chain, coords, log_prob
 
 
-def thin_samples(samples: np.ndarray, n: int = BAND_SAMPLES) -> np.ndarray:
-    """At most ``n`` samples, evenly spaced through the stored ones (deterministic)."""
-    if samples.shape[0] <= n:
-        return samples
-    idx = np.round(np.linspace(0, samples.shape[0] - 1, n)).astype(int)
-    return samples[idx]
+def thin_index(n_total: int, n: int = BAND_SAMPLES) -> np.ndarray:
+    """Indices of at most ``n`` samples, evenly spaced through ``n_total`` (deterministic)."""
+    if n_total <= n:
+        return np.arange(n_total)
+    return np.round(np.linspace(0, n_total - 1, n)).astype(int)
+
+
+def noise_scales(chain, coords, samples_all, fit, space):
+    """σ_r (the sampled noise scale of losses other than chi2) for every stored sample, or None.
+
+    The stored samples are emcee's ``get_chain(discard=burn, thin=thin, flat=True)``: steps
+    burn + thin − 1, burn + 2 thin − 1, ... of every walker. The same rows of the full chain
+    give each sample's ``log_noise``; they are used only if their parameter columns reproduce
+    the stored samples exactly."""
+    mc = fit.get("mcmc") or {}
+    nfree = len(space.free)
+    if "log_noise" not in coords[nfree:] or "burn_in" not in mc or "thin" not in mc:
+        return None
+    burn, thin = int(mc["burn_in"]), int(mc["thin"])
+    flat = chain[burn + thin - 1::thin].reshape(-1, chain.shape[2])
+    if flat.shape[0] != samples_all.shape[0]:
+        return None
+    if not np.allclose(space.to_native(flat[:, :nfree]), samples_all, rtol=1e-12, atol=0.0):
+        return None
+    return np.exp(flat[:, coords.index("log_noise")])
 
 
 def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> ReportInputs:
@@ -253,15 +274,21 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
         except ValueError as exc:
             raise InputFileError(fit_path, f"channel {fit['channel']}: {exc}",
                                  column="fits.parameters") from None
-        samples = samples_all = chain = log_prob = None
+        samples = samples_all = chain = log_prob = noise = None
         coords = ()
+        space = _space_of(fit, record)
         if npz is not None and fit.get("mcmc"):
             samples_all, chain, coords, log_prob = _channel_chain(npz, chain_path, fit, free,
                                                                   fit_path)
-            samples = thin_samples(samples_all)
-        channels.append(ChannelInputs(fit["channel"], fit, params, scale, free,
-                                      _space_of(fit, record), rows, rows_fit[rows], samples,
-                                      samples_all, chain, coords, log_prob))
+            idx = thin_index(samples_all.shape[0])
+            samples = samples_all[idx]
+            noise_all = noise_scales(chain, coords, samples_all, fit, space)
+            noise = None if noise_all is None else noise_all[idx]
+        fitted_values = m.value[rows][rows_fit[rows]]
+        floor = 0.01 * float(np.max(np.abs(fitted_values))) if fitted_values.size else 0.0
+        channels.append(ChannelInputs(fit["channel"], fit, params, scale, free, space, rows,
+                                      rows_fit[rows], samples, samples_all, noise, floor, chain,
+                                      coords, log_prob))
     return ReportInputs(str(fit_path), record, m, data_used,
                         None if chain_path is None else str(chain_path), note, model, options,
                         tuple(channels))
@@ -295,14 +322,39 @@ def sample_params(ch: ChannelInputs):
     return params, scale
 
 
-def predictive_band(inputs: ReportInputs, ch: ChannelInputs, wi, wo) -> np.ndarray | None:
-    """Quantiles BAND_QUANTILES (5, P) over the posterior samples of scale · f at P direction
-    pairs: the model evaluated at every thinned sample in one broadcast (S, P) call. None
-    without a chain."""
-    if ch.samples is None:
+#: Seed of the noise draws of posterior predictive bands (fixed: the report is deterministic).
+PREDICTIVE_SEED = 0
+
+
+def replicate_data(loss: str, model, noise, cos_o, floor: float, rng):
+    """New data drawn from the fit's noise model given model values ``model`` (S, P) and noise
+    scales ``noise`` (S,): the loss's residual r ~ N(0, σ_r) solved for the data value
+    (``fitlab/fit/losses.py``; the relative loss's scale |v| is taken as max(|m|, floor))."""
+    eps = noise[:, None] * rng.standard_normal(model.shape)
+    c = np.abs(np.asarray(cos_o, float))[None, :]
+    if loss == "relative":  # r = (m − v) / max(|v|, floor)
+        return model - eps * np.maximum(np.abs(model), floor)
+    if loss == "log":  # r = log(1 + m c) − log(1 + v c)
+        c_safe = np.where(c > 0, c, 1.0)
+        return np.where(c > 0, ((1.0 + model * c) * np.exp(-eps) - 1.0) / c_safe, model)
+    if loss == "cos_l2":  # r = (m − v) c
+        return np.where(c > 0, model - eps / np.where(c > 0, c, 1.0), model)
+    raise ValueError(f"no noise model for the loss {loss!r}")
+
+
+def predictive_band(inputs: ReportInputs, ch: ChannelInputs, wi, wo, *, with_noise=False):
+    """Quantiles BAND_QUANTILES (5, P) over the posterior samples at P direction pairs: of the
+    model scale · f (evaluated at every thinned sample in one broadcast (S, P) call), or with
+    ``with_noise`` of replicated data (the model plus the fit's sampled noise: the posterior
+    predictive). None without a chain, or with ``with_noise`` when no noise scale was sampled."""
+    if ch.samples is None or (with_noise and ch.noise is None):
         return None
     params, scale = sample_params(ch)
     wi = np.asarray(wi, float)[None, ...]
     wo = np.asarray(wo, float)[None, ...]
     vals = scale * model_f(inputs, params, wi, wo)
+    if with_noise:
+        rng = np.random.default_rng(PREDICTIVE_SEED)
+        vals = replicate_data(inputs.record["loss"], vals, ch.noise, wo[0, :, 2],
+                              ch.noise_floor, rng)
     return np.percentile(vals, BAND_QUANTILES, axis=0)
