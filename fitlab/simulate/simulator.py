@@ -1,9 +1,9 @@
 """``simulate(scene, samples, seed)``: the Monte Carlo estimate of a scene's BSDF per detector bin
 with standard errors, the split by bounce order, the effect plan and the time taken.
 
-Batches of ``batch_size`` paths are traced one after the other (walk.run_batch, one compiled
-kernel per walk configuration) and their float64 tallies summed on the host, so memory stays
-bounded for any sample count. Results are deterministic for a given seed and batch size.
+Paths are traced on ``batch_size`` parallel lanes, up to 8 lanes' worth per call of the
+compiled walk (walk.run_batch), and the calls' float64 tallies are summed on the host, so memory
+stays bounded for any sample count. Results are deterministic for a given seed and batch size.
 """
 
 from __future__ import annotations
@@ -235,7 +235,7 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     detector bin (data_formats/scene_toml.md).
 
     Parameters: ``seed`` fixes every random number (results are identical for the same seed and
-    ``batch_size``); ``batch_size`` paths are traced at a time (memory bound); ``max_events``
+    ``batch_size``); ``batch_size`` lanes trace paths in parallel (memory bound); ``max_events``
     caps the events of one path (paths still alive are dropped and counted in ``truncated``);
     ``dtype`` of the paths (float32 for throughput; tallies are float64); ``progress`` prints
     progress on stderr. Returns a :class:`SimulationResult`.
@@ -248,8 +248,11 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [None]
     setups = [_walk_setup(scene, plan, c, max_events, dtype) for c in channel_walks]
     C = plan.channels
-    n_batches = -(-samples // batch_size)
-    batch = min(batch_size, samples)
+    # lanes: a power of two up to batch_size; paths per call: 8 lanes' worth (memory ~ 40 bytes
+    # per path for the exit buffers)
+    lanes = min(batch_size, 1 << max(int(np.ceil(np.log2(max(samples, 2)))), 6))
+    batch = lanes * min(8, -(-samples // lanes))
+    n_batches = -(-samples // batch)
     prog = _Progress(samples * len(incid) * len(channel_walks), progress)
     root = jax.random.PRNGKey(seed)
     all_rows = []
@@ -274,8 +277,8 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
             for k in range(n_batches):
                 n_valid = min(batch, samples - k * batch)
                 key = jax.random.fold_in(jax.random.fold_in(root, ii), k)
-                s1, s2, side, alive, ev = run_batch(cfg, arr, det, key, wi, n_valid, batch=batch,
-                                                    n_out=n_out)
+                s1, s2, side, alive, ev = run_batch(cfg, arr, det, key, wi, n_valid, lanes=lanes,
+                                                    paths=batch, n_out=n_out)
                 S1[..., sl] += np.asarray(s1)
                 S2[..., sl] += np.asarray(s2)
                 E1[..., sl] += np.asarray(side)

@@ -1,10 +1,11 @@
 """Vectorized random walk through a layer stack, in JAX.
 
-One call of :func:`run_batch` traces a fixed-size batch of paths for one incident direction
-inside a ``lax.while_loop`` (one scattering event per iteration, every path masked by ``alive``)
-and returns the batch's tallies in float64: per bounce-order class and detector bin, the sum and
-the sum of squares of the path contributions. Paths are float32 (``WalkConfig.dtype``); only
-what the effect plan asks for is compiled (``WalkConfig`` is static).
+One call of :func:`run_batch` traces a fixed number of paths for one incident direction on a
+fixed number of lanes inside one ``lax.while_loop`` (one scattering event per iteration, every
+lane masked by ``alive``; a lane whose path ends starts the next path) and returns the tallies
+in float64: per bounce-order class and detector bin, the sum and the sum of squares of the path
+contributions. Paths are float32 (``WalkConfig.dtype``); only what the effect plan asks for is
+compiled (``WalkConfig`` is static).
 
 Geometry (scene.py): regions 0..M+1 (0 = outside, M+1 = below), boundary b between regions b
 and b+1. A path has a region, a depth ``z`` below the region's top, a propagation direction
@@ -200,11 +201,34 @@ def _projected_area(cfg, arr, st):
     return jnp.where(sel, sggx_sigma(arr.sggx_S[st.region], st.w), 1.0)
 
 
+def _lowbias32(x):
+    """Chris Wellons' 32-bit integer hash ("lowbias32", bias 0.17 of the best known)."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def uniforms(seed_words, i, n, k, dtype):
+    """(n, k) uniforms in [0, 1) for iteration i: a counter-based hash of (seed, iteration, lane,
+    slot), so every random number of a walk is a pure function of its coordinates (cheaper on
+    CPU than threefry, which cost a sixth of a walk step). 24 random bits each: the smallest
+    nonzero 1 - u is 2^-24, so a sampled free flight is cut at 16.6 mean free paths
+    (probability 6e-8)."""
+    lane = jnp.arange(n, dtype=jnp.uint32)[:, None]
+    slot = jnp.arange(k, dtype=jnp.uint32)[None, :]
+    h = _lowbias32(seed_words[0] ^ _lowbias32(i.astype(jnp.uint32) + jnp.uint32(0x9E3779B9)))
+    h = _lowbias32(h ^ (lane * jnp.uint32(0x85EBCA6B) + seed_words[1]))
+    h = _lowbias32(h + slot * jnp.uint32(0xC2B2AE35))
+    return (h >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype=dtype)
+
+
 def _step(cfg, arr, key, i, st):
     dt = st.w.dtype
     B = st.w.shape[0]
     M = cfg.n_media
-    u = jax.random.uniform(jax.random.fold_in(key, i), (B, 8), dtype=dt)
+    u = uniforms(key, i, B, 8, dt)
     wz = st.w[:, 2]
     down = wz < 0
     in_medium = st.alive & (st.region >= 1) & (st.region <= M)
@@ -313,51 +337,107 @@ def _bin_index(cfg, w):
     return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "batch", "n_out"))
-def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid, *, batch: int,
-              n_out: int):
-    """Trace ``batch`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit,
-    z > 0, pointing toward the light). Returns float64 (4, n_out, C) sums and sums of squares
-    of the path contributions per order class and bin, the (2, 2, C) sums and sums of squares of
-    the flux leaving per side (up, down), the number
-    of paths still alive after ``cfg.max_events`` events and the total number of events."""
-    dt = jnp.dtype(cfg.dtype)
+def _tally(cfg, det, w, x, order, n_out):
+    """Float64 sums and sums of squares of path contributions x (P, C) (0 for paths that did
+    not exit into an observed bin) per order class and bin (4, n_out, C), and per exit side
+    (2 moments, 2 sides, C); w (P, 3) exit directions, order (P,) bounce classes."""
     C = cfg.channels
-    wi = wi.astype(dt)
-    idx = jnp.arange(batch, dtype=jnp.int32)
-    st = State(
-        region=jnp.zeros((batch,), jnp.int32), z=jnp.zeros((batch,), dt),
-        w=jnp.broadcast_to(-wi, (batch, 3)), weight=jnp.ones((batch, C), dt),
-        alive=idx < n_valid, exited=jnp.zeros((batch,), bool),
-        bounces=jnp.zeros((batch,), jnp.int32), vol_events=jnp.zeros((batch,), jnp.int32),
-        events=jnp.zeros((batch,), jnp.int32), diffuse=jnp.zeros((batch,), bool))
-
-    def cond(carry):
-        i, s = carry
-        return (i < cfg.max_events) & jnp.any(s.alive)
-
-    def body(carry):
-        i, s = carry
-        return i + 1, _step(cfg, arr, key, i, s)
-
-    _, st = jax.lax.while_loop(cond, body, (jnp.int32(0), st))
-    x = jnp.where(st.exited[:, None], st.weight, 0.0).astype(jnp.float64)
-    order = jnp.minimum(st.bounces, len(ORDER_CLASSES) - 1)
-    onehot = (order[:, None] == jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)[None, :]) & st.exited[:, None]
-    oh = onehot.astype(jnp.float64)
+    order = jnp.minimum(order, len(ORDER_CLASSES) - 1)
     if cfg.detector == "bins":
-        bins = _bin_index(cfg, st.w)
-        seg = jnp.where(st.exited, order * n_out + bins, len(ORDER_CLASSES) * n_out)
-        n_seg = len(ORDER_CLASSES) * n_out + 1
-        s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg)[:-1].reshape(-1, n_out, C)
-        s2 = jax.ops.segment_sum(x * x, seg, num_segments=n_seg)[:-1].reshape(-1, n_out, C)
+        seg = order * n_out + _bin_index(cfg, w)
+        n_seg = len(ORDER_CLASSES) * n_out
+        s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg).reshape(-1, n_out, C)
+        s2 = jax.ops.segment_sum(x * x, seg, num_segments=n_seg).reshape(-1, n_out, C)
     else:
-        wd = st.w.astype(jnp.float64)
-        cosang = wd @ det.cone_dir.T  # (B, R)
+        classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
+        oh = (order[:, None] == classes[None, :]).astype(jnp.float64)
+        cosang = w.astype(jnp.float64) @ det.cone_dir.T  # (P, R)
         inside = (cosang >= det.cone_cos[None, :]).astype(jnp.float64)
         s1 = jnp.einsum("bo,br,bc->orc", oh, inside, x)
         s2 = jnp.einsum("bo,br,bc->orc", oh, inside, x * x)
-    down = st.w[:, 2] < 0
-    xs = jnp.stack([jnp.where(down[:, None], 0.0, x), jnp.where(down[:, None], x, 0.0)])
-    side = jnp.stack([jnp.sum(xs, axis=1), jnp.sum(xs * xs, axis=1)])  # (2 moments, 2 sides, C)
-    return s1, s2, side, jnp.sum(st.alive), jnp.sum(st.events)
+    down = (w[:, 2] < 0)[:, None]
+    xs = jnp.stack([jnp.where(down, 0.0, x), jnp.where(down, x, 0.0)])
+    side = jnp.stack([jnp.sum(xs, axis=1), jnp.sum(xs * xs, axis=1)])
+    return s1, s2, side
+
+
+def _fresh(cfg, wi, n, dt):
+    """State of n new paths at the top of the stack, travelling along -wi."""
+    return State(
+        region=jnp.zeros((n,), jnp.int32), z=jnp.zeros((n,), dt),
+        w=jnp.broadcast_to(-wi, (n, 3)), weight=jnp.ones((n, cfg.channels), dt),
+        alive=jnp.ones((n,), bool), exited=jnp.zeros((n,), bool),
+        bounces=jnp.zeros((n,), jnp.int32), vol_events=jnp.zeros((n,), jnp.int32),
+        events=jnp.zeros((n,), jnp.int32), diffuse=jnp.zeros((n,), bool))
+
+
+class _Loop(NamedTuple):
+    i: jax.Array  # iteration
+    st: State
+    path: jax.Array  # (lanes,) id of the path each lane traces
+    next_path: jax.Array  # next path id to start
+    exit_w: jax.Array  # (paths, 3) exit direction of each path
+    exit_x: jax.Array  # (paths, C) tallied weight (0: not tallied)
+    exit_order: jax.Array  # (paths,)
+    events: jax.Array
+    truncated: jax.Array
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "lanes", "paths", "n_out"))
+def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid, *, lanes: int,
+              paths: int, n_out: int):
+    """Trace ``paths`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit, z > 0,
+    pointing toward the light) on ``lanes`` parallel lanes. Returns float64 (4, n_out, C) sums
+    and sums of squares of the path contributions per order class and bin, the (2, 2, C) sums
+    and sums of squares of the flux leaving per side (up, down), the number of paths dropped
+    after ``cfg.max_events`` events and the total number of events.
+
+    Path regeneration: a lane whose path ends starts the next path at once, so every lane stays
+    busy until the last paths drain (one compiled loop, no idle tail per path). Each path exits
+    at most once: its exit direction, weight and order go to per-path buffers, tallied after the
+    loop."""
+    dt = jnp.dtype(cfg.dtype)
+    C = cfg.channels
+    wi = wi.astype(dt)
+    key = jax.random.bits(key, (2,), jnp.uint32)  # the walk's two seed words
+    n_valid = jnp.minimum(n_valid, paths)
+    lane = jnp.arange(lanes, dtype=jnp.int32)
+    st0 = _fresh(cfg, wi, lanes, dt)
+    st0 = st0._replace(alive=lane < n_valid)
+    carry = _Loop(jnp.int32(0), st0, lane, jnp.minimum(jnp.int32(lanes), n_valid),
+                  jnp.zeros((paths, 3), dt), jnp.zeros((paths, C), dt),
+                  jnp.zeros((paths,), jnp.int32), jnp.int32(0), jnp.int32(0))
+    fresh = _fresh(cfg, wi, lanes, dt)
+
+    def cond(c):
+        return jnp.any(c.st.alive)
+
+    def body(c):
+        was_alive = c.st.alive
+        st = _step(cfg, arr, key, c.i, c.st)
+        # record the paths that exited into an observed bin in this event
+        new_exit = st.exited & was_alive
+        target = jnp.where(new_exit, c.path, paths)  # out of range: dropped
+        exit_w = c.exit_w.at[target].set(st.w, mode="drop")
+        exit_x = c.exit_x.at[target].set(st.weight, mode="drop")
+        exit_order = c.exit_order.at[target].set(st.bounces, mode="drop")
+        # paths at the event cap are dropped (counted)
+        capped = st.alive & (st.events >= cfg.max_events)
+        alive = st.alive & ~capped
+        # lanes whose path ended take the next paths in order
+        ended = ~alive
+        rank = jnp.cumsum(ended, dtype=jnp.int32) - 1
+        new_id = c.next_path + rank
+        start = ended & (new_id < n_valid)
+        st = jax.tree_util.tree_map(
+            lambda f, s: jnp.where(start.reshape((-1,) + (1,) * (s.ndim - 1)), f, s),
+            fresh, st._replace(alive=alive, exited=jnp.zeros_like(alive)))
+        path = jnp.where(start, new_id, c.path)
+        next_path = jnp.minimum(c.next_path + jnp.sum(ended, dtype=jnp.int32), n_valid)
+        return _Loop(c.i + 1, st, path, next_path, exit_w, exit_x, exit_order,
+                     c.events + jnp.sum(was_alive, dtype=jnp.int32),
+                     c.truncated + jnp.sum(capped, dtype=jnp.int32))
+
+    c = jax.lax.while_loop(cond, body, carry)
+    s1, s2, side = _tally(cfg, det, c.exit_w, c.exit_x.astype(jnp.float64), c.exit_order, n_out)
+    return s1, s2, side, c.truncated, c.events
