@@ -39,9 +39,9 @@ def _parse_assignments(items, what):
     return out
 
 
-def _params_from_cli(model, items):
+def _params_from_cli(model, items, base=None):
     raw = _parse_assignments(items, "param")
-    params = {}
+    params = dict(base or {})  # e.g. a preset's values, which --param overrides
     for name, text in raw.items():
         try:
             params[name] = float(text)
@@ -86,6 +86,11 @@ def cmd_models(args):
         print("Models add up with '+': e.g. lambertian+rough_conductor is f_lambertian + "
               "f_rough_conductor (`fitlab models lambertian+rough_conductor` lists its "
               "parameters).\n")
+        print("Layered models take a model as argument: coated(INNER) puts any model (sums "
+              "too) under a smooth dielectric coat, coated(INNER,specular=lobe) adds a narrow "
+              "coat lobe; weidlich_wilkie(BASE[,layers=K]) stacks K-1 microfacet interfaces "
+              "over a lambertian, oren_nayar or rough_conductor base "
+              "(data_formats/layered_models.md).\n")
     for m in models:
         print(f"{m.name}: {m.summary}  [{m.lobes}]")
         for p in m.parameters:
@@ -94,8 +99,19 @@ def cmd_models(args):
         for o in m.options:
             print(f"  --option {o.name}={'|'.join(o.choices)}   {o.description} "
                   f"(default {o.default})")
+        for pr in _presets_of(m):
+            values = ", ".join(f"{k}={'/'.join(f'{x:g}' for x in v) if isinstance(v, tuple) else f'{v:g}'}"
+                               for k, v in pr.params.items())
+            print(f"  --preset {pr.name} --channel R|G|B   {values} (R/G/B)\n"
+                  f"      {pr.description}")
         print(f"  source: {m.reference}\n")
     return 0
+
+
+def _presets_of(model):
+    from fitlab.models.presets import PRESETS
+
+    return [p for p in PRESETS.values() if fitlab.get_model(p.model).name == model.name]
 
 
 # --------------------------------------------------------------------------------------------
@@ -103,15 +119,38 @@ def cmd_models(args):
 # --------------------------------------------------------------------------------------------
 
 
-def _model_from_cli(args):
-    """(model, params, options) from --model/model, --param and --option."""
+def _preset_from_cli(args):
+    """(model name, parameters, options) of --preset NAME --channel C (eval), or Nones."""
+    if not getattr(args, "preset", None):
+        return args.model, {}, {}
+    from fitlab.models.presets import get_preset, preset_params
+
     try:
-        model = fitlab.get_model(args.model)
+        preset = get_preset(args.preset)
+        if args.model and fitlab.get_model(args.model).name != fitlab.get_model(preset.model).name:
+            raise FitlabError(f"--preset {args.preset} is a {preset.model} preset, not "
+                              f"{args.model}; leave out the model name")
+        if not args.channel:
+            raise FitlabError(f"--preset {args.preset} needs --channel R, G or B (its values "
+                              "differ per channel; `fitlab models` lists them)")
+        return preset.model, preset_params(args.preset, args.channel), dict(preset.options)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
-    params = _params_from_cli(model, args.param)
+
+
+def _model_from_cli(args):
+    """(model, params, options) from --model/model (or --preset/--channel), --param, --option."""
+    name, base_params, base_options = _preset_from_cli(args)
+    if not name:
+        raise FitlabError("give a model name (see `fitlab models`) or --preset NAME")
     try:
-        options = fitlab.api.resolve_options(model, _parse_assignments(args.option, "option"))
+        model = fitlab.get_model(name)
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+    params = _params_from_cli(model, args.param, base_params)
+    try:
+        options = fitlab.api.resolve_options(
+            model, {**base_options, **_parse_assignments(args.option, "option")})
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
     return model, params, options
@@ -484,12 +523,22 @@ def build_parser():
         "pairs of a CSV file with columns theta_i, phi_i, theta_o, phi_o in degrees "
         "(data_formats/directions_csv.md). Output: the same rows with a 'value' column "
         "(data_formats/values_csv.md).",
-        epilog="example: fitlab eval rough_dielectric --param alpha=0.3 --param eta=1.5 "
-        "--directions data_formats/examples/directions_inplane.csv --out f.csv",
+        epilog="examples: fitlab eval rough_dielectric --param alpha=0.3 --param eta=1.5 "
+        "--directions data_formats/examples/directions_inplane.csv --out f.csv; "
+        "fitlab eval --preset copper_patina --channel G --directions "
+        "data_formats/examples/directions_inplane.csv",
     )
-    p.add_argument("model", help="model name (see `fitlab models`)")
+    p.add_argument("model", nargs="?", help="model name (see `fitlab models`); layered models "
+                   "as coated(INNER) or weidlich_wilkie(BASE[,layers=K]); optional with --preset")
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
-                   help="a model parameter; give every parameter of the model")
+                   help="a model parameter; give every parameter of the model (with --preset: "
+                   "overrides the preset's value)")
+    p.add_argument("--preset", metavar="NAME",
+                   help="parameters and model of a named material (metallic_car_paint, "
+                   "copper_patina: Elek 2010 section 4; listed by `fitlab models`); needs "
+                   "--channel")
+    p.add_argument("--channel", choices=("R", "G", "B"),
+                   help="with --preset: the colour channel whose values to use")
     p.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="a model option, e.g. distribution=beckmann")
     p.add_argument("--directions", required=True, metavar="FILE.csv", help="direction pairs")
@@ -520,8 +569,10 @@ def build_parser():
                    help="default: chi2 when the data have sigma, else relative")
     p.add_argument("--fit-subset", metavar="EXPR",
                    help="fit only these rows, predict the rest, e.g. 'theta_i == 0', "
-                   "'value > 0.01 and theta_o < 80', 'row %% 8 == 0' (names: theta_i, phi_i, "
-                   "theta_o, phi_o, value, channel, row; + - * / %%, comparisons, and/or/not, abs)")
+                   "'value > 0.01 and theta_o < 80', 'row %% 8 == 0', 'specular_deg > 3' (names: "
+                   "theta_i, phi_i, theta_o, phi_o, value, channel, row, specular_deg = angle "
+                   "to the mirror direction, to leave out a smooth coat's delta peak; + - * / %%, "
+                   "comparisons, and/or/not, abs)")
     p.add_argument("--channel", help="fit only this channel (default: every channel separately)")
     p.add_argument("--mcmc", action="store_true", help="sample the posterior with emcee")
     p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")

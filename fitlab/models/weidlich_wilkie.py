@@ -64,6 +64,8 @@ OPTIONS = (
            "m2 >= m1)"),
 )
 
+DEFAULT_OPTIONS = {o.name: o.default for o in OPTIONS}
+
 
 def layer_parameters(i: int) -> tuple[Parameter, ...]:
     return (
@@ -135,6 +137,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         return f, T, t
 
     def eval(params, wi, wo, **opts):
+        opts = {**DEFAULT_OPTIONS, **opts}
         layers_, pb = stack(params, opts)
         L, V = wi, wo
         total = 0.0
@@ -154,6 +157,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
 
     def levels(params, wi, opts):
         """Incoming direction at each level, probability of choosing each level, validity."""
+        opts = {**DEFAULT_OPTIONS, **opts}
         layers_, pb = stack(params, opts)
         Ls, probs, oks = [wi], [], [wi[..., 2] > 0]
         remaining = jnp.ones_like(wi[..., 2])
@@ -174,6 +178,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
     def pdf(params, wi, wo, **opts):
         """Σ_levels P(level) p_level(V_level) |dω_level/dω_o|, with
         dω'/dω = cos θ / (η² cos θ') per crossing (Snell)."""
+        opts = {**DEFAULT_OPTIONS, **opts}
         layers_, pb, Ls, probs, oks = levels(params, wi, opts)
         V = wo
         jac = jnp.ones_like(wo[..., 2])
@@ -196,6 +201,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         """Choose a level with u[2] (interface i with probability P_i ∏_{j<i}(1-P_j), the base
         with the rest), sample its lobe at the refracted incoming direction, refract the result
         up through the interfaces above it; weight = f|cos θo|/pdf of the whole mixture."""
+        opts = {**DEFAULT_OPTIONS, **opts}
         layers_, pb, Ls, probs, oks = levels(params, wi, opts)
         cum = jnp.zeros_like(wi[..., 2])
         wo = jnp.zeros_like(wi)
