@@ -750,8 +750,9 @@ def build_parser():
     p.add_argument("--split-bounces", action="store_true",
                    help="also write FILE.orders.csv with the bounce-order components (order 0 = top "
                    "surface, 1 = one-bounce subsurface, 2, rest) as channels")
-    p.add_argument("--batch-size", type=int, default=1 << 15,
-                   help="paths traced at once; bounds the memory (default 32768)")
+    p.add_argument("--batch-size", type=int, default=1 << 13,
+                   help="paths traced in parallel (lanes); with 32 lanes' worth of paths per "
+                   "compiled call it bounds the memory (default 8192)")
     p.add_argument("--quiet", action="store_true", help="no progress or summary on the terminal")
     p.set_defaults(func=cmd_simulate)
     return parser

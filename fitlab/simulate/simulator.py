@@ -1,7 +1,7 @@
 """``simulate(scene, samples, seed)``: the Monte Carlo estimate of a scene's BSDF per detector bin
 with standard errors, the split by bounce order, the effect plan and the time taken.
 
-Paths are traced on ``batch_size`` parallel lanes, up to 8 lanes' worth per call of the
+Paths are traced on ``batch_size`` parallel lanes, up to 32 lanes' worth per call of the
 compiled walk (walk.run_batch), and the calls' float64 tallies are summed on the host, so memory
 stays bounded for any sample count. Results are deterministic for a given seed and batch size.
 """
@@ -22,8 +22,12 @@ from fitlab.simulate.effects import EffectPlan, derive_effects
 from fitlab.simulate.scene import Scene
 from fitlab.simulate.walk import ORDER_CLASSES, Detector, WalkArrays, WalkConfig, run_batch
 
-#: Default paths per batch (memory ~ a few hundred bytes per path).
-BATCH_SIZE = 1 << 15
+#: Default number of lanes (paths traced in parallel). 8192 lanes with 32 lanes' worth of paths
+#: per call took the least CPU time per path on the 2-core benchmark machine (32768 lanes: 1.6x
+#: more, the drain of the last long paths of each call keeping the wide batch busy).
+BATCH_SIZE = 1 << 13
+#: Paths per call of the compiled walk, in lanes' worth (exit buffers: ~24 bytes per path).
+CALL_LANES = 32
 #: Events per path after which a path still alive is dropped (reported as truncated).
 MAX_EVENTS = 512
 
@@ -248,10 +252,9 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [None]
     setups = [_walk_setup(scene, plan, c, max_events, dtype) for c in channel_walks]
     C = plan.channels
-    # lanes: a power of two up to batch_size; paths per call: 8 lanes' worth (memory ~ 40 bytes
-    # per path for the exit buffers)
+    # lanes: a power of two up to batch_size; paths per call: up to CALL_LANES lanes' worth
     lanes = min(batch_size, 1 << max(int(np.ceil(np.log2(max(samples, 2)))), 6))
-    batch = lanes * min(8, -(-samples // lanes))
+    batch = lanes * min(CALL_LANES, -(-samples // lanes))
     n_batches = -(-samples // batch)
     prog = _Progress(samples * len(incid) * len(channel_walks), progress)
     root = jax.random.PRNGKey(seed)

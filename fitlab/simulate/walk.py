@@ -26,6 +26,7 @@ tallied in four classes 0, 1, 2, ≥3.
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple
 
 import jax
@@ -349,12 +350,22 @@ def _tally(cfg, det, w, x, order, n_out):
         s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg).reshape(-1, n_out, C)
         s2 = jax.ops.segment_sum(x * x, seg, num_segments=n_seg).reshape(-1, n_out, C)
     else:
+        # cones may overlap: a (paths × cones) membership matrix, built in chunks of paths so
+        # that memory stays bounded (4096 × cones at a time)
         classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
-        oh = (order[:, None] == classes[None, :]).astype(jnp.float64)
-        cosang = w.astype(jnp.float64) @ det.cone_dir.T  # (P, R)
-        inside = (cosang >= det.cone_cos[None, :]).astype(jnp.float64)
-        s1 = jnp.einsum("bo,br,bc->orc", oh, inside, x)
-        s2 = jnp.einsum("bo,br,bc->orc", oh, inside, x * x)
+        chunk = math.gcd(w.shape[0], 4096)
+
+        def part(carry, blk):
+            wb, xb, ob = blk
+            oh = (ob[:, None] == classes[None, :]).astype(jnp.float64)
+            inside = ((wb.astype(jnp.float64) @ det.cone_dir.T) >= det.cone_cos[None, :])
+            inside = inside.astype(jnp.float64)
+            return (carry[0] + jnp.einsum("bo,br,bc->orc", oh, inside, xb),
+                    carry[1] + jnp.einsum("bo,br,bc->orc", oh, inside, xb * xb)), None
+
+        zero = jnp.zeros((len(ORDER_CLASSES), det.cone_dir.shape[0], C), jnp.float64)
+        blocks = (w.reshape(-1, chunk, 3), x.reshape(-1, chunk, C), order.reshape(-1, chunk))
+        (s1, s2), _ = jax.lax.scan(part, (zero, zero), blocks)
     down = (w[:, 2] < 0)[:, None]
     xs = jnp.stack([jnp.where(down, 0.0, x), jnp.where(down, x, 0.0)])
     side = jnp.stack([jnp.sum(xs, axis=1), jnp.sum(xs * xs, axis=1)])
