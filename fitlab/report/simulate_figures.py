@@ -23,8 +23,11 @@ def se_time_figure(curve, title="fitlab simulate: standard error vs time"):
     ax.loglog(t, ref, "k:", linewidth=0.8, label="∝ 1/√time")
     for x, y, n in zip(t, rel, paths):
         ax.annotate(f"{int(n):,}", (x, y), textcoords="offset points", xytext=(3, 4), fontsize=7)
+    from matplotlib.ticker import NullFormatter
+
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("wall time of the warm run (s)")
-    ax.set_ylabel("standard error (relative for bins, absolute for the flux)")
+    ax.set_ylabel("standard error (bins: relative; flux: absolute)")
     ax.set_title(title)
     ax.legend(loc="lower left")
     return fig
