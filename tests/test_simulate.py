@@ -286,3 +286,24 @@ def test_walk_uniforms_are_uniform_and_independent():
     c = np.corrcoef(np.concatenate([a, b, np.roll(a, 1, axis=0)], axis=1).T)
     off = c[~np.eye(24, dtype=bool)]
     assert np.max(np.abs(off)) < 5 / np.sqrt(20000)
+
+
+def test_eta_metadata_only_for_a_single_interface():
+    one = simulate(scene_from_dict(_base()), 256, seed=0).to_measurement()
+    assert one.eta() == pytest.approx(1.5)
+    slab = simulate(scene_from_dict(_slab(sigma_a=0.1)), 256, seed=0).to_measurement()
+    assert slab.eta() is None and slab.metadata["region_indices"] == "1, 1.5, 1"
+
+
+def test_split_by_order_sums_to_the_total_in_the_orders_file(tmp_path):
+    out = tmp_path / "s.csv"
+    assert main(["simulate", str(SCENES / "coated_lambertian.toml"), "--samples", "4096",
+                 "--out", str(out), "--split-bounces", "--quiet"]) == 0
+    total = read_measurement(out)
+    orders = read_measurement(tmp_path / "s.orders.csv")
+    key = lambda m, j: (m.theta_i[j], m.theta_o[j], m.phi_o[j])  # noqa: E731
+    summed = {}
+    for j in range(orders.n):
+        summed[key(orders, j)] = summed.get(key(orders, j), 0.0) + orders.value[j]
+    for j in range(total.n):
+        assert summed[key(total, j)] == pytest.approx(total.value[j], rel=1e-6)

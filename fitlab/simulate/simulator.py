@@ -76,11 +76,18 @@ class SimulationResult(NamedTuple):
             "effects_simulated": "; ".join(f"{k} ({v})" for k, v in self.plan.simulated),
             "effects_skipped": "; ".join(f"{k}: {v}" for k, v in self.plan.skipped) or "nothing",
             "truncated_paths": str(self.truncated),
-            "eta_outside": f"{self.scene.outside_index:g}",
-            "eta_inside": f"{self.scene.below_index:g}",
+            "region_indices": ", ".join(f"{n:g}" for n in self.scene.region_indices),
             "value": "cosine-weighted mean BSDF over each bin or cone (1/sr); sigma = Monte "
                      "Carlo standard error",
         }
+
+    def _eta_metadata(self) -> dict:
+        """eta_outside / eta_inside (which make `fitlab fit` fix a model's eta) only for a single
+        dielectric interface, the one stack a one-interface model describes exactly."""
+        sc = self.scene
+        if not sc.media and len(sc.boundaries) == 1 and sc.boundaries[0].kind == "dielectric":
+            return {"eta_outside": f"{sc.outside_index:g}", "eta_inside": f"{sc.below_index:g}"}
+        return {}
 
     def to_measurement(self, orders: bool = False):
         """The result as a :class:`fitlab.io.measurement.Measurement` (quantity bsdf). Rows with
@@ -101,6 +108,7 @@ class SimulationResult(NamedTuple):
         rep = lambda a: np.repeat(a, C)[keep]  # noqa: E731
         ti, pi_, to, po = rep(self.theta_i), rep(self.phi_i), rep(self.theta_o), rep(self.phi_o)
         meta = self.metadata()
+        meta.update(self._eta_metadata())
         meta["empty_bins"] = str(int((~keep).sum()))
         return Measurement(
             path="<simulated>", sha256="", theta_i=ti, phi_i=pi_, theta_o=to, phi_o=po,
