@@ -96,6 +96,9 @@ def write_exr(path, table: Table) -> None:
               **header_attributes(table)}
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.exr", dir=path.parent)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make the table private
     try:
         with OpenEXR.File(header, channels) as f:
             f.write(tmp)
@@ -234,8 +237,10 @@ def read_exr(path) -> Table:
 
 
 def describe_exr(path) -> dict:
-    """What ``fitlab info`` shows: every fitlab attribute, decoded, plus the image layout."""
+    """What ``fitlab info`` shows: every fitlab attribute, decoded, the image layout and each
+    channel's value range. The whole file is validated first (as :func:`read_exr` does)."""
     path = Path(path)
+    table = read_exr(path)
     f = _open(path, header_only=True)
     header = f.header()
     attrs = _attrs(path, header)
@@ -250,6 +255,8 @@ def describe_exr(path) -> dict:
         except json.JSONDecodeError:
             decoded = value
         info[key] = decoded
+    info["value_range"] = {ch: [float(table.values[..., k].min()), float(table.values[..., k].max())]
+                           for k, ch in enumerate(table.channels)}
     if isinstance(info.get("axes"), list):
         info["axes"] = {f"axis{k}": a for k, a in enumerate(info["axes"])}
     return info

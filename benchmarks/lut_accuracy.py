@@ -1,0 +1,185 @@
+"""What LUT accuracy costs: for each table kind, resolution × axis mapping × half/float →
+max and RMS relative error of the table read as the shader reads it (bilinear lookup of the
+stored values, ``fitlab.lut.lookup``, identical to the generated GLSL per tests/test_lut_glsl.py)
+against direct evaluation at random points, the EXR file size in bytes, and the bake time.
+
+Bake time: evaluating every sample (float64), warm (the JIT compile of a first call excluded),
+median of two runs for the fast kinds, one warm run for the quadrature kinds. The direct
+evaluations at the random points are shared between half and float variants.
+
+Writes the table between the markers of data_formats/lut_exr.md (section "What accuracy
+costs"), the rows as reports/lut_accuracy/lut_accuracy.json and the figure
+reports/lut_accuracy/lut_accuracy.png (fitlab.report.lut_figures).
+
+Usage: python benchmarks/lut_accuracy.py [--quick] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import fitlab
+from fitlab import lut
+from fitlab.export import exr
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "data_formats" / "lut_exr.md"
+OUT = ROOT / "reports" / "lut_accuracy"
+BEGIN, END = "<!-- lut_accuracy:begin -->", "<!-- lut_accuracy:end -->"
+FIT = ROOT / "fits" / "walter_rough_glass.json"
+
+
+def configs(quick: bool):
+    """(kind label, spec factory kwargs, label, n_check) per study row."""
+    glass = {f["channel"]: {k: v["value"] for k, v in f["parameters"].items() if k in ("alpha", "eta")}
+             for f in json.loads(FIT.read_text())["fits"]}
+    sizes2 = (64, 128, 256, 512) if not quick else (64, 128)
+    for n in sizes2:
+        for mc in ("u8", "linear"):
+            for ma in ("linear", "log"):
+                yield ("D (ggx)", dict(kind="D", size=(n, n), mappings=(mc, ma)),
+                       f"cos {mc}, alpha {ma}", 4096)
+    for n in ((32, 128, 512) if not quick else (32, 128)):
+        for m in ("linear", "sqrt"):
+            yield ("fresnel (copper)", dict(kind="fresnel", size=(n,), mappings=(m,),
+                                            params=lut.conductor_preset("copper")), f"cos {m}", 4096)
+            yield ("fresnel (glass 1.5)", dict(kind="fresnel", size=(n,), mappings=(m,),
+                                               params={"Y": {"eta": 1.5}}), f"cos {m}", 4096)
+    for n in ((16, 32, 64) if not quick else (16, 32)):
+        for ma in ("linear", "sqrt"):
+            yield ("albedo_conductor", dict(kind="albedo_conductor", size=(n, n),
+                                            mappings=("linear", ma)), f"alpha {ma}", 256)
+            yield ("dfg", dict(kind="dfg", size=(n, n), mappings=("linear", ma)), f"alpha {ma}", 256)
+    for n in ((8, 16) if not quick else (8,)):
+        yield ("albedo_dielectric", dict(kind="albedo_dielectric", size=(n, n, n // 2)),
+               "linear", 24)
+    for n in ((64, 128, 256) if not quick else (64,)):
+        for mc in ("u8", "linear"):
+            yield ("model (Walter glass fit)", dict(kind="model", model="rough_dielectric",
+                                                   params=glass, size=(n, n),
+                                                   mappings=(mc, "linear")), f"cos_h {mc}", 4096)
+            yield ("model (conductor a=0.05)", dict(
+                kind="model", model="rough_conductor", size=(n, n), mappings=(mc, "linear"),
+                params={"Y": {"alpha": 0.05, "n": 0.2, "k": 3.9}}), f"cos_h {mc}", 4096)
+
+
+class _Memo:
+    """Memoize a spec's evaluate by the coordinates (half and float share the evaluations)."""
+
+    def __init__(self, fn):
+        self.fn, self.cache = fn, {}
+
+    def __call__(self, coords):
+        key = coords.tobytes()
+        if key not in self.cache:
+            self.cache[key] = self.fn(coords)
+        return self.cache[key]
+
+
+def study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind_label, kw, label, n_check in configs(quick):
+            kind = kw.pop("kind")
+            spec = lut.make_spec(kind, **kw)
+            memo = _Memo(spec.evaluate)
+            spec = spec._replace(evaluate=memo)
+            coords = lut.grid_coords(spec.axes)
+            fast = kind in ("D", "fresnel", "model")
+            memo.fn(coords[:64])  # compile
+            times = []
+            for _ in range(2 if fast else 1):
+                t = time.perf_counter()
+                result = memo.fn(coords)
+                times.append(time.perf_counter() - t)
+            bake_s = float(np.median(times))
+            memo.cache[coords.tobytes()] = result
+            for dtype in ("half", "float"):
+                try:
+                    table = lut.bake(spec, dtype, check_points=n_check)
+                except ValueError as exc:  # e.g. half overflow
+                    rows.append({"kind": kind_label, "label": label, "dtype": dtype,
+                                 "size": "x".join(str(a.size) for a in spec.axes),
+                                 "error": str(exc)})
+                    progress(f"{kind_label:28s} {label:22s} {dtype:5s}: {exc}")
+                    continue
+                path = Path(tmp) / "t.exr"
+                exr.write_exr(path, table)
+                acc = table.accuracy["interpolation"]
+                row = {"kind": kind_label, "label": label, "dtype": dtype,
+                       "size": "x".join(str(a.size) for a in table.axes),
+                       "texels": int(np.prod(table.values.shape[:2])),
+                       "channels": len(table.channels), "size_bytes": os.path.getsize(path),
+                       "max_rel": acc["max_rel"], "rms_rel": acc["rms_rel"],
+                       "storage_max_rel": table.accuracy["storage"]["max_rel"],
+                       "quadrature_max_abs": (table.accuracy.get("quadrature") or {}).get(
+                           "max_abs_error_estimate"),
+                       "points": acc["points"], "bake_s": bake_s}
+                rows.append(row)
+                progress(f"{kind_label:28s} {label:22s} {row['size']:>9s} {dtype:5s}: max "
+                         f"{row['max_rel']:.2e}  RMS {row['rms_rel']:.2e}  {row['size_bytes']:8d} B"
+                         f"  {bake_s * 1e3:8.1f} ms")
+    return rows
+
+
+def markdown(rows, machine):
+    out = [f"Measured {_dt.date.today().isoformat()} on {machine} by `python "
+           "benchmarks/lut_accuracy.py` (fitlab " + fitlab.__version__ + "). Errors: relative, "
+           "floor 1e-3 of the channel maximum, over `points` random points uniform in texture "
+           "coordinates; `quad.` is the stored quadrature error estimate (absolute); bake time is "
+           "the warm evaluation of every sample (the CPU was shared with other jobs: times are "
+           "indicative).", "",
+           "| kind | variant | size | type | max rel | RMS rel | points | bytes | bake (ms) | quad. |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "error" in r:
+            out.append(f"| {r['kind']} | {r['label']} | {r['size']} | {r['dtype']} | "
+                       f"refused: {r['error'].split(';')[0]} | | | | | |")
+            continue
+        q = "" if r["quadrature_max_abs"] is None else f"{r['quadrature_max_abs']:.1e}"
+        out.append(f"| {r['kind']} | {r['label']} | {r['size']} | {r['dtype']} | "
+                   f"{r['max_rel']:.2e} | {r['rms_rel']:.2e} | {r['points']} | {r['size_bytes']} | "
+                   f"{r['bake_s'] * 1e3:.1f} | {q} |")
+    return "\n".join(out)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer sizes (a smoke run)")
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    a = ap.parse_args(argv)
+    machine = (f"{os.cpu_count()} CPUs ({platform.machine()}), {platform.system()}, "
+               f"Python {platform.python_version()}")
+    t0 = time.perf_counter()
+    rows = study(a.quick)
+    print(f"study took {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    text = markdown(rows, machine)
+    print(text)
+    if a.no_write:
+        return 0
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "lut_accuracy.json").write_text(json.dumps({"machine": machine, "rows": rows},
+                                                      indent=1) + "\n")
+    from fitlab.report.lut_figures import lut_accuracy_figure
+
+    lut_accuracy_figure([r for r in rows if "error" not in r], OUT / "lut_accuracy.png")
+    doc = DOC.read_text()
+    i, j = doc.index(BEGIN) + len(BEGIN), doc.index(END)
+    DOC.write_text(doc[:i] + "\n" + text + "\n" + doc[j:])
+    print(f"wrote {OUT / 'lut_accuracy.png'}, {OUT / 'lut_accuracy.json'} and the table in {DOC}",
+          file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

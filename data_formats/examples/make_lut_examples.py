@@ -1,0 +1,54 @@
+"""Regenerate the LUT examples of data_formats/lut_exr.md:
+
+- lut_fresnel_copper.exr / .glsl: the Fresnel table of Elek 2010's copper (appendix A), 32
+  samples, half channels R G B (what `fitlab lut fresnel --preset copper --size 32 --out ...`
+  writes);
+- invalid/lut_wrong_version.exr: the same with fitlab.schema_version = 2;
+- invalid/lut_truncated.exr: its first half only;
+- invalid/lut_nan.exr: one texel of channel G set to NaN;
+- invalid/lut_plain.exr: an OpenEXR image without fitlab.* attributes.
+
+    python data_formats/examples/make_lut_examples.py
+"""
+
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from fitlab import lut
+from fitlab.export import exr, shader
+
+HERE = Path(__file__).resolve().parent
+
+
+def _rewrite(src, dst, header=None, channels=None, drop_fitlab=False):
+    with OpenEXR.File(str(src), separate_channels=True) as f:
+        h = {k: v for k, v in f.header().items()
+             if k not in ("channels", "dataWindow", "displayWindow")
+             and not (drop_fitlab and k.startswith("fitlab."))}
+        ch = {k: c.pixels for k, c in f.channels().items()}
+    h.update(header or {})
+    with OpenEXR.File(h, channels or ch) as f:
+        f.write(str(dst))
+
+
+def main():
+    table = lut.bake(lut.make_spec("fresnel", params=lut.conductor_preset("copper"), size=(32,)),
+                     "half")
+    good = HERE / "lut_fresnel_copper.exr"
+    exr.write_exr(good, table)
+    good.with_suffix(".glsl").write_text(shader.glsl(table, source=good.name))
+    inv = HERE / "invalid"
+    _rewrite(good, inv / "lut_wrong_version.exr", header={"fitlab.schema_version": "2"})
+    data = good.read_bytes()
+    (inv / "lut_truncated.exr").write_bytes(data[: len(data) // 2])
+    with OpenEXR.File(str(good), separate_channels=True) as f:
+        ch = {k: c.pixels.copy() for k, c in f.channels().items()}
+    ch["G"][0, 5] = np.nan
+    _rewrite(good, inv / "lut_nan.exr", channels=ch)
+    _rewrite(good, inv / "lut_plain.exr", drop_fitlab=True)
+
+
+if __name__ == "__main__":
+    main()
