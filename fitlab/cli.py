@@ -323,6 +323,7 @@ def cmd_report(args):
     from fitlab.report import build_report
 
     summary = build_report(args.fit, args.out, data_path=args.data, chain_path=args.chain,
+                           luts=args.lut or (), discover_luts=not args.no_lut_discovery,
                            progress=not args.quiet)
     if not args.quiet:
         print(f"open {summary['index']} in a browser (self-contained; "
@@ -599,7 +600,8 @@ def build_parser():
         "posterior median, 68% and 95% intervals) and correlations, errors per incidence "
         "(fit subset against prediction), in-plane scans of data against the model with "
         "posterior bands and residuals, hemispherical maps for out-of-plane data, polar lobes, "
-        "corner plot, MCMC diagnostics and traces, Walter's empirical D. The page embeds every "
+        "corner plot, MCMC diagnostics and traces, Walter's empirical D, and previews with "
+        "accuracy figures of the lookup tables baked for the fit. The page embeds every "
         "figure (no network needed); each figure is also written beside it as NAME.png and "
         "NAME.svg. Same inputs, same bytes. Layout: data_formats/report_html.md.",
         epilog="example: fitlab report fits/walter_rough_glass.json --chain "
@@ -615,6 +617,12 @@ def build_parser():
                    "posterior bands, corner or trace plots and says so")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder (created if missing; files of the same names replaced)")
+    p.add_argument("--lut", action="append", metavar="FILE.exr",
+                   help="a lookup table baked for this fit (`fitlab lut KIND --from-fit "
+                   "FIT.json`) to preview with its accuracy figures; repeatable. Tables beside "
+                   "FIT.json whose header names it are added unless --no-lut-discovery")
+    p.add_argument("--no-lut-discovery", action="store_true",
+                   help="preview only the --lut tables, not those found beside FIT.json")
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.set_defaults(func=cmd_report)
 

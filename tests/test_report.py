@@ -471,3 +471,42 @@ def test_replicated_data_follow_the_loss_noise_model(loss):
         r = np.asarray(residuals(loss, jnp.full(20000, m[k]), jnp.asarray(v[:, k]),
                                  {q: jnp.asarray(w) for q, w in consts.items()}))
         assert np.std(r) == pytest.approx(0.03, rel=0.05), (loss, k)
+
+
+def test_lookup_tables_of_the_fit_are_previewed(made, tmp_path, capsys):
+    """Tables baked from the fit are found beside it (header names the fit) or given with
+    --lut; their accuracy figures are shown; a table of another fit is refused."""
+    from fitlab.export.exr import read_exr
+
+    src, chain = made["fits"]["walter"]
+    d = tmp_path / "fitdir"
+    d.mkdir()
+    fit = d / "walter.json"
+    shutil.copy(src, fit)
+    assert main(["lut", "model", "--from-fit", str(fit), "--size", "32", "--out",
+                 str(d / "walter_model.exr"), "--quiet"]) == 0
+    fresnel = tmp_path / "copper.exr"  # from a preset, not from any fit
+    assert main(["lut", "fresnel", "--preset", "copper", "--size", "32", "--out", str(fresnel),
+                 "--quiet"]) == 0
+    out = tmp_path / "rep"
+    assert main(["report", str(fit), "--data", str(WALTER), "--chain", str(chain), "--lut",
+                 str(fresnel), "--out", str(out), "--quiet"]) == 0
+    text = (out / "index.html").read_text(encoding="utf-8")
+    assert (out / "lut_walter_model.png").exists() and (out / "lut_copper.png").exists()
+    acc = read_exr(d / "walter_model.exr").accuracy
+    assert f"{acc['interpolation']['max_rel']:.3g}" in text  # the header's figure, shown
+    assert "baked from a model and parameters, not from this fit" in text
+    # --no-lut-discovery: only the tables given.
+    out2 = tmp_path / "rep2"
+    assert main(["report", str(fit), "--data", str(WALTER), "--no-lut-discovery", "--out",
+                 str(out2), "--quiet"]) == 0
+    assert not list(out2.glob("lut_*"))
+    # A table of another fit is an error, and nothing is written.
+    other = tmp_path / "other.exr"
+    assert main(["lut", "model", "--from-fit", str(made["fits"]["brdf"][0]), "--size", "16",
+                 "--out", str(other), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(fit), "--data", str(WALTER), "--lut", str(other), "--out",
+                 str(tmp_path / "rep3"), "--quiet"]) == 2
+    assert "was baked from the fit" in capsys.readouterr().err
+    assert not (tmp_path / "rep3").exists()

@@ -494,12 +494,76 @@ def _previous_files(index: Path) -> set:
     return {n for n in found.group(1).split() if re.fullmatch(r"[A-Za-z0-9_.-]+\.(png|svg)", n)}
 
 
+def _lut_tables(fit_path, given, discover):
+    """[(path, table, note)] of the --lut files (validated: a table of another fit is an error)
+    and, with ``discover``, the EXR tables beside the fit file that name it."""
+    from fitlab.report.luts import check_lut, discover_luts as find
+
+    paths = [Path(p) for p in given]
+    if discover:
+        known = {p.resolve() for p in paths}
+        paths += [p for p in find(fit_path) if p.resolve() not in known]
+    out = []
+    for p in paths:
+        table, note = check_lut(p, fit_path)
+        out.append((p, table, note))
+    return out
+
+
+def _luts(rep, tables):
+    from fitlab.report.luts import accuracy_rows, lut_figure
+
+    body = paragraph("Tables baked for this fit (fitlab lut, OpenEXR, data_formats/lut_exr.md): "
+                     "a preview of the stored values (texture coordinates, the axis values as "
+                     "tick labels) and the accuracy figures the baker measured and stored in "
+                     "the file's header (relative errors).")
+    used = set()
+    for path, t, note in tables:
+        stem = re.sub(r"[^A-Za-z0-9_-]", "_", path.stem)
+        name = f"lut_{stem}"
+        k = 2
+        while name in used:
+            name, k = f"lut_{stem}_{k}", k + 1
+        used.add(name)
+        size = " × ".join(str(a.size) for a in t.axes)
+        body += f"<h3>{esc(path.name)}</h3>\n"
+        if note:
+            body += note_html(f"{path.name}: {note}.")
+        info = [("kind", t.kind), ("size", f"{size} ({t.dtype})"),
+                ("channels", ", ".join(t.channels)), ("quantity", t.quantity),
+                ("source fit", t.source_fit or "none")]
+        info += [(f"axis {a.name}", f"[{a.lo:g}, {a.hi:g}], {a.size} samples, {a.mapping} "
+                  f"mapping: {a.description}") for a in t.axes]
+        info += [("note", n) for n in t.notes]
+        body += table_html([], info)
+        rows = [[m, _fmt(mx, 3), _fmt(rms, 3), what] for m, mx, rms, what in
+                accuracy_rows(t.accuracy)]
+        body += table_html(["accuracy", "max rel. error", "RMS rel. error", "against"], rows,
+                           numeric=(1, 2))
+        fig = lut_figure(t.values, t.channels, t.axes, title=f"{path.name}: {t.kind} table")
+        shown = min(len(t.channels), 4)
+        body += rep.figure(
+            name, fig,
+            f"Preview of {path.name}: the {t.kind} table ({t.quantity}) as stored, "
+            f"{shown} of {len(t.channels)} channel(s); "
+            + ("value against the axis." if len(t.axes) == 1 else
+               "colour = value (viridis; logarithmic when positive values span over two "
+               "decades), x and y in texture coordinates labelled with the axis values"
+               + (", at the first, middle and last sample of the third axis." if len(t.axes) == 3
+                  else ".")),
+            f"Preview of the {t.kind} lookup table {path.name}")
+    return body
+
+
 def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
-                 progress=True) -> dict:
-    """Write ``out_dir/index.html`` and the figures; returns a summary dict
-    (``files``, ``figures``, ``warnings``)."""
+                 discover_luts=True, progress=True) -> dict:
+    """Write ``out_dir/index.html`` and the figures; returns a summary dict (``files``,
+    ``figures``, ``index``, ``has_chain``). ``luts``: EXR tables to preview (each must have been
+    baked from this fit, or from a model without a fit); ``discover_luts``: also preview the
+    tables beside the fit file whose header names it."""
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     inp = load_inputs(fit_path, data_path, chain_path, progress=say)
+    tables = _lut_tables(fit_path, luts, discover_luts)
     rep = _Report(say)
     m = inp.measurement
     meta = inp.record["data"].get("metadata", {})
@@ -527,10 +591,8 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         walter = _walter(rep, inp, ch, tag)
         if walter:
             sections.append((f"walter-{tag}", "Walter diagnostics: empirical D" + ctitle, walter))
-    if luts:
-        from fitlab.report.luts import lut_section
-
-        sections.append(("luts", "Lookup tables", lut_section(rep, inp, luts)))
+    if tables:
+        sections.append(("luts", "Lookup tables", _luts(rep, tables)))
     names = [f"{f.name}.{ext}" for f in rep.figures for ext in ("png", "svg")]
     page = document(title, sections, files=sorted(names))
     files = {}
