@@ -14,7 +14,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError
-from fitlab.fit.driver import REL_ERR_FLOOR
+from fitlab.fit.driver import REL_ERR_FLOOR, relative_errors
 from fitlab.fit.space import SCALE
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
@@ -204,11 +204,10 @@ def _error_tables(inp, ch, preds):
         m = inp.measurement
         v = m.value[ch.rows]
         rel_all = np.full(v.shape, np.nan)
-        for inc in geo.incidences(m, ch.rows):
-            sel = np.isin(ch.rows, inc.rows)
-            floor = REL_ERR_FLOOR * np.max(np.abs(v[sel]))
-            ok = sel & (np.abs(v) >= floor) & (np.abs(v) > 0)
-            rel_all[ok] = (preds[ok] - v[ok]) / v[ok]
+        for inc in geo.incidences(m, ch.rows):  # the fitter's per-incidence statistics
+            sel = np.flatnonzero(np.isin(ch.rows, inc.rows))
+            rel, keep = relative_errors(preds[sel], v[sel])
+            rel_all[sel[keep]] = rel
         srows = []
         for label, mask in (("fit subset", ch.fitted), ("predicted (not fitted)", ~ch.fitted)):
             r = rel_all[mask & np.isfinite(rel_all)]
