@@ -2,9 +2,11 @@
 max and RMS relative error of the table read as the shader reads it (bilinear lookup of the
 stored values, ``fitlab.lut.lookup``, identical to the generated GLSL per tests/test_lut_glsl.py)
 against direct evaluation at random points, the EXR file size in bytes, and the bake time.
+All variants of a kind are measured at the same points: equal parts uniform in the texture
+coordinates of each mapping the study uses for that kind.
 
-Bake time: evaluating every sample (float64), warm (the JIT compile of a first call excluded),
-median of two runs for the fast kinds, one warm run for the quadrature kinds. The direct
+Bake time: evaluating every sample (float64), warm (a first, untimed call at the same size
+compiles), median of two runs for the fast kinds, one run for the quadrature kinds. The direct
 evaluations at the random points are shared between half and float variants.
 
 Writes the table between the markers of data_formats/lut_exr.md (section "What accuracy
@@ -86,8 +88,29 @@ class _Memo:
         return self.cache[key]
 
 
+def pooled_points(quick):
+    """One point set per kind, shared by all its variants: equal parts uniform in the texture
+    coordinates of each mapping the study uses for that kind (so no mapping is measured only
+    where it is dense)."""
+    by_kind = {}
+    for kind_label, kw, _, n_check in configs(quick):
+        spec = lut.make_spec(kw["kind"], **{k: v for k, v in kw.items() if k != "kind"})
+        by_kind.setdefault(kind_label, (n_check, {}))[1][tuple(a.mapping for a in spec.axes)] = spec.axes
+    out = {}
+    rng = np.random.default_rng(0)
+    for kind_label, (n_check, variants) in by_kind.items():
+        per = max(1, n_check // len(variants))
+        pts = []
+        for axes in variants.values():
+            t = rng.random((per, len(axes)))
+            pts.append(np.stack([a.to_x(t[:, k]) for k, a in enumerate(axes)], axis=-1))
+        out[kind_label] = np.concatenate(pts)
+    return out
+
+
 def study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
     rows = []
+    points = pooled_points(quick)
     with tempfile.TemporaryDirectory() as tmp:
         for kind_label, kw, label, n_check in configs(quick):
             kind = kw.pop("kind")
@@ -96,7 +119,7 @@ def study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
             spec = spec._replace(evaluate=memo)
             coords = lut.grid_coords(spec.axes)
             fast = kind in ("D", "fresnel", "model")
-            memo.fn(coords[:64])  # compile
+            memo.fn(coords)  # the first call at this size compiles: not timed
             times = []
             for _ in range(2 if fast else 1):
                 t = time.perf_counter()
@@ -106,7 +129,9 @@ def study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
             memo.cache[coords.tobytes()] = result
             for dtype in ("half", "float"):
                 try:
-                    table = lut.bake(spec, dtype, check_points=n_check)
+                    table = lut.bake(spec, dtype, check_points=0)
+                    table.accuracy["interpolation"] = lut.measure_accuracy(
+                        table, spec.evaluate, 0, points=points[kind_label])
                 except ValueError as exc:  # e.g. half overflow
                     rows.append({"kind": kind_label, "label": label, "dtype": dtype,
                                  "size": "x".join(str(a.size) for a in spec.axes),
@@ -135,8 +160,9 @@ def study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
 def markdown(rows, machine):
     out = [f"Measured {_dt.date.today().isoformat()} on {machine} by `python "
            "benchmarks/lut_accuracy.py` (fitlab " + fitlab.__version__ + "). Errors: relative, "
-           "floor 1e-3 of the channel maximum, over `points` random points uniform in texture "
-           "coordinates; `quad.` is the stored quadrature error estimate (absolute); bake time is "
+           "floor 1e-3 of the channel maximum, over `points` random points, the same for every "
+           "variant of a kind (equal parts uniform in the texture coordinates of each mapping "
+           "compared); `quad.` is the stored quadrature error estimate (absolute); bake time is "
            "the warm evaluation of every sample (the CPU was shared with other jobs: times are "
            "indicative).", "",
            "| kind | variant | size | type | max rel | RMS rel | points | bytes | bake (ms) | quad. |",

