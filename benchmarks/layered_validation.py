@@ -286,9 +286,11 @@ def markdown(rows, samples, machine, command):
          "bounce orders ≥ 1 vs the model minus its top-interface lobe). Refraction through the "
          "macro normal (the collimated single-point assumption) does not blur the base lobe "
          "by the rough top interface: where α1 is comparable to or larger than α2 the model's "
-         "subsurface lobe is narrower (FWHM) and higher than simulated, i.e. too glossy. The "
-         "section 3 clamp (α2 ≥ α1) widens it, in the right direction but not by the right "
-         "amount.")):
+         "subsurface lobe is narrower (FWHM) and higher than simulated, i.e. too glossy; "
+         "the peak positions agree. The section 3 clamp (α2 ≥ α1) widens it too far: the "
+         "clamped α acts in the refracted frame and the refraction out widens the lobe once "
+         "more. With α1 much smaller than α2 (or both small) the model is close to the "
+         "simulation; absorption (τ = 1) does not change the picture.")):
         lines += [f"## {title}", "", text, "",
                   "| stack | compared | model, options | error | noise | peak sim/model | "
                   "FWHM sim/model | eval µs/pair | sim. s (paths/s) | sim. s for same accuracy |",
@@ -335,6 +337,20 @@ def summary(rows):
     return out
 
 
+def _machine():
+    import os
+
+    name = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                name = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{name}, {os.cpu_count()} CPUs, JAX {jax.__version__} on {jax.devices()[0].platform}"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--samples", type=int, default=2_000_000, help="paths per stack")
@@ -345,7 +361,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     out = Path(args.out)
-    machine = f"{platform.processor() or platform.machine()} ({jax.devices()[0].platform})"
+    machine = _machine()
     if args.render_only:
         data = json.loads((out / "results.json").read_text())
         rows, args.samples, machine = data["rows"], data["samples"], data.get("machine", machine)
