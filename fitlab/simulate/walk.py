@@ -104,6 +104,11 @@ class State(NamedTuple):
     vol_events: jax.Array
     events: jax.Array
     diffuse: jax.Array
+    # the next event's sampled outcomes (see _propose), carried in the loop state
+    prop_wv: jax.Array  # (B, 3) direction after a volume scattering event
+    prop_wb: jax.Array  # (B, 3) direction after the boundary the path travels toward
+    prop_fb: jax.Array  # (B, C) weight factor of that boundary event
+    prop_db: jax.Array  # (B,) whether that boundary event is non-specular
 
 
 def _flip_z(w):
@@ -225,7 +230,25 @@ def uniforms(seed_words, i, n, k, dtype):
     return (h >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype=dtype)
 
 
+def _propose(cfg, arr, key, i, st):
+    """Sample the outcomes iteration i needs from the state at its start: the direction after a
+    volume event (if volume code is compiled) and the event at the boundary the path travels
+    toward. They are stored in the loop state, so XLA materializes them once per iteration:
+    computed inside the step, the sampling chains were fused into each of their many consumers
+    and evaluated several times over (7 copies of the phase function's sin/cos in the compiled
+    step, whose transcendental functions XLA:CPU evaluates in scalar code)."""
+    dt = st.w.dtype
+    B = st.w.shape[0]
+    u = uniforms(key, i, B, 8, dt)
+    down = st.w[:, 2] < 0
+    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, cfg.n_media)
+    w_b, f_b, diff_b = _boundary_event(cfg, arr, st, b, u[:, 0:3])
+    w_v = _volume_event(cfg, arr, st, u[:, 4:6]) if cfg.volume else st.prop_wv
+    return st._replace(prop_wv=w_v, prop_wb=w_b, prop_fb=f_b, prop_db=diff_b)
+
+
 def _step(cfg, arr, key, i, st):
+    """One event of every live lane, with the outcomes sampled by ``_propose(..., i, st)``."""
     dt = st.w.dtype
     B = st.w.shape[0]
     M = cfg.n_media
@@ -273,7 +296,7 @@ def _step(cfg, arr, key, i, st):
     vol_events = st.vol_events
     diffuse = st.diffuse
     if cfg.volume:
-        w_v = _volume_event(cfg, arr, st, u[:, 4:6])
+        w_v = st.prop_wv
         w = jnp.where(scatter[:, None], w_v, w)
         vol_events = vol_events + scatter.astype(jnp.int32)
         diffuse = diffuse | scatter
@@ -281,8 +304,7 @@ def _step(cfg, arr, key, i, st):
     # --- boundary events ---------------------------------------------------------------------
     hit = alive & ~scatter
     b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
-    w_b, f_b, diff_b = _boundary_event(cfg, arr, st._replace(w=st.w), b, jnp.stack(
-        [u[:, 0], u[:, 1], u[:, 2]], axis=-1))
+    w_b, f_b, diff_b = st.prop_wb, st.prop_fb, st.prop_db
     w = jnp.where(hit[:, None], w_b, w)
     weight = jnp.where(hit[:, None], weight * f_b, weight)
     diffuse = diffuse | (hit & diff_b)
@@ -322,7 +344,8 @@ def _step(cfg, arr, key, i, st):
         survive = u[:, 7] < q
         alive = alive & (~play | survive)
         weight = jnp.where((play & survive)[:, None], weight / q[:, None], weight)
-    return State(region, z, w, weight, alive, exited, bounces, vol_events, events, diffuse)
+    return st._replace(region=region, z=z, w=w, weight=weight, alive=alive, exited=exited,
+                       bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse)
 
 
 def _bin_index(cfg, w):
@@ -379,7 +402,9 @@ def _fresh(cfg, wi, n, dt):
         w=jnp.broadcast_to(-wi, (n, 3)), weight=jnp.ones((n, cfg.channels), dt),
         alive=jnp.ones((n,), bool), exited=jnp.zeros((n,), bool),
         bounces=jnp.zeros((n,), jnp.int32), vol_events=jnp.zeros((n,), jnp.int32),
-        events=jnp.zeros((n,), jnp.int32), diffuse=jnp.zeros((n,), bool))
+        events=jnp.zeros((n,), jnp.int32), diffuse=jnp.zeros((n,), bool),
+        prop_wv=jnp.zeros((n, 3), dt), prop_wb=jnp.zeros((n, 3), dt),
+        prop_fb=jnp.zeros((n, cfg.channels), dt), prop_db=jnp.zeros((n,), bool))
 
 
 class _Loop(NamedTuple):
@@ -414,7 +439,7 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
     n_valid = jnp.minimum(n_valid, paths)
     lane = jnp.arange(lanes, dtype=jnp.int32)
     st0 = _fresh(cfg, wi, lanes, dt)
-    st0 = st0._replace(alive=lane < n_valid)
+    st0 = _propose(cfg, arr, key, jnp.int32(0), st0._replace(alive=lane < n_valid))
     carry = _Loop(jnp.int32(0), st0, lane, jnp.minimum(jnp.int32(lanes), n_valid),
                   jnp.zeros((paths, 3), dt), jnp.zeros((paths, C), dt),
                   jnp.zeros((paths,), jnp.int32), jnp.int32(0), jnp.int32(0))
@@ -443,6 +468,7 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
         st = jax.tree_util.tree_map(
             lambda f, s: jnp.where(start.reshape((-1,) + (1,) * (s.ndim - 1)), f, s),
             fresh, st._replace(alive=alive, exited=jnp.zeros_like(alive)))
+        st = _propose(cfg, arr, key, c.i + 1, st)
         path = jnp.where(start, new_id, c.path)
         next_path = jnp.minimum(c.next_path + jnp.sum(ended, dtype=jnp.int32), n_valid)
         return _Loop(c.i + 1, st, path, next_path, exit_w, exit_x, exit_order,
