@@ -221,8 +221,8 @@ def test_weidlich_wilkie_eq2_as_printed_is_not_energy_conserving():
     p = {"alpha1": 0.01, "n1": 1.5, "k1": 0.0, "tau1": 0.0, "alpha2": 0.05, "n2": 1.0, "k2": 20.0}
     scaled = albedo("weidlich_wilkie(rough_conductor)", p, 0.0)
     printed = albedo("weidlich_wilkie(rough_conductor)", p, 0.0, radiance_scaling="none")
-    assert printed > 1.05
-    assert scaled < 1.0
+    assert printed > 1.9  # 2.05 (data_formats/layered_models.md)
+    assert scaled < 1.0  # 0.93
     top = albedo("weidlich_wilkie(rough_conductor)", {**p, "n2": 1.5, "k2": 0.0, "alpha2": 1.0},
                  0.0)  # base index-matched to the coat: only the top lobe and a dim base lobe
     assert top < scaled
