@@ -96,3 +96,17 @@ def test_fit_coated_model_recovers_synthetic_parameters(tmp_path, capsys):
     rec = json.loads(out2.read_text())
     assert rec["model"]["name"] == "coated(lambertian)"
     assert rec["fits"][0]["parameters"]["albedo"]["value"] == pytest.approx(0.6, rel=0.02)
+
+
+def test_layered_models_tabulate_as_zemax_and_lut(tmp_path):
+    """The Zemax writer and the LUT baker take layered model names like any other."""
+    params = ["--param", "coat_eta=1.5", "--param", "coat_tau=0.1", "--param", "albedo=0.5"]
+    out = tmp_path / "coated.bsdf"
+    assert main(["convert", "--model", "coated(lambertian)", *params, "--aoi", "0,30",
+                 str(out)]) == 0
+    assert "coated(lambertian)" in out.read_text()
+    exr = tmp_path / "ww.exr"
+    assert main(["lut", "model", "--model", "weidlich_wilkie(lambertian)", "--param", "alpha1=0.2",
+                 "--param", "n1=1.5", "--param", "k1=0", "--param", "tau1=0.1",
+                 "--param", "albedo2=0.6", "--size", "16x16", "--out", str(exr), "--quiet"]) == 0
+    assert exr.stat().st_size > 0
