@@ -36,8 +36,8 @@ near lo) and ``log`` (x = lo (hi/lo)^t).
 Integrals (albedo, DFG) use deterministic quadrature (``fitlab.quadrature``), never Monte
 Carlo: over the microfacet normal in the warped coordinates of the distribution's sampling
 (Walter eqs 28 / 35), where the integrand is Walter's sample weight (eq. 41), with Gauss–Legendre
-panels split at the analytic breakpoints (horizon of the reflected / refracted direction, facet
-facing away, total internal reflection) and the periodic midpoint rule in azimuth. Every table
+panels (smoothed ends) in θm and φm split at the analytic breakpoints (horizon of the reflected /
+refracted direction, facet facing away, total internal reflection, and where these appear in φm). Every table
 stores the values of the higher of two quadrature orders and, as its error estimate, the
 difference to the lower one. Accuracy against direct evaluation (bilinear lookup of the stored,
 rounded values at random points vs the model or a fresh quadrature there) is measured for every
@@ -269,9 +269,9 @@ def _du_dt_beckmann(t):
 
 _DU_DT = {"ggx": _du_dt_ggx, "beckmann": _du_dt_beckmann, "beckmann_rational": _du_dt_beckmann}
 
-#: Default quadrature orders: Gauss–Legendre nodes per panel in t, midpoint nodes over half a
-#: period in φ, Gauss–Legendre nodes in μ for the averages; the error estimate compares these
-#: with twice these, whose values are stored.
+#: Default quadrature orders: Gauss–Legendre nodes per θm panel (in t), per φm panel (over
+#: [0, π]) and in μ for the averages; the error estimate compares these with twice these, whose
+#: values are stored.
 QUAD_ORDERS = {"n_u": 8, "n_phi": 4, "n_mu": 16}
 #: Panels are graded towards each horizon breakpoint at these multiples of α (the width over
 #: which Smith's G1(o) falls to 0 as the outgoing direction reaches the horizon).
@@ -595,11 +595,13 @@ def spec_fresnel(params, size=128, mapping="linear", fresnel="exact"):
 
 
 def _quad_note(orders):
-    return (f"quadrature over warped microfacet normals (Walter eqs 28/35, weight eq. 41): "
-            f"Gauss-Legendre panels split at the breakpoints, {2 * orders['n_u']} nodes per panel "
-            f"in u1, periodic midpoint rule with {2 * orders['n_phi']} nodes over half a period "
-            f"in phi; averages over mu by Gauss-Legendre with {2 * orders['n_mu']} nodes; error "
-            f"estimate = |Q(n) - Q(2n)| at the orders n in accuracy.quadrature.orders")
+    return (f"quadrature over microfacet normals in the sampling's coordinates (Walter eqs 28/35, "
+            f"weight eq. 41): Gauss-Legendre panels with smoothed ends in theta_m (as tan t = "
+            f"tan theta_m / alpha) and phi_m, split at the analytic breakpoints and graded "
+            f"towards the horizons, {2 * orders['n_u']} nodes per theta_m panel and "
+            f"{2 * orders['n_phi']} per phi_m panel; averages over mu by Gauss-Legendre with "
+            f"{2 * orders['n_mu']} nodes; error estimate = |Q(n) - Q(2n)| at the orders n in "
+            f"accuracy.quadrature.orders")
 
 
 def spec_albedo_conductor(distribution="ggx", size=(32, 32), mappings=("linear", "linear"),
@@ -780,7 +782,7 @@ def bake(spec: Spec, dtype: str = "float", *, check_points: int | None = None,
     coords = grid_coords(spec.axes)
     if progress:
         progress(f"evaluating {spec.kind} at {len(coords)} samples ({spec.method})")
-    values, err = spec.evaluate(coords)
+    values, err = _evaluate_in_rows(spec, coords, progress)
     values = np.asarray(values, float)
     if not np.all(np.isfinite(values)):
         bad = int(np.sum(~np.isfinite(values)))
@@ -810,6 +812,28 @@ def bake(spec: Spec, dtype: str = "float", *, check_points: int | None = None,
         if spec.kind == "model":
             accuracy["parameterization"] = _parameterization_error(table, spec, n)
     return table
+
+
+def _evaluate_in_rows(spec: Spec, coords, progress, chunks: int = 10):
+    """spec.evaluate over whole rows of the table at a time (rows share α and η, so the
+    averages E_avg are integrated once per row), reporting progress for the quadrature kinds."""
+    if spec.orders is None or progress is None:
+        return spec.evaluate(coords)
+    import time
+
+    w = spec.axes[0].size
+    rows = len(coords) // w
+    step = max(1, -(-rows // chunks)) * w
+    vals, errs, t0 = [], [], time.perf_counter()
+    for start in range(0, len(coords), step):
+        v, e = spec.evaluate(coords[start:start + step])
+        vals.append(np.asarray(v))
+        errs.append(np.asarray(e))
+        done = min(start + step, len(coords))
+        el = time.perf_counter() - t0
+        progress(f"  {done}/{len(coords)} samples, {el:.0f} s elapsed, about "
+                 f"{el * (len(coords) - done) / done:.0f} s to go")
+    return np.concatenate(vals), np.concatenate(errs)
 
 
 def _parameterization_error(table, spec, n, seed=1):
