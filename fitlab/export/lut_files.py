@@ -64,6 +64,19 @@ def parse_range(text, what):
     return r
 
 
+def parse_options(items) -> dict:
+    """--option NAME=VALUE items → {name: value} (each name once)."""
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise FitlabError(f"--option {item!r} must look like NAME=VALUE")
+        if name.strip() in out:
+            raise FitlabError(f"--option {name} is given twice")
+        out[name.strip()] = value.strip()
+    return out
+
+
 def params_from_cli(items) -> dict:
     """--param NAME=V or NAME=R,G,B → {channel: {name: value}} (channels Y, or R G B)."""
     raw = {}
@@ -149,17 +162,13 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, param_items=No
                 m = fitlab.get_model(model)
             except ValueError as exc:
                 raise FitlabError(str(exc)) from None
-            from fitlab.cli import _parse_assignments
-
             try:
-                options = fitlab.api.resolve_options(m, _parse_assignments(option_items, "option"))
+                options = fitlab.api.resolve_options(m, parse_options(option_items))
             except ValueError as exc:
                 raise FitlabError(f"{exc} (see `fitlab models {m.name}`)") from None
             model = m.name
         elif option_items:
-            from fitlab.cli import _parse_assignments
-
-            options = _parse_assignments(option_items, "option")
+            options = parse_options(option_items)
     if preset:
         if kind.name != "fresnel":
             raise FitlabError("--preset applies to fresnel tables only")
