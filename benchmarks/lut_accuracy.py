@@ -163,8 +163,8 @@ def markdown(rows, machine):
            "floor 1e-3 of the channel maximum, over `points` random points, the same for every "
            "variant of a kind (equal parts uniform in the texture coordinates of each mapping "
            "compared); `quad.` is the stored quadrature error estimate (absolute); bake time is "
-           "the warm evaluation of every sample (the CPU was shared with other jobs: times are "
-           "indicative).", "",
+           "the warm evaluation of every sample (on a 2-core machine other jobs may share: times "
+           "are indicative).", "",
            "| kind | variant | size | type | max rel | RMS rel | points | bytes | bake (ms) | quad. |",
            "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
