@@ -9,6 +9,7 @@ import sys
 import numpy as np
 
 import fitlab
+from fitlab.assignments import parse_assignments
 from fitlab.errors import FitlabError
 
 CONVENTIONS = (
@@ -27,20 +28,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"fitlab: error: {message}\n")
 
 
-def _parse_assignments(items, what):
-    out = {}
-    for item in items or []:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise FitlabError(f"--{what} {item!r} must look like NAME=VALUE")
-        if name in out:
-            raise FitlabError(f"--{what} {name} is given twice")
-        out[name.strip()] = value.strip()
-    return out
-
-
 def _params_from_cli(model, items, base=None):
-    raw = _parse_assignments(items, "param")
+    raw = parse_assignments(items, "param")
     params = dict(base or {})  # e.g. a preset's values, which --param overrides
     for name, text in raw.items():
         try:
@@ -150,7 +139,7 @@ def _model_from_cli(args):
     params = _params_from_cli(model, args.param, base_params)
     try:
         options = fitlab.api.resolve_options(
-            model, {**base_options, **_parse_assignments(args.option, "option")})
+            model, {**base_options, **parse_assignments(args.option, "option")})
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
     return model, params, options
@@ -185,7 +174,7 @@ def cmd_eval(args):
 
 def _fixed_from_cli(model, items):
     fixed = {}
-    for name, text in _parse_assignments(items, "fix").items():
+    for name, text in parse_assignments(items, "fix").items():
         if name not in model.parameter_names:
             raise FitlabError(f"--fix {name}: model {model.name!r} has no parameter {name!r} "
                               f"(its parameters: {', '.join(model.parameter_names)})")
@@ -245,7 +234,7 @@ def cmd_fit(args):
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     try:
-        options = fitlab.api.resolve_options(model, _parse_assignments(args.option, "option"))
+        options = fitlab.api.resolve_options(model, parse_assignments(args.option, "option"))
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
     fixed = _fixed_from_cli(model, args.fix)

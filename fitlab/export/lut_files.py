@@ -12,6 +12,7 @@ from pathlib import Path
 
 import fitlab
 from fitlab import lut
+from fitlab.assignments import parse_assignments
 from fitlab.errors import FitlabError
 
 
@@ -66,30 +67,18 @@ def parse_range(text, what):
 
 def parse_options(items) -> dict:
     """--option NAME=VALUE items → {name: value} (each name once)."""
-    out = {}
-    for item in items or []:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise FitlabError(f"--option {item!r} must look like NAME=VALUE")
-        if name.strip() in out:
-            raise FitlabError(f"--option {name} is given twice")
-        out[name.strip()] = value.strip()
-    return out
+    return parse_assignments(items, "option")
 
 
 def params_from_cli(items) -> dict:
     """--param NAME=V or NAME=R,G,B → {channel: {name: value}} (channels Y, or R G B)."""
     raw = {}
-    for item in items or []:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise FitlabError(f"--param {item!r} must look like NAME=VALUE or NAME=R,G,B")
-        if name in raw:
-            raise FitlabError(f"--param {name} is given twice")
+    for name, value in parse_assignments(items, "param").items():
         try:
-            raw[name.strip()] = [float(v) for v in value.split(",")]
+            raw[name] = [float(v) for v in value.split(",")]
         except ValueError:
-            raise FitlabError(f"--param {item!r}: values must be numbers") from None
+            raise FitlabError(f"--param {name}={value}: values must be numbers "
+                              "(one value, or three as R,G,B)") from None
     lengths = {len(v) for v in raw.values()}
     if lengths - {1, 3}:
         raise FitlabError("--param takes one value or three (R,G,B) per parameter")
