@@ -170,3 +170,14 @@ def test_console_script_runs():
 def test_no_command_prints_help(capsys):
     assert main([]) == 2
     assert "COMMAND" in capsys.readouterr().out
+
+
+def test_output_into_a_closed_pipe_is_not_an_error():
+    """`fitlab info FILE | head -1`: a reader that closes the pipe early ends fitlab quietly."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fitlab.cli", "info", "data_formats/examples/lut_fresnel_copper.exr"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
+    proc.stdout.close()  # closed before fitlab has written anything (it is still importing jax)
+    stderr = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0, stderr
+    assert "Traceback" not in stderr, stderr
