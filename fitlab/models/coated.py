@@ -37,6 +37,7 @@ from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refrac
                               refract_up, solid_angle_compression, transmittance)
 from fitlab.models import rough_conductor
 from fitlab.models.base import Model, Option, Parameter
+from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
 NAME = "coated"
@@ -203,15 +204,9 @@ def canonical_name(inner_name: str, specular: str = "delta") -> str:
 
 def from_call(call, get_model) -> Model:
     """Build from the parsed name ``coated(INNER[,specular=delta|lobe])`` (models/syntax.py)."""
-    kwargs = dict(call.kwargs)
-    if len(call.args) != 1:
-        raise ValueError(f"{NAME}(...) takes one model, e.g. coated(rough_conductor); got "
-                         f"{len(call.args)}")
-    unknown = set(kwargs) - {"specular"}
-    if unknown:
-        raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; the "
-                         "only one is specular=delta|lobe")
-    return _cached(get_model(call.args[0]), kwargs.get("specular", "delta"))
+    inner, kwargs = call_arguments(call, f"{NAME}(rough_conductor)",
+                                   {"specular": "specular=delta|lobe"})
+    return _cached(get_model(inner), kwargs.get("specular", "delta"))
 
 
 @functools.lru_cache(maxsize=None)

@@ -73,3 +73,19 @@ def parse_call(text: str) -> Call | None:
         else:
             args.append(item)
     return Call(head, tuple(args), tuple(kwargs))
+
+
+def call_arguments(call: Call, usage: str, keywords: dict[str, str]) -> tuple[str, dict[str, str]]:
+    """The one model argument and the keyword arguments of a layered constructor.
+
+    ``usage`` shows a correct call (e.g. ``coated(rough_conductor)``); ``keywords`` maps each
+    accepted keyword to the text that explains it in an error (e.g. ``"specular=delta|lobe"``).
+    """
+    kwargs = dict(call.kwargs)
+    if len(call.args) != 1:
+        raise ValueError(f"{call.func}(...) takes one model, e.g. {usage}; got {len(call.args)}")
+    unknown = set(kwargs) - set(keywords)
+    if unknown:
+        raise ValueError(f"{call.func}(...): unknown keyword(s) {', '.join(sorted(unknown))}; "
+                         f"accepted: {', '.join(keywords.values())}")
+    return call.args[0], kwargs

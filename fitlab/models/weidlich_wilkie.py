@@ -41,6 +41,7 @@ from fitlab.interface import beer_lambert, refract_down, refract_up
 from fitlab.microfacet import get_distribution, smith_G1
 from fitlab.models import rough_conductor
 from fitlab.models.base import Model, Option, Parameter
+from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
 NAME = "weidlich_wilkie"
@@ -249,20 +250,15 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
 
 def from_call(call, get_model) -> Model:
     """Build from the parsed name ``weidlich_wilkie(BASE[,layers=K])`` (models/syntax.py)."""
-    kwargs = dict(call.kwargs)
-    if len(call.args) != 1:
-        raise ValueError(f"{NAME}(...) takes one base model ({', '.join(BASES)}), e.g. "
-                         f"{NAME}(rough_conductor)")
-    unknown = set(kwargs) - {"layers"}
-    if unknown:
-        raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; the "
-                         "only one is layers=K (interfaces + base, default 2)")
+    base, kwargs = call_arguments(
+        call, f"{NAME}(rough_conductor) (bases: {', '.join(BASES)})",
+        {"layers": "layers=K (interfaces + base, default 2)"})
     try:
         layers = int(kwargs.get("layers", "2"))
     except ValueError:
         raise ValueError(f"{NAME}(...,layers={kwargs['layers']}): layers must be an integer") \
             from None
-    return _cached(get_model(call.args[0]), layers)
+    return _cached(get_model(base), layers)
 
 
 @functools.lru_cache(maxsize=None)
