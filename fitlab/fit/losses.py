@@ -9,41 +9,93 @@ m is the model (scale · f), v the data (both f, in 1/sr or relative units). Onl
 residuals in units of the data's own uncertainty; for the others the MCMC samples a noise
 scale σ_r as a nuisance parameter (Jeffreys prior), so their posteriors are still calibrated
 for homoscedastic residuals.
+
+Each loss is one entry of the registry :data:`LOSSES`: its per-row constants (``weights``,
+computed once in NumPy outside the JIT region), its residual (``residual``, traced by JAX) and
+whether its residuals are in units of the data's σ (``absolute_noise``). The fitter and the CLI
+(``--loss`` choices and help) ask the registry, never a loss's name.
 """
 
 from __future__ import annotations
 
+from typing import Callable, NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
 
-LOSSES = ("chi2", "relative", "log", "cos_l2")
+
+class Loss(NamedTuple):
+    """One loss: what it is, the constants its residual needs and the residual itself."""
+
+    name: str
+    description: str  # one line, for --help and the docs
+    weights: Callable  # (value, sigma, cos_o) -> dict of per-row NumPy arrays
+    residual: Callable  # (model_value, value, consts) -> r (JAX arrays)
+    absolute_noise: bool  # residuals already in units of the data's σ (no nuisance scale)
+
+
+def _weighted_residual(model_value, value, consts):
+    return (model_value - value) * consts["w"]
+
+
+def _chi2_weights(value, sigma, cos_o):
+    if sigma is None:
+        raise ValueError("the chi2 loss needs a sigma column in the data; "
+                         "use --loss relative, log or cos_l2 for data without uncertainties")
+    return {"w": 1.0 / np.asarray(sigma, dtype=float)}
+
+
+def _relative_weights(value, sigma, cos_o):
+    floor = 0.01 * np.max(np.abs(value)) if value.size else 1.0
+    return {"w": 1.0 / np.maximum(np.abs(value), max(floor, 1e-300))}
+
+
+def _log_weights(value, sigma, cos_o):
+    c = np.abs(np.asarray(cos_o, dtype=float))
+    return {"c": c, "log_v": np.log1p(np.maximum(value * c, -1 + 1e-12))}
+
+
+def _log_residual(model_value, value, consts):
+    return jnp.log1p(jnp.maximum(model_value * consts["c"], -1 + 1e-12)) - consts["log_v"]
+
+
+def _cos_l2_weights(value, sigma, cos_o):
+    return {"w": np.abs(np.asarray(cos_o, dtype=float))}
+
+
+#: The losses, by name (the order is the CLI's order of choices; chi2 and relative are the
+#: defaults with and without sigma).
+LOSSES: dict[str, Loss] = {
+    loss.name: loss for loss in (
+        Loss("chi2", "(m - v)/sigma: data with absolute uncertainties, a true chi-square",
+             _chi2_weights, _weighted_residual, True),
+        Loss("relative", "(m - v)/max(|v|, 1% of max |v|): multiplicative noise",
+             _relative_weights, _weighted_residual, False),
+        Loss("log", "log(1 + m|cos theta_o|) - log(1 + v|cos theta_o|): compresses peaks",
+             _log_weights, _log_residual, False),
+        Loss("cos_l2", "(m - v)|cos theta_o|: cosine-weighted L2 (the reflected flux)",
+             _cos_l2_weights, _weighted_residual, False),
+    )
+}
+
+
+def get_loss(name: str) -> Loss:
+    try:
+        return LOSSES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}") from None
 
 
 def loss_weights(loss: str, value, sigma, cos_o):
     """Per-row constants a residual needs (computed once, outside the JIT region)."""
-    value = np.asarray(value, dtype=float)
-    if loss == "chi2":
-        if sigma is None:
-            raise ValueError("the chi2 loss needs a sigma column in the data; "
-                             "use --loss relative, log or cos_l2 for data without uncertainties")
-        return {"w": 1.0 / np.asarray(sigma, dtype=float)}
-    if loss == "relative":
-        floor = 0.01 * np.max(np.abs(value)) if value.size else 1.0
-        return {"w": 1.0 / np.maximum(np.abs(value), max(floor, 1e-300))}
-    if loss == "log":
-        c = np.abs(np.asarray(cos_o, dtype=float))
-        return {"c": c, "log_v": np.log1p(np.maximum(value * c, -1 + 1e-12))}
-    if loss == "cos_l2":
-        return {"w": np.abs(np.asarray(cos_o, dtype=float))}
-    raise ValueError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    entry = get_loss(loss)
+    return entry.weights(np.asarray(value, dtype=float), sigma, cos_o)
 
 
 def residuals(loss: str, model_value, value, consts):
-    if loss == "log":
-        return jnp.log1p(jnp.maximum(model_value * consts["c"], -1 + 1e-12)) - consts["log_v"]
-    return (model_value - value) * consts["w"]
+    return get_loss(loss).residual(model_value, value, consts)
 
 
 def has_absolute_noise(loss: str) -> bool:
     """True when residuals are already in units of the data's σ (no nuisance noise scale)."""
-    return loss == "chi2"
+    return get_loss(loss).absolute_noise
