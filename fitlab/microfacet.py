@@ -1,8 +1,27 @@
-"""Microfacet distributions of Walter et al. 2007, section 5.2 (eqs 24-36).
+"""Microfacet distributions of Walter et al. 2007, section 5.2 (eqs 24-36), isotropic and
+anisotropic, and the vMF NDF of the extended-NDF paper (eqs 5-8).
 
-Every distribution is parameterized by its width α (Walter's α_b for Beckmann, α_g for GGX).
-Phong is parameterized by the same α through Walter's recommended mapping α_p = 2 α⁻² - 2
-(eq. 30 note), so all distributions share one roughness axis.
+Every distribution is parameterized by its width α (Walter's α_b for Beckmann, α_g for GGX);
+an anisotropic one by the widths (α_x, α_y) along the tangent frame's +x and +y (pbrt-v4's
+``TrowbridgeReitzDistribution(alpha_x, alpha_y)``, Mitsuba's ``alpha_u, alpha_v``). Phong is
+parameterized by the same α through Walter's recommended mapping α_p = 2 α⁻² - 2 (eq. 30 note),
+so all distributions share one roughness axis; Phong and vMF are isotropic only.
+
+Two ways to use a distribution:
+
+* the registry entry (:class:`Family`, ``DISTRIBUTIONS["ggx"]``) has the pure functions
+  ``D(m, alpha_x, alpha_y=None)``, ``G1(v, alpha_x, alpha_y=None)``,
+  ``sample_m(u1, u2, alpha_x, alpha_y=None)`` (``alpha_y=None``: isotropic);
+* calling it, ``DISTRIBUTIONS["ggx"](alpha_x, alpha_y)``, gives a :class:`MicrofacetDistribution`
+  that owns its widths and offers ``D(m)``, ``Lambda(w)``, ``G1(w)``, ``G(wi, wo)``,
+  ``sample_m(u)``, ``pdf_m(m)``, ``sample_visible(w, u)``, ``pdf_visible(w, m)``: what the models use.
+
+Anisotropy stretches the slope space (Heitz 2014, "Understanding the masking-shadowing function",
+section 5.3): with the stretched tangential length s(m) = m_x²/α_x² + m_y²/α_y² every formula is
+the isotropic one of width 1 in the stretched frame; the projected width of a direction w is
+α(w)² = (α_x² w_x² + α_y² w_y²)/(w_x² + w_y²). The formulas below carry the ratio k = α_y/α_x,
+which is None for an isotropic distribution, so that the isotropic path computes exactly the
+isotropic formulas.
 
 Functions take microfacet normals ``m`` that need not be normalized: D is written as a
 degree-0 homogeneous function of m, so the unnormalized half-vectors of eqs 13 and 16 go in
@@ -18,7 +37,7 @@ import jax.numpy as jnp
 from jax.scipy.special import erfc
 
 from fitlab.frame import dot
-from fitlab.numerics import clamp_alpha, safe_div, safe_sqrt
+from fitlab.numerics import clamp_alpha, safe_div, safe_rsqrt, safe_sqrt
 
 #: Beckmann-style a = 1 / (α tan θ) is capped here: G1 is 1 to machine precision beyond it.
 _A_MAX = 30.0
@@ -36,35 +55,62 @@ def _sin2_cos2(m):
     return s2, c2
 
 
+def _widths(alpha_x, alpha_y):
+    """(α_x, k = α_y/α_x), both clamped; k is None for an isotropic distribution."""
+    ax = clamp_alpha(alpha_x)
+    if alpha_y is None:
+        return ax, None
+    return ax, clamp_alpha(alpha_y) / ax
+
+
+def _stretched_tangential(m, k):
+    """m_x² + m_y²/k² = α_x² s(m): the tangential length in the stretched slope space, in units
+    of α_x (the isotropic m_x² + m_y² when k = 1)."""
+    return _sin2_cos2(m)[0] if k is None else m[..., 0] ** 2 + m[..., 1] ** 2 / (k * k)
+
+
+def _projected_tangential(v, k):
+    """v_x² + k² v_y² = α(v)² (v_x² + v_y²)/α_x²: the tangential length weighted by the
+    projected width (Heitz 2014 eq. 80), in units of α_x."""
+    return _sin2_cos2(v)[0] if k is None else v[..., 0] ** 2 + (k * k) * v[..., 1] ** 2
+
+
 # --------------------------------------------------------------------------------------------
 # D(m)
 # --------------------------------------------------------------------------------------------
 
 
-def D_GGX(m, alpha):
+def D_GGX(m, alpha, alpha_y=None):
     """GGX distribution, Walter eq. 33: α² χ⁺(m·n) / (π cos⁴θm (α² + tan²θm)²) = α² / (π q²),
     q = cos²θm (α² + tan²θm) = (m_x² + m_y² + α² m_z²) / |m|² in [min(α², 1), 1].
+    Anisotropic (Heitz 2014 eq. 85): 1 / (π α_x α_y cos⁴θm (1 + s(m)/m_z²)²), the same with
+    q = (k m_x² + m_y²/k + α_x α_y m_z²)/|m|² and α² → α_x α_y.
 
     Written through the ratio q rather than α²|m|⁴ / (π (m_x² + m_y² + α² m_z²)²): for a short
     unnormalized half-vector the |m|⁴ form under/overflows in float32 (NaN gradients)."""
-    alpha = clamp_alpha(alpha)
+    ax, k = _widths(alpha, alpha_y)
     s2, c2 = _sin2_cos2(m)
-    a2 = alpha * alpha
+    a2 = ax * ax if k is None else ax * ax * k  # α_x α_y
+    t = s2 if k is None else m[..., 0] ** 2 * k + m[..., 1] ** 2 / k
     ok = m[..., 2] > 0
-    q = jnp.where(ok, (s2 + a2 * c2) / jnp.where(ok, s2 + c2, 1.0), 1.0)
+    q = jnp.where(ok, (t + a2 * c2) / jnp.where(ok, s2 + c2, 1.0), 1.0)
     return jnp.where(ok, a2 / (jnp.pi * q * q), 0.0)
 
 
-def D_Beckmann(m, alpha):
-    """Beckmann distribution, Walter eq. 25: χ⁺(m·n) exp(-tan²θm / α²) / (π α² cos⁴θm)."""
-    alpha = clamp_alpha(alpha)
+def D_Beckmann(m, alpha, alpha_y=None):
+    """Beckmann distribution, Walter eq. 25: χ⁺(m·n) exp(-tan²θm / α²) / (π α² cos⁴θm);
+    anisotropic (Heitz 2014 eq. 86): exp(-s(m)/m_z²) / (π α_x α_y cos⁴θm)."""
+    ax, k = _widths(alpha, alpha_y)
     s2, c2 = _sin2_cos2(m)
-    a2 = alpha * alpha
+    a2 = ax * ax
+    st = _stretched_tangential(m, k)
     # 1/cos⁴θm = (1 + tan²θm)² (no |m|⁴ that under/overflows in float32); D = 0 beyond
-    # tan²θm/α² = _X_MAX (tested without a division) so the tan² gradient stays finite there.
-    ok = (m[..., 2] > 0) & (s2 < _X_MAX * a2 * c2)
-    tan2 = jnp.where(ok, s2, 0.0) / jnp.where(ok, c2, 1.0)
-    val = jnp.exp(-tan2 / a2) * (1.0 + tan2) ** 2 / (jnp.pi * a2)
+    # s(m)/m_z² = _X_MAX (tested without a division) so the tan² gradient stays finite there.
+    ok = (m[..., 2] > 0) & (st < _X_MAX * a2 * c2)
+    cz = jnp.where(ok, c2, 1.0)
+    tan2 = jnp.where(ok, s2, 0.0) / cz
+    x = tan2 if k is None else jnp.where(ok, st, 0.0) / cz
+    val = jnp.exp(-x / a2) * (1.0 + tan2) ** 2 / (jnp.pi * (a2 if k is None else a2 * k))
     return jnp.where(ok, val, 0.0)
 
 
@@ -74,8 +120,10 @@ def phong_exponent(alpha):
     return 2.0 / (alpha * alpha) - 2.0
 
 
-def D_Phong(m, alpha):
-    """Phong distribution, Walter eq. 30: χ⁺(m·n) (α_p + 2)/(2π) cos^α_p θm, α_p = 2α⁻² - 2."""
+def D_Phong(m, alpha, alpha_y=None):
+    """Phong distribution, Walter eq. 30: χ⁺(m·n) (α_p + 2)/(2π) cos^α_p θm, α_p = 2α⁻² - 2.
+    Isotropic only."""
+    _isotropic_only("phong", alpha_y)
     ap = phong_exponent(alpha)
     s2, c2 = _sin2_cos2(m)
     ok = m[..., 2] > 0
@@ -88,91 +136,145 @@ def D_Phong(m, alpha):
     return jnp.where(ok, val, 0.0)
 
 
+def _isotropic_only(name, alpha_y):
+    if alpha_y is not None:
+        raise ValueError(f"the {name} distribution is isotropic only: give one width alpha "
+                         "(anisotropic widths need ggx, beckmann or beckmann_rational)")
+
+
 # --------------------------------------------------------------------------------------------
-# Smith G1(v): the monodirectional shadowing of eq. 23, without the sidedness factor
-# χ⁺((v·m)/(v·n)), which smith_G1 applies.
+# Smith Λ(v) and G1(v) = 1/(1 + Λ(v)): the monodirectional shadowing of eq. 23, without the
+# sidedness factor χ⁺((v·m)/(v·n)), which smith_G1 applies.
 # --------------------------------------------------------------------------------------------
 
 
-def G1_GGX(v, alpha):
+def G1_GGX(v, alpha, alpha_y=None):
     """GGX Smith G1, Walter eq. 34: 2 / (1 + sqrt(1 + α² tan²θv)), written as
-    2|v_z| / (|v_z| + sqrt(v_z² + α²(v_x² + v_y²))) so it is finite at the horizon and normal."""
-    alpha = clamp_alpha(alpha)
-    s2, c2 = _sin2_cos2(v)
+    2|v_z| / (|v_z| + sqrt(v_z² + α²(v_x² + v_y²))) so it is finite at the horizon and normal;
+    anisotropic: α²(v_x² + v_y²) → α_x² v_x² + α_y² v_y² (projected width)."""
+    ax, k = _widths(alpha, alpha_y)
+    _, c2 = _sin2_cos2(v)
+    p = _projected_tangential(v, k)
     cz = jnp.abs(v[..., 2])  # not sqrt(c2): its gradient is NaN at the horizon
-    return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + alpha * alpha * s2))
+    return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + ax * ax * p))
 
 
-def G_GGX(wi, wo, alpha):
+def Lambda_GGX(v, alpha, alpha_y=None):
+    """GGX Smith Λ(v) = (sqrt(1 + α(v)² tan²θv) - 1)/2 (Heitz 2014 eq. 72), infinite at the
+    horizon (returned as a large finite number there)."""
+    ax, k = _widths(alpha, alpha_y)
+    _, c2 = _sin2_cos2(v)
+    p = ax * ax * _projected_tangential(v, k)
+    cz = jnp.abs(v[..., 2])
+    # (sqrt(c2 + p) - |v_z|) / (2|v_z|) = p / (2|v_z| (sqrt(c2 + p) + |v_z|)): no cancellation
+    return safe_div(p, 2.0 * cz * (jnp.sqrt(c2 + p) + cz), 1e30)
+
+
+def G_GGX(wi, wo, alpha, alpha_y=None):
     """Separable GGX Smith G1(i) G1(o) (Walter eqs 23, 34) without the sidedness factors, with
     one division: 4|i_z||o_z| / ((|i_z| + sqrt(i_z² + α²(i_x² + i_y²))) (|o_z| + ...)).
 
     Equal to ``G1_GGX(wi, alpha) * G1_GGX(wo, alpha)`` up to float rounding."""
-    alpha = clamp_alpha(alpha)
-    a2 = alpha * alpha
-    si2, ci2 = _sin2_cos2(wi)
-    so2, co2 = _sin2_cos2(wo)
+    ax, k = _widths(alpha, alpha_y)
+    a2 = ax * ax
+    _, ci2 = _sin2_cos2(wi)
+    _, co2 = _sin2_cos2(wo)
+    pi, po = _projected_tangential(wi, k), _projected_tangential(wo, k)
     ci, co = jnp.abs(wi[..., 2]), jnp.abs(wo[..., 2])
-    return safe_div(4.0 * ci * co, (ci + jnp.sqrt(ci2 + a2 * si2)) * (co + jnp.sqrt(co2 + a2 * so2)))
+    return safe_div(4.0 * ci * co, (ci + jnp.sqrt(ci2 + a2 * pi)) * (co + jnp.sqrt(co2 + a2 * po)))
 
 
-def _beckmann_a(v, alpha):
-    """a = 1 / (α tan θv) (Walter eq. 26), capped at _A_MAX where G1 == 1.
+def _beckmann_a(v, alpha, alpha_y=None):
+    """a = 1 / (α(v) tan θv) (Walter eq. 26; α(v) the projected width), capped at _A_MAX where
+    G1 == 1.
 
     The cap is decided without a division (a < _A_MAX <=> v_z² < _A_MAX² α² sin²): computing a
     first and clamping it leaves NaN gradients near the normal, and sqrt(v_z²) at the horizon."""
-    alpha = clamp_alpha(alpha)
-    s2, c2 = _sin2_cos2(v)
-    ok = c2 < (_A_MAX * alpha) ** 2 * s2
-    s = jnp.sqrt(jnp.where(ok, s2, 1.0))
-    return jnp.where(ok, jnp.abs(v[..., 2]) / (alpha * s), _A_MAX)
+    ax, k = _widths(alpha, alpha_y)
+    _, c2 = _sin2_cos2(v)
+    p = _projected_tangential(v, k)
+    ok = c2 < (_A_MAX * ax) ** 2 * p
+    s = jnp.sqrt(jnp.where(ok, p, 1.0))
+    return jnp.where(ok, jnp.abs(v[..., 2]) / (ax * s), _A_MAX)
 
 
-def G1_Beckmann(v, alpha):
+def G1_Beckmann(v, alpha, alpha_y=None):
     """Exact Beckmann Smith G1, Walter eq. 26: 2 / (1 + erf(a) + exp(-a²)/(a√π)), a = 1/(α tanθv).
 
     Rewritten as 2a / (a (2 - erfc a) + exp(-a²)/√π): no division by a, no erf cancellation."""
-    a = _beckmann_a(v, alpha)
+    a = _beckmann_a(v, alpha, alpha_y)
     return 2.0 * a / (a * (2.0 - erfc(a)) + jnp.exp(-a * a) * _INV_SQRT_PI)
 
 
-def G1_Beckmann_rational(v, alpha):
+def Lambda_Beckmann(v, alpha, alpha_y=None):
+    """Beckmann Smith Λ = (erfc(a) - ... )/2 = (exp(-a²)/(a√π) - erfc(a))/2 (Heitz 2014 eq. 83),
+    0 where a reaches the cap."""
+    a = _beckmann_a(v, alpha, alpha_y)
+    return 0.5 * (jnp.exp(-a * a) * _INV_SQRT_PI / a - erfc(a))
+
+
+def G1_Beckmann_rational(v, alpha, alpha_y=None):
     """Walter's rational approximation to the Beckmann Smith G1, eq. 27 (error < 0.35%).
 
     This is also the G1 Walter recommends for Phong (a = sqrt(0.5 α_p + 1)/tanθv, which equals
     1/(α tanθv) under the mapping α_p = 2α⁻² - 2) and the one Mitsuba 3 uses for Beckmann."""
-    a = _beckmann_a(v, alpha)
+    a = _beckmann_a(v, alpha, alpha_y)
     r = (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a)
     return jnp.where(a < 1.6, r, 1.0)
 
 
+def Lambda_from_G1(G1):
+    """Λ = 1/G1 - 1 for a G1 given without Λ of its own (Phong/rational, vMF)."""
+    def Lambda(v, alpha, alpha_y=None):
+        g = G1(v, alpha, alpha_y)
+        return safe_div(1.0 - g, g, 1e30)
+    return Lambda
+
+
 # --------------------------------------------------------------------------------------------
 # Sampling of D(m)|m·n| (Walter eqs 28-29, 31-32, 35-36). u1, u2 in [0, 1).
+# Anisotropic: the slopes of the unit-width distribution stretched by (α_x, α_y) (Heitz 2014
+# section 5.3), i.e. tan²θm = α_φ² T(u1) with α_φ² = α_x² cos²φ + α_y² sin²φ and the normal's
+# azimuth along (α_x cos φ, α_y sin φ).
 # --------------------------------------------------------------------------------------------
 
 
-def _normal_from_cos2(cos2, sin2, u2):
+def _normal_from_cos2(cos2, sin2, u2, k=None):
     phi = 2.0 * jnp.pi * u2  # Walter eqs 29, 32, 36
     st = jnp.sqrt(jnp.maximum(sin2, 0.0))
     ct = jnp.sqrt(jnp.maximum(cos2, 0.0))
-    return jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), ct], axis=-1)
+    cx, sy = jnp.cos(phi), jnp.sin(phi)
+    if k is not None:  # azimuth of the stretched slope (cos φ, k sin φ)/|...|
+        sy = k * sy
+        r = jnp.sqrt(cx * cx + sy * sy)
+        cx, sy = cx / r, sy / r
+    return jnp.stack([st * cx, st * sy, ct], axis=-1)
 
 
-def sample_m_GGX(u1, u2, alpha):
+def _stretch2(u2, k):
+    """α_φ²/α_x² = cos²φ + k² sin²φ of the sampled azimuth φ = 2π u2."""
+    phi = 2.0 * jnp.pi * u2
+    return jnp.cos(phi) ** 2 + (k * k) * jnp.sin(phi) ** 2
+
+
+def sample_m_GGX(u1, u2, alpha, alpha_y=None):
     """Walter eq. 35, θm = arctan(α sqrt(u1 / (1 - u1))), as cos²θm = (1-u1)/(1 + (α²-1)u1)."""
-    a2 = clamp_alpha(alpha) ** 2
+    ax, k = _widths(alpha, alpha_y)
+    a2 = ax**2 if k is None else ax**2 * _stretch2(u2, k)
     den = 1.0 - u1 + a2 * u1
-    return _normal_from_cos2((1.0 - u1) / den, a2 * u1 / den, u2)
+    return _normal_from_cos2((1.0 - u1) / den, a2 * u1 / den, u2, k)
 
 
-def sample_m_Beckmann(u1, u2, alpha):
+def sample_m_Beckmann(u1, u2, alpha, alpha_y=None):
     """Walter eq. 28, tan²θm = -α² log(1 - u1)."""
-    t2 = -(clamp_alpha(alpha) ** 2) * jnp.log1p(-u1)
-    return _normal_from_cos2(1.0 / (1.0 + t2), t2 / (1.0 + t2), u2)
+    ax, k = _widths(alpha, alpha_y)
+    t2 = -(ax**2 if k is None else ax**2 * _stretch2(u2, k)) * jnp.log1p(-u1)
+    return _normal_from_cos2(1.0 / (1.0 + t2), t2 / (1.0 + t2), u2, k)
 
 
-def sample_m_Phong(u1, u2, alpha):
+def sample_m_Phong(u1, u2, alpha, alpha_y=None):
     """Walter eq. 31, cos θm = u1^(1/(α_p + 2))."""
+    _isotropic_only("phong", alpha_y)
     ap = phong_exponent(alpha)
     ok = u1 > 0
     x = 2.0 * jnp.log(jnp.where(ok, u1, 1.0)) / (ap + 2.0)  # log cos²θm
@@ -180,10 +282,44 @@ def sample_m_Phong(u1, u2, alpha):
     return _normal_from_cos2(jnp.where(ok, jnp.exp(x), 0.0), jnp.where(ok, -jnp.expm1(x), 1.0), u2)
 
 
+def sample_visible_GGX(w, u1, u2, alpha, alpha_y=None):
+    """Heitz 2018, "Sampling the GGX distribution of visible normals" (listing 1): a microfacet
+    normal with density D_w(m) = G1(w) max(0, w·m) D(m) / w_z for w.z > 0 (the caller turns w to
+    the upper side). Stretch w to the unit-width configuration, sample the projected area of the
+    visible hemisphere (a disk whose lower half is squeezed by (1 + V_z)/2), unstretch."""
+    ax, k = _widths(alpha, alpha_y)
+    ay = ax if k is None else ax * k
+    # Section 3.2: the view direction in the hemisphere (unit-width) configuration
+    vx, vy, vz = ax * w[..., 0], ay * w[..., 1], jnp.abs(w[..., 2])
+    r = safe_rsqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx * r, vy * r, vz * r
+    # Section 4.1: orthonormal basis (with the special case at normal incidence)
+    lensq = vx * vx + vy * vy
+    il = safe_rsqrt(lensq)
+    t1x = jnp.where(lensq > 0, -vy * il, 1.0)
+    t1y = jnp.where(lensq > 0, vx * il, 0.0)
+    t2x, t2y, t2z = -vz * t1y, vz * t1x, vx * t1y - vy * t1x  # cross(V, T1), T1.z = 0
+    # Section 4.2: parameterization of the projected area
+    rr = jnp.sqrt(u1)
+    phi = 2.0 * jnp.pi * u2
+    p1, p2 = rr * jnp.cos(phi), rr * jnp.sin(phi)
+    s = 0.5 * (1.0 + vz)
+    p2 = (1.0 - s) * safe_sqrt(1.0 - p1 * p1) + s * p2
+    # Section 4.3: reprojection onto the hemisphere
+    p3 = safe_sqrt(1.0 - p1 * p1 - p2 * p2)
+    nx = p1 * t1x + p2 * t2x + p3 * vx
+    ny = p1 * t1y + p2 * t2y + p3 * vy
+    nz = p2 * t2z + p3 * vz
+    # Section 3.4: back to the ellipsoid configuration
+    mx, my, mz = ax * nx, ay * ny, jnp.maximum(nz, 0.0)
+    r = safe_rsqrt(mx * mx + my * my + mz * mz)
+    return jnp.stack([mx * r, my * r, mz * r], axis=-1)
+
+
 # --------------------------------------------------------------------------------------------
 # von Mises-Fisher NDF (extended-NDF paper, "Extended NDFs for thin layers", eqs 5-8), on the
 # shared α axis through κ = 2/α²: vMF e^{κ(cosθ-1)} ≈ e^{-κθ²/2} matches Beckmann's e^{-θ²/α²}
-# for narrow lobes, as Walter's α_p = 2α⁻² - 2 does for Phong.
+# for narrow lobes, as Walter's α_p = 2α⁻² - 2 does for Phong. Isotropic only.
 # --------------------------------------------------------------------------------------------
 
 
@@ -204,13 +340,14 @@ def _vmf_kI(kappa):
     return -jnp.expm1(-kappa) - (1.0 - jnp.exp(-kappa) * (1.0 + kappa)) / kappa
 
 
-def D_vMF(m, alpha):
+def D_vMF(m, alpha, alpha_y=None):
     """vMF NDF, paper eqs 5-6 with mean direction µ = n: D(m) = χ⁺(m·n) e^{κ(cos θm - 1)} / Z.
 
     The paper normalizes by 1/A3(κ) over the whole sphere (eq. 6) and notes that D ≈ M for
     κ > 100; here Z = 2π I(κ) normalizes exactly over the upper hemisphere, ∫ D cos θm dω = 1,
     so that the microfacet BSDFs and their sampling stay consistent for every κ ≥ 2.
     1 - cos θm = sin²/(|m|(|m| + m_z)) keeps the narrow lobes exact in float32."""
+    _isotropic_only("vmf", alpha_y)
     kappa = vmf_kappa(alpha)
     s2, c2 = _sin2_cos2(m)
     ok = m[..., 2] > 0
@@ -220,11 +357,12 @@ def D_vMF(m, alpha):
     return jnp.where(ok, val, 0.0)
 
 
-def G1_vMF(v, alpha):
+def G1_vMF(v, alpha, alpha_y=None):
     """vMF masking, paper eqs 7-8: G1 = A3(κ) cos θv / (a cos(b θv)), a = (A3 + 1)²/4,
     b = A3^{1/3}, clamped to [0, 1] (the approximation of the clamped-cosine integral is the
     paper's; it is not derived from D_vMF by Smith's Λ, so a vMF interface is not exactly
     energy-consistent)."""
+    _isotropic_only("vmf", alpha_y)
     A3 = vmf_A3(vmf_kappa(alpha))
     a = 0.25 * (A3 + 1.0) ** 2
     b = jnp.cbrt(A3)
@@ -234,10 +372,11 @@ def G1_vMF(v, alpha):
     return jnp.clip(safe_div(A3 * cz, a * jnp.cos(b * theta)), 0.0, 1.0)
 
 
-def sample_m_vMF(u1, u2, alpha):
+def sample_m_vMF(u1, u2, alpha, alpha_y=None):
     """Sample D_vMF(m) cos θm: t = 1 - cos θm has density ∝ (1 - t) e^{-κt} on [0, 1] with CDF
     G(t) = (1 - e^{-κt} - (1 - e^{-κt}(1 + κt))/κ) / (κ I(κ)); solved by Newton's method from
     the truncated-exponential guess (G is concave, so the iteration converges monotonically)."""
+    _isotropic_only("vmf", alpha_y)
     kappa = vmf_kappa(alpha)
     kI = _vmf_kI(kappa)
     t = -jnp.log1p(-u1 * (-jnp.expm1(-kappa))) / kappa
@@ -251,78 +390,189 @@ def sample_m_vMF(u1, u2, alpha):
 
 
 # --------------------------------------------------------------------------------------------
-# Registry of distributions
+# LUT axis warps: du/dt of the warped α axis of the D table (Elek's u⁸ axis), per distribution
 # --------------------------------------------------------------------------------------------
 
 
-class Distribution(NamedTuple):
-    """A microfacet distribution: D(m, α), Smith G1(v, α) without sidedness, sampling of
-    D(m)|m·n| from two uniforms; optionally G(i, o, α) = G1(i) G1(o) in a cheaper fused form."""
+def _du_dt_ggx(t):
+    return 8.0 * t**7
+
+
+def _du_dt_beckmann(t):
+    return 8.0 * t**7
+
+
+# --------------------------------------------------------------------------------------------
+# Distribution objects and the registry
+# --------------------------------------------------------------------------------------------
+
+
+class Family(NamedTuple):
+    """A microfacet distribution family (the registry entry): its pure functions of (α_x, α_y)
+    and what it supports. Call it with the widths to get a :class:`MicrofacetDistribution`."""
 
     name: str
     D: Callable
     G1: Callable
     sample_m: Callable
     reference: str
+    #: G(i, o) = G1(i) G1(o) in a cheaper fused form, or None
     G: Callable | None = None
+    Lambda: Callable | None = None
+    #: sampling of the visible normals D_w(m), or None where the family has none here
+    sample_visible: Callable | None = None
+    #: supports α_x ≠ α_y
+    anisotropic: bool = False
+    #: one of Walter 2007's distributions (shares D(n) = 1/(πα²)), offered by the microfacet models
+    walter: bool = True
+
+    def __call__(self, alpha_x, alpha_y=None) -> "MicrofacetDistribution":
+        if alpha_y is not None and not self.anisotropic:
+            _isotropic_only(self.name, alpha_y)
+        return MicrofacetDistribution(self, alpha_x, alpha_y)
 
 
-DISTRIBUTIONS = {
-    "ggx": Distribution("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36", G_GGX),
-    "beckmann": Distribution(
-        "beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann, "Walter 2007 eqs 25, 26, 28-29"
-    ),
-    "beckmann_rational": Distribution(
-        "beckmann_rational",
-        D_Beckmann,
-        G1_Beckmann_rational,
-        sample_m_Beckmann,
-        "Walter 2007 eqs 25, 27 (rational G1), 28-29",
-    ),
-    "phong": Distribution(
-        "phong", D_Phong, G1_Beckmann_rational, sample_m_Phong, "Walter 2007 eqs 30-32, G1 by eq. 27"
-    ),
+class MicrofacetDistribution:
+    """A distribution that owns its widths (pbrt-v4's ``TrowbridgeReitzDistribution``).
+    ``alpha_y=None`` is isotropic (and evaluates exactly the isotropic formulas)."""
+
+    __slots__ = ("family", "alpha_x", "alpha_y")
+
+    def __init__(self, family: Family, alpha_x, alpha_y=None):
+        self.family, self.alpha_x, self.alpha_y = family, alpha_x, alpha_y
+
+    @property
+    def isotropic(self) -> bool:
+        return self.alpha_y is None
+
+    def scaled(self, s) -> "MicrofacetDistribution":
+        """Both widths times s (Walter's widened sampling width α† = s α, section 5.3)."""
+        return MicrofacetDistribution(self.family, s * self.alpha_x,
+                                      None if self.alpha_y is None else s * self.alpha_y)
+
+    def D(self, m):
+        """D(m) in 1/sr (m unnormalized; 0 below the horizon)."""
+        return self.family.D(m, self.alpha_x, self.alpha_y)
+
+    def G1(self, w):
+        """Smith G1(w) without the sidedness factor."""
+        return self.family.G1(w, self.alpha_x, self.alpha_y)
+
+    def Lambda(self, w):
+        Lambda = self.family.Lambda or Lambda_from_G1(self.family.G1)
+        return Lambda(w, self.alpha_x, self.alpha_y)
+
+    def G(self, wi, wo):
+        """Separable Smith G1(i) G1(o) (Walter eq. 23) without the sidedness factors."""
+        if self.family.G is not None:
+            return self.family.G(wi, wo, self.alpha_x, self.alpha_y)
+        return self.G1(wi) * self.G1(wo)
+
+    def smith_G1(self, v, m):
+        """Smith G1(v, m) with the sidedness factor χ⁺((v·m)/(v·n)) of eqs 26, 27, 34."""
+        return jnp.where(dot(v, m) * v[..., 2] > 0, self.G1(v), 0.0)
+
+    def smith_G(self, wi, wo, side_i, side_o):
+        """Separable Smith G(i, o, m) = G1(i, m) G1(o, m) (Walter eq. 23), given the sidedness
+        masks side_v = (v·m)(v·n) > 0 computed by the caller."""
+        return jnp.where(side_i & side_o, self.G(wi, wo), 0.0)
+
+    def sample_m(self, u):
+        """Unit m with density D(m)|m·n| from u[..., 0:2] (Walter eqs 28-36)."""
+        return self.family.sample_m(u[..., 0], u[..., 1], self.alpha_x, self.alpha_y)
+
+    def pdf_m(self, m):
+        """Density of sample_m, p_m(m) = D(m)|m·n| (Walter eq. 24), for unit m."""
+        return self.D(m) * jnp.abs(m[..., 2])
+
+    @property
+    def has_visible_sampling(self) -> bool:
+        return self.family.sample_visible is not None
+
+    def sample_visible(self, w, u):
+        """Unit m with density D_w(m) = G1(w) max(0, w·m) D(m)/|w_z| (Heitz 2018), for w on the
+        upper side (w.z > 0)."""
+        if self.family.sample_visible is None:
+            raise ValueError(f"the {self.family.name} distribution has no visible-normal "
+                             "sampling here; use sampling=standard or distribution=ggx")
+        return self.family.sample_visible(w, u[..., 0], u[..., 1], self.alpha_x, self.alpha_y)
+
+    def pdf_visible(self, w, m):
+        """D_w(m) = G1(w) max(0, w·m) D(m) / |w_z| (Heitz 2018 eq. 1), for unit m."""
+        return safe_div(self.G1(w) * jnp.maximum(dot(w, m), 0.0) * self.D(m), jnp.abs(w[..., 2]))
+
+
+REGISTRY: dict[str, Family] = {
+    f.name: f
+    for f in (
+        Family("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36; anisotropic: "
+               "Heitz 2014 eqs 72, 85; visible normals: Heitz 2018", G_GGX, Lambda_GGX,
+               sample_visible_GGX, anisotropic=True),
+        Family("beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann,
+               "Walter 2007 eqs 25, 26, 28-29; anisotropic: Heitz 2014 eqs 83, 86",
+               Lambda=Lambda_Beckmann, anisotropic=True),
+        Family("beckmann_rational", D_Beckmann, G1_Beckmann_rational, sample_m_Beckmann,
+               "Walter 2007 eqs 25, 27 (rational G1), 28-29; anisotropic: Heitz 2014 eq. 86",
+               anisotropic=True),
+        Family("phong", D_Phong, G1_Beckmann_rational, sample_m_Phong,
+               "Walter 2007 eqs 30-32, G1 by eq. 27 (isotropic only)"),
+        Family("vmf", D_vMF, G1_vMF, sample_m_vMF,
+               "extended-NDF paper eqs 5-8 (vMF NDF, masking approximation), kappa = 2/alpha^2 "
+               "(isotropic only)", walter=False),
+    )
 }
 
-#: Distributions outside Walter's family, reachable through get_distribution but not listed in
-#: DISTRIBUTIONS (whose members share Walter's reference values, D(n) = 1/(πα²) among them, and
-#: are the choices of the fitted models). The simulator's vMF interfaces use this one.
-EXTRA_DISTRIBUTIONS = {
-    "vmf": Distribution(
-        "vmf", D_vMF, G1_vMF, sample_m_vMF,
-        "extended-NDF paper eqs 5-8 (vMF NDF, masking approximation), kappa = 2/alpha^2"
-    ),
-}
+#: The LUT's warped α axis per distribution (used by the albedo quadrature's u⁸ axis).
+LUT_DU_DT = {"ggx": _du_dt_ggx, "beckmann": _du_dt_beckmann, "beckmann_rational": _du_dt_beckmann}
 
 
-def get_distribution(name: str) -> Distribution:
+def names(*, walter: bool | None = True, anisotropic: bool | None = None) -> tuple[str, ...]:
+    """Registry names, filtered: ``walter=True`` the distributions of Walter 2007 that the
+    microfacet models offer (ggx, beckmann, beckmann_rational, phong), ``anisotropic=True``
+    those that support α_x ≠ α_y."""
+    return tuple(n for n, f in REGISTRY.items()
+                 if (walter is None or f.walter == walter)
+                 and (anisotropic is None or f.anisotropic == anisotropic))
+
+
+#: Walter 2007's distributions (the microfacet models' choices), by name: a view of REGISTRY.
+DISTRIBUTIONS: dict[str, Family] = {n: REGISTRY[n] for n in names()}
+
+# Kept for callers that asked for distributions outside Walter's family by this name.
+Distribution = Family
+
+
+def get_distribution(name: str) -> Family:
     try:
-        return DISTRIBUTIONS[name] if name in DISTRIBUTIONS else EXTRA_DISTRIBUTIONS[name]
+        return REGISTRY[name]
     except KeyError:
         raise ValueError(
-            f"unknown microfacet distribution {name!r}; choose one of {', '.join(DISTRIBUTIONS)}"
+            f"unknown microfacet distribution {name!r}; choose one of {', '.join(REGISTRY)}"
         ) from None
 
 
-def smith_G1(dist: Distribution, v, m, alpha):
+def smith_G1(dist: Family, v, m, alpha, alpha_y=None):
     """Smith G1(v, m) with the sidedness factor χ⁺((v·m)/(v·n)) of eqs 26, 27, 34."""
-    side = dot(v, m) * v[..., 2] > 0
-    return jnp.where(side, dist.G1(v, alpha), 0.0)
+    return dist(alpha, alpha_y).smith_G1(v, m)
 
 
-def smith_G(dist: Distribution, wi, wo, side_i, side_o, alpha):
+def smith_G(dist: Family, wi, wo, side_i, side_o, alpha, alpha_y=None):
     """Separable Smith G(i, o, m) = G1(i, m) G1(o, m) (Walter eq. 23), given the sidedness masks
     side_v = (v·m)(v·n) > 0 computed by the caller."""
-    g = dist.G(wi, wo, alpha) if dist.G is not None else dist.G1(wi, alpha) * dist.G1(wo, alpha)
-    return jnp.where(side_i & side_o, g, 0.0)
+    return dist(alpha, alpha_y).smith_G(wi, wo, side_i, side_o)
 
 
 def widened_alpha(alpha, cos_i):
     """Walter's widened sampling width α† = (1.2 - 0.2 sqrt|i·n|) α (section 5.3), which caps
     the sample weight near four."""
-    return (1.2 - 0.2 * jnp.sqrt(jnp.abs(cos_i))) * alpha
+    return widening_factor(cos_i) * alpha
 
 
-def pdf_m(dist: Distribution, m, alpha):
+def widening_factor(cos_i):
+    """1.2 - 0.2 sqrt|i·n| (Walter section 5.3)."""
+    return 1.2 - 0.2 * jnp.sqrt(jnp.abs(cos_i))
+
+
+def pdf_m(dist: Family, m, alpha, alpha_y=None):
     """Density of sampled normals, p_m(m) = D(m)|m·n| (Walter eq. 24), for unit m."""
-    return dist.D(m, alpha) * jnp.abs(m[..., 2])
+    return dist(alpha, alpha_y).pdf_m(m)
