@@ -77,6 +77,8 @@ def _channel_record(ch, model, fixed):
                        "matrix": [[_num(v) for v in row] for row in ls.covariance],
                        "source": "least squares: noise² (JᵀJ)⁻¹ at the optimum, native units"},
         "statistics": ch["statistics"],
+        "warnings": list(ch.get("warnings", [])),
+        "solver": ls.solver,
         "global_search": ls.global_search,
         "starts": ls.starts,
         "starts_disagree": ls.disagreement,

@@ -3,18 +3,25 @@
 Channels are fitted independently (every model parameter per channel); the result holds one
 entry per channel. Rows outside ``--fit-subset`` are not fitted but are predicted, and the
 statistics report both (Walter's protocol: fit at normal incidence, predict the others).
+
+A fit that did not go as planned says so: each channel's ``warnings`` (a list of sentences)
+names a Levenberg–Marquardt run stopped by its step limit, non-finite costs met by the global
+search, starts that disagree, parameters at a bound and an MCMC chain too short to trust. The
+parameter file keeps the list (``fits[k].warnings``), the CLI prints it, and
+``fit_measurement`` also issues each as a :class:`FitWarning` for Python callers.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+import warnings as _warnings
 
 import jax
 import numpy as np
 
 from fitlab.api import check_params, resolve_options
-from fitlab.fit.least_squares import FitData, fit_least_squares
+from fitlab.fit.least_squares import LM_MAXITER, FitData, fit_least_squares
 from fitlab.fit.losses import loss_weights
 from fitlab.fit.space import SCALE, make_space, model_values
 from fitlab.models import get_model
@@ -22,6 +29,37 @@ from fitlab.models import get_model
 #: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
 #: error statistics (relative errors of near-zero data are meaningless).
 REL_ERR_FLOOR = 0.01
+
+
+class FitWarning(UserWarning):
+    """A fit finished but is not to be trusted as it stands (the message says why and what to
+    do); the same text is in the channel's ``warnings``."""
+
+
+def least_squares_warnings(ls) -> list[str]:
+    """Sentences for what went wrong in the least-squares stage of one channel."""
+    out = []
+    sol = ls.solver
+    if sol["stopped"] == "max_iterations":
+        out.append(f"Levenberg-Marquardt stopped at its iteration limit ({sol['max_iterations']} "
+                   "iterations) before its stopping rule was met: the optimum may not be "
+                   "reached; check the parameters, or refit with more iterations "
+                   "(lm_maxiter) or a better start")
+    elif sol["stopped"] == "non_finite":
+        out.append("Levenberg-Marquardt ended with a non-finite cost (NaN or inf) from every "
+                   "start: the model or the loss is not finite for these data; check the data "
+                   "(zero or negative values with the log loss, zero sigma) and the fixed "
+                   "parameters")
+    g = ls.global_search
+    if g.get("non_finite"):
+        out.append(f"the global search met a non-finite cost (NaN or inf) at {g['non_finite']} "
+                   f"of {g['evaluations']} evaluations: the model or the loss is not finite in "
+                   "part of the parameter box (those points were treated as infinitely bad)")
+    if ls.disagreement:
+        out.append(ls.disagreement["message"])
+    for p in ls.at_bound:
+        out.append(f"{p} ended at a bound of its range; its uncertainty is not meaningful")
+    return out
 
 
 def _log(quiet, msg):
@@ -149,8 +187,13 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
 
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
-                    n_starts=8, quiet=False, channels=None):
-    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md)."""
+                    n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True):
+    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
+
+    Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
+    module text); with ``warn`` (the default) each is also issued as a :class:`FitWarning`
+    (the CLI, which prints the list itself, turns this off). ``lm_maxiter`` is the step limit
+    of every Levenberg–Marquardt run."""
     model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
                                                             fixed=fixed, free=free, loss=loss)
     rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
@@ -168,13 +211,9 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
-                               seed=seed)
+                               seed=seed, lm_maxiter=lm_maxiter)
         t_ls = time.perf_counter() - t0
-        if ls.disagreement:
-            _log(quiet, f"WARNING: {ls.disagreement['message']}")
-        for p in ls.at_bound:
-            _log(quiet, f"WARNING: {p} ended at a bound of its range; its uncertainty is not "
-                        "meaningful")
+        channel_warnings = least_squares_warnings(ls)
         _log(quiet, "  least squares: " + ", ".join(
             f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in zip(space.names, ls.native, ls.stderr))
             + f"  ({t_ls:.2f} s)")
@@ -185,8 +224,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             _log(quiet, f"  MCMC: {mcmc_steps} steps")
             chain = run_mcmc(space, data, loss, ls, seed=seed, nsteps=mcmc_steps,
                              nwalkers=mcmc_walkers, progress=not quiet)
-            for w in chain.warnings:
-                _log(quiet, f"WARNING: {w}")
+            channel_warnings += chain.warnings
         # Predictions for every row of this channel (fitted or not).
         full = space.predict(ls.native, m.wi[in_chan], m.wo[in_chan])
         sub = m.select(in_chan)
@@ -194,6 +232,10 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                            None if m.sigma is None else m.sigma[in_chan], loss)
         results.append({"channel": name, "space": space, "ls": ls, "mcmc": chain,
                         "statistics": stats, "seconds_least_squares": t_ls,
-                        "prediction": full, "rows": np.flatnonzero(in_chan)})
+                        "prediction": full, "rows": np.flatnonzero(in_chan),
+                        "warnings": channel_warnings})
+        if warn:
+            for w in channel_warnings:
+                _warnings.warn(f"channel {name}: {w}", FitWarning, stacklevel=2)
     return {"model": model, "options": options, "fixed": fixed, "loss": loss,
             "notes": notes, "seed": seed, "subset_rows": rows_fit, "channels": results}

@@ -59,6 +59,22 @@ class LeastSquaresResult(NamedTuple):
     starts: list  # [{"start": {...}, "end": {...}, "cost": ...}]
     disagreement: dict | None
     global_search: dict
+    solver: dict  # why the best start's LM stopped (see lm_record)
+
+
+#: Why a Levenberg–Marquardt run ended: its stopping rule was met, it ran out of steps, or it
+#: ended at a point where the cost is not finite (NaN or inf).
+LM_STOPPED = ("converged", "max_iterations", "non_finite")
+
+
+def lm_stop_reason(cost: float, iterations: int, rule_unmet: bool, max_iterations: int) -> str:
+    """One of LM_STOPPED. A NaN gradient also ends jaxopt's loop (its stopping test compares
+    NaN), so a non-finite end is named before the iteration count is looked at."""
+    if not np.isfinite(cost):
+        return "non_finite"
+    if rule_unmet and iterations >= max_iterations:
+        return "max_iterations"
+    return "converged"
 
 
 def problem_of(space: FitSpace, data: FitData) -> dict:
@@ -118,9 +134,13 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
 
     def one(z0, u0, problem):
         sol = solver.run(z0, problem)
+        # jaxopt's own stopping test (its loop's condition): still true after the loop means
+        # the step limit, not the Madsen–Nielsen rule, ended the run.
+        rule_unmet = solver._cond_fun(((sol.params, sol.state), ((problem,), {})))
         theta = to_native(static, unit_from_z(sol.params), problem["lo"], problem["hi"])
         r, J = r_and_jac_native(theta, problem)
-        return {"z": sol.params, "iters": sol.state.iter_num, "u": unit_from_z(sol.params),
+        return {"z": sol.params, "iters": sol.state.iter_num, "rule_unmet": rule_unmet,
+                "u": unit_from_z(sol.params),
                 "native": theta, "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
                 "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
 
@@ -161,7 +181,7 @@ def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=
     ``value_and_grad(u, problem)`` returns one array, [cost, gradient...] (one transfer);
     ``value(u, problem)``, if given, the cost alone, for the points where nlopt needs no
     gradient (most of the low-discrepancy samples)."""
-    evals = [0]
+    evals, non_finite = [0], [0]
     best = {"u": np.full(ndim, 0.5), "v": np.inf}
 
     def objective(u, grad):
@@ -173,9 +193,12 @@ def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=
             v = float(vg[0])
         else:
             v = float(np.asarray(value(u, problem)))
-        if np.isfinite(v) and v < best["v"]:
+        if not np.isfinite(v):
+            non_finite[0] += 1  # nlopt sees a huge cost instead (it cannot handle NaN)
+            return 1e300
+        if v < best["v"]:
             best["u"], best["v"] = np.array(u, dtype=float), v
-        return v if np.isfinite(v) else 1e300
+        return v
 
     nlopt.srand(int(seed))
     opt = nlopt.opt(nlopt.G_MLSL_LDS, ndim)
@@ -195,7 +218,8 @@ def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=
         # failed line search); the best point evaluated so far is still a valid start.
         status = f"stopped early ({type(exc).__name__}: {exc}); best evaluated point kept"
     return np.clip(best["u"], 0, 1), {"algorithm": "nlopt G_MLSL_LDS + LD_LBFGS",
-                                      "evaluations": evals[0], "status": status,
+                                      "evaluations": evals[0], "non_finite": non_finite[0],
+                                      "status": status,
                                       "best_cost": best["v"] if np.isfinite(best["v"]) else None}
 
 
@@ -212,7 +236,8 @@ def _compile_local(k, problem, n_local, d):
 
 def local_fits(k, problem, starts_u):
     """Levenberg–Marquardt from each start (unit-box points) in one batched call; per start (as
-    NumPy arrays): z (logit coordinates), iters, u, native, cost, residuals, jacobian (native
+    NumPy arrays): z (logit coordinates), iters, rule_unmet (LM's stopping rule not met at
+    the end), u, native, cost, residuals, jacobian (native
     units), start_native."""
     U0 = np.stack([np.asarray(u0, dtype=float) for u0 in starts_u])
     Z0 = np.stack([z_from_unit(u0) for u0 in U0])
@@ -223,16 +248,18 @@ def local_fits(k, problem, starts_u):
 
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
                       n_starts: int = 8, seed: int = 0,
-                      global_maxeval: int | None = None) -> LeastSquaresResult:
-    """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start."""
-    k = kernels(space.static, loss)
+                      global_maxeval: int | None = None,
+                      lm_maxiter: int = LM_MAXITER) -> LeastSquaresResult:
+    """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start;
+    ``lm_maxiter`` is each LM run's step limit."""
+    k = kernels(space.static, loss, int(lm_maxiter))
     problem = problem_of(space, data)
     d = space.ndim
     n_local = 1 + n_starts + (start_native is not None)
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
         # compiles outside the GIL, so with two cores the two compilations overlap).
-        key = (space.static, loss, n_local, int(data.value.shape[0]))
+        key = (space.static, loss, int(lm_maxiter), n_local, int(data.value.shape[0]))
         warm = None if key in _compiled_local else pool.submit(
             _compile_local, k, problem, n_local, d)
         u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed,
@@ -246,7 +273,10 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     loc = local_fits(k, problem, starts_u)
     runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
              "cost": float(loc["cost"][i]) if np.isfinite(loc["cost"][i]) else np.inf,
-             "iters": int(loc["iters"][i]), "index": i} for i, u0 in enumerate(starts_u)]
+             "iters": int(loc["iters"][i]),
+             "stopped": lm_stop_reason(float(loc["cost"][i]), int(loc["iters"][i]),
+                                       bool(loc["rule_unmet"][i]), int(lm_maxiter)),
+             "index": i} for i, u0 in enumerate(starts_u)]
     best = min(runs, key=lambda r: r["cost"])
     ib = best["index"]
     theta = loc["native"][ib]
@@ -264,7 +294,7 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
 
     starts = [{"start": named(loc["start_native"][rr["index"]]),
                "end": named(loc["native"][rr["index"]]), "cost": rr["cost"],
-               "lm_iterations": rr["iters"]} for rr in runs]
+               "lm_iterations": rr["iters"], "lm_stopped": rr["stopped"]} for rr in runs]
     equal = [rr for rr in runs if rr["cost"] <= best["cost"] * (1 + EQUAL_COST_RTOL) + 1e-300]
     distinct = [rr for rr in equal if np.max(np.abs(rr["u"] - best["u"])) > DISTINCT_UNIT]
     worse = [rr for rr in runs if rr["cost"] > best["cost"] * (1 + EQUAL_COST_RTOL)]
@@ -277,5 +307,14 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
             "optima": [named(loc["native"][rr["index"]]) for rr in distinct],
         }
     glob_info = dict(glob_info, lm_starts=len(runs), local_minima_worse=len(worse))
+    solver = lm_record(best["stopped"], best["iters"], int(lm_maxiter))
     return LeastSquaresResult(theta, cost, r, cov, stderr, noise, dof, at_bound,
-                              best["iters"], starts, disagreement, glob_info)
+                              best["iters"], starts, disagreement, glob_info, solver)
+
+
+def lm_record(stopped: str, iterations: int, max_iterations: int) -> dict:
+    """The parameter file's ``solver`` entry: how the best start's Levenberg–Marquardt run
+    ended (data_formats/fit_json.md)."""
+    return {"algorithm": "jaxopt LevenbergMarquardt (Madsen-Nielsen stopping rule)",
+            "stopped": stopped, "iterations": int(iterations),
+            "max_iterations": int(max_iterations), "xtol": LM_XTOL, "gtol": LM_GTOL}

@@ -4,6 +4,11 @@ Prior: uniform over the bounds in each parameter's unit-box coordinate (linear, 
 for parameters spanning decades). Likelihood: Gaussian residuals of the fit's loss; for losses
 whose residuals are not in units of the data's σ (everything but chi2) a noise scale σ_r is
 sampled too, with a Jeffreys prior p(σ_r) ∝ 1/σ_r (its log is the last chain coordinate).
+
+Outside the prior the log-posterior is −inf (emcee rejects the move), and so it is where the
+cost overflows to +inf. A NaN log-probability inside the prior is a bug in the model or a
+problem of the data, never a rejected move: like emcee, fitlab stops there, and its error
+(:class:`NaNLogProbabilityError`) names the parameter values where it happened.
 """
 
 from __future__ import annotations
@@ -20,12 +25,27 @@ import numpy as np
 
 import functools
 
+from fitlab.errors import FitlabError
 from fitlab.fit.least_squares import FitData, problem_of, residuals_unit
 from fitlab.fit.losses import has_absolute_noise
 from fitlab.fit.space import FitSpace, StaticSpace
 
 #: emcee's rule: a chain shorter than this many autocorrelation times is not trusted.
 MIN_TAU_MULTIPLE = 50
+
+
+class NaNLogProbabilityError(FitlabError):
+    """The log-posterior is NaN (or +inf) at a point inside the prior; ``params`` holds that
+    point (native units of the free parameters, then ``log_noise`` if sampled)."""
+
+    def __init__(self, params: dict, value: float):
+        self.params, self.value = params, value
+        where = ", ".join(f"{k}={v:.6g}" for k, v in params.items())
+        super().__init__(
+            f"log-probability is {'NaN' if np.isnan(value) else value} at {where}, inside the "
+            "prior bounds: the model or the loss is not finite there. Check the data (zero or "
+            "negative values with the log loss, zero sigma), fix or narrow the parameter that "
+            "makes it (--fix NAME=VALUE), or report the model's values there as a bug")
 
 
 class MCMCResult(NamedTuple):
@@ -63,7 +83,7 @@ def log_posterior_fn(static: StaticSpace, loss: str):
             lp = -0.5 * chi2 * jnp.exp(-2 * log_s) - n * log_s
         else:
             lp = -0.5 * chi2
-        lp = jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+        # An overflowing cost gives −inf (a rejected move); NaN is kept, for log_prob to report.
         return jnp.where(inside, lp, -jnp.inf)
 
     return jax.jit(jax.vmap(one, in_axes=(0, None))), nuisance
@@ -101,8 +121,16 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
         if pad:
             x = np.concatenate([x, np.repeat(x[:1], pad, axis=0)])
         out = np.concatenate([np.asarray(logp(x[i:i + chunk], problem), dtype=np.float64)
-                              for i in range(0, x.shape[0], chunk)])
-        return out[:n]
+                              for i in range(0, x.shape[0], chunk)])[:n]
+        bad = np.isnan(out) | (out == np.inf)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            native = space.to_native(x[i, : space.ndim])
+            params = {name: float(v) for name, v in zip(space.names, native)}
+            if nuisance:
+                params["log_noise"] = float(x[i, space.ndim])
+            raise NaNLogProbabilityError(params, float(out[i]))
+        return out
 
     return {"log_prob": log_prob, "p0": p0, "names": names, "nuisance": nuisance}
 
