@@ -18,6 +18,7 @@ _jax.config.update("jax_enable_x64", True)
 _jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
-from fitlab.models import MODELS, get_model  # noqa: E402
+from fitlab.models import MODELS, get_model, register_model  # noqa: E402
 
-__all__ = ["__version__", "eval_bsdf", "sample_bsdf", "pdf_bsdf", "MODELS", "get_model"]
+__all__ = ["__version__", "eval_bsdf", "sample_bsdf", "pdf_bsdf", "MODELS", "get_model",
+           "register_model"]

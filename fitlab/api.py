@@ -62,10 +62,11 @@ def check_params(model: Model, params: dict) -> None:
             )
 
 
-@functools.lru_cache(maxsize=None)
-def _jitted(model_name: str, which: str, options: tuple):
-    fn = getattr(get_model(model_name), which)
-    return jax.jit(functools.partial(fn, **dict(options)))
+@functools.lru_cache(maxsize=256)
+def _jitted(model: Model, which: str, options: tuple):
+    """One compiled function per (model, eval|sample|pdf, options), keyed on the model object
+    itself: a model redefined with ``fitlab.register_model`` gets fresh code."""
+    return jax.jit(functools.partial(getattr(model, which), **dict(options)))
 
 
 def _prepare(model_name, params, options, *dirs):
@@ -96,13 +97,13 @@ def eval_bsdf(model_name: str, params: dict, wi, wo, options: dict | None = None
     >>> eval_bsdf("rough_dielectric", {"alpha": 0.3, "eta": 1.5}, wi, wo)  # doctest: +SKIP
     """
     model, opts, p, (wi, wo) = _prepare(model_name, params, options, wi, wo)
-    return _jitted(model.name, "eval", opts)(p, wi, wo)
+    return _jitted(model, "eval", opts)(p, wi, wo)
 
 
 def pdf_bsdf(model_name: str, params: dict, wi, wo, options: dict | None = None):
     """Solid-angle density (1/sr) with which :func:`sample_bsdf` generates wo given wi."""
     model, opts, p, (wi, wo) = _prepare(model_name, params, options, wi, wo)
-    return _jitted(model.name, "pdf", opts)(p, wi, wo)
+    return _jitted(model, "pdf", opts)(p, wi, wo)
 
 
 def sample_bsdf(model_name: str, params: dict, wi, u, options: dict | None = None):
@@ -116,4 +117,4 @@ def sample_bsdf(model_name: str, params: dict, wi, u, options: dict | None = Non
     u = jnp.asarray(u, dtype=wi.dtype)
     if u.shape[-1:] != (3,):
         raise ValueError(f"u must have shape (..., 3), got {u.shape}")
-    return _jitted(model.name, "sample", opts)(p, wi, u)
+    return _jitted(model, "sample", opts)(p, wi, u)

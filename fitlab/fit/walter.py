@@ -13,7 +13,6 @@ import numpy as np
 
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize
-from fitlab.microfacet import get_distribution
 
 COS_MIN = 0.5
 LOW_VALUE = 0.01
@@ -46,20 +45,29 @@ def empirical_D(wi, wo, value, eta, scale=1.0):
     return theta_m, D, ok, np.asarray(hh)
 
 
+def applies_to(model) -> bool:
+    """Walter's diagnostic solves eq. 20/21 of one rough dielectric interface for D: the model
+    must declare a microfacet distribution, transmission, and a single index parameter."""
+    return (model.microfacet is not None and model.capabilities.transmission
+            and len(model.parameters_with_role("index")) == 1)
+
+
 def add_empirical_D(record, result, m):
     """Add the empirical D points and their agreement with the fitted D to the record."""
     model = result["model"]
     for fit, ch in zip(record["fits"], result["channels"]):
-        if model.name != "rough_dielectric":
-            fit["diagnostics"] = {"empirical_D": {"skipped": "only for rough_dielectric"}}
+        if not applies_to(model):
+            fit["diagnostics"] = {"empirical_D": {
+                "skipped": "only for a single rough dielectric interface (a model with a "
+                           "microfacet distribution, transmission and one index parameter)"}}
             continue
         params = {k: v["value"] for k, v in fit["parameters"].items()}
         scale = params.get("scale", 1.0)
         rows = ch["rows"]
-        theta_m, D, ok, hh = empirical_D(m.wi[rows], m.wo[rows], m.value[rows], params["eta"],
-                                         scale)
-        dist = get_distribution(result["options"]["distribution"])
-        D_fit = np.asarray(dist.D(jnp.asarray(hh), params["alpha"]))
+        eta = params[model.parameters_with_role("index")[0].name]
+        theta_m, D, ok, hh = empirical_D(m.wi[rows], m.wo[rows], m.value[rows], eta, scale)
+        dist = model.microfacet(params, **result["options"])
+        D_fit = np.asarray(dist.D(jnp.asarray(hh)))
         log_ratio = np.log(D[ok] / D_fit[ok]) if ok.any() else np.array([])
         fit["diagnostics"] = {"empirical_D": {
             "method": "Walter 2007 section 6.1: |i·n| > 0.5, |o·n| > 0.5, G = 1, values >= 1% "

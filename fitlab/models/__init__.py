@@ -1,28 +1,38 @@
-"""The model registry: every BSDF fitlab can evaluate, sample, fit and tabulate, by name."""
+"""The model registry: every BSDF fitlab can evaluate, sample, fit and tabulate, by name.
+
+A model declares what it is (``Model.capabilities``: lobes, isotropy, reciprocity, a delta
+component left out of f; a role for each parameter); code that needs to know asks the model.
+Adding a model is one file that defines a :class:`Model` and one line in ``_BUILTIN`` below
+(or, from outside the package, :func:`register_model`). See CONTRIBUTING.md.
+"""
 
 from __future__ import annotations
 
 import functools
 
 from fitlab.models import diffuse, rough_conductor, rough_dielectric
-from fitlab.models.base import Model, Option, Parameter
+from fitlab.models.base import ROLES, Capabilities, Model, Option, Parameter
 from fitlab.models.composite import SEPARATOR, make_sum
 from fitlab.models import coated, weidlich_wilkie  # noqa: E402  (layered: built from the above)
 from fitlab.models.syntax import parse_call, split_top_level
 
-MODELS: dict[str, Model] = {
-    m.name: m
-    for m in (
-        rough_dielectric.MODEL,
-        rough_conductor.MODEL,
-        diffuse.LAMBERTIAN,
-        diffuse.OREN_NAYAR,
-    )
-}
+_BUILTIN = (
+    rough_dielectric.MODEL,
+    rough_dielectric.ANISOTROPIC,
+    rough_conductor.MODEL,
+    rough_conductor.ANISOTROPIC,
+    diffuse.LAMBERTIAN,
+    diffuse.OREN_NAYAR,
+)
 
+MODELS: dict[str, Model] = {m.name: m for m in _BUILTIN}
 
 #: Layered constructors, ``name(MODEL[,key=value])`` (syntax: fitlab/models/syntax.py).
 CONSTRUCTORS = {coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call}
+
+#: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
+LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
+                    "weidlich_wilkie(oren_nayar)", "weidlich_wilkie(rough_conductor)")
 
 
 def get_model(name: str) -> Model:
@@ -30,7 +40,7 @@ def get_model(name: str) -> Model:
     ``coated(INNER)`` and ``weidlich_wilkie(BASE[,layers=K])`` are layered models."""
     parts = split_top_level(name, SEPARATOR)
     if len(parts) > 1:
-        return _sum_of(tuple(parts))
+        return _sum_of(tuple(get_model(n) for n in parts))
     name = parts[0]
     call = parse_call(name) if name not in MODELS else None
     if call is not None:
@@ -48,13 +58,39 @@ def get_model(name: str) -> Model:
 
 
 @functools.lru_cache(maxsize=None)
-def _sum_of(names: tuple[str, ...]) -> Model:
-    return make_sum(tuple(get_model(n) for n in names))
+def _sum_of(components: tuple[Model, ...]) -> Model:
+    # keyed on the component models themselves: a re-registered component makes a new sum
+    return make_sum(components)
 
 
-#: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
-for _name in ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
-              "weidlich_wilkie(oren_nayar)", "weidlich_wilkie(rough_conductor)"):
-    MODELS[_name] = get_model(_name)
+def _add_layered_examples() -> None:
+    for name in LAYERED_EXAMPLES:
+        MODELS[name] = get_model(name)
 
-__all__ = ["MODELS", "Model", "Option", "Parameter", "get_model"]
+
+def register_model(model: Model, *, replace: bool = False) -> Model:
+    """Add ``model`` to the registry under ``model.name`` (``replace=True`` to redefine one).
+
+    Every cache of compiled kernels and derived models (sums, layered models) is keyed on the
+    model object itself, so a redefined model is never served from code compiled for the old
+    one; the listed layered examples are rebuilt from the new registry."""
+    if not isinstance(model, Model):
+        raise TypeError(f"register_model needs a fitlab.models.Model, got {type(model).__name__}")
+    if not replace and model.name in MODELS:
+        raise ValueError(f"a model named {model.name!r} is already registered; pass "
+                         "replace=True to redefine it")
+    if any(ch in model.name for ch in f"(),{SEPARATOR}= "):
+        raise ValueError(f"model name {model.name!r}: use letters, digits and '_' only")
+    for p in model.parameters:
+        if p.role not in ROLES:
+            raise ValueError(f"parameter {p.name} of {model.name!r} has unknown role "
+                             f"{p.role!r}; roles: {', '.join(ROLES)}")
+    MODELS[model.name] = model
+    _add_layered_examples()
+    return model
+
+
+_add_layered_examples()
+
+__all__ = ["MODELS", "Model", "Option", "Parameter", "Capabilities", "ROLES", "get_model",
+           "register_model"]

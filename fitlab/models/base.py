@@ -1,5 +1,8 @@
-"""What every registry model declares: parameters with bounds and units, static options, and
-the three pure functions eval / sample / pdf.
+"""What every registry model declares: parameters with bounds, units and roles, static options,
+its capabilities, and the three pure functions eval / sample / pdf.
+
+Code that needs to know what a model is asks it (``model.capabilities.transmission``,
+``model.capabilities.isotropic``, ``model.parameters_with_role("roughness")``), never its name.
 
 Signatures (all batched over any leading shape; ``params`` is a dict of arrays that broadcast
 against the directions' leading shape)::
@@ -15,6 +18,17 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+#: What a parameter is, for code that needs to know (clamps, exporters, renderers, reports).
+ROLES = {
+    "roughness": "microfacet width α (or α_x, α_y), on the shared α axis of fitlab.microfacet",
+    "index": "real refractive index (relative to the medium above)",
+    "extinction": "imaginary part k of a complex index",
+    "albedo": "reflectance or single-scattering albedo in [0, 1]",
+    "optical_depth": "thickness × attenuation coefficient (τ = σ d)",
+    "scale": "overall scale of the values (relative measurements)",
+    "other": "none of the above",
+}
+
 
 class Parameter(NamedTuple):
     name: str
@@ -23,6 +37,40 @@ class Parameter(NamedTuple):
     default: float
     unit: str
     description: str
+    #: one of ROLES
+    role: str = "other"
+
+
+class Capabilities(NamedTuple):
+    """What a model is: the sides it scatters to, its symmetries, what ``eval`` leaves out."""
+
+    reflection: bool = True
+    transmission: bool = False
+    #: f is unchanged by a rotation of both directions about the normal
+    isotropic: bool = True
+    #: f(wi, wo) = f(wo, wi) on the reflection side (Helmholtz reciprocity)
+    reciprocal: bool = True
+    #: a Dirac delta component that ``eval``/``pdf``/``sample`` leave out, described; "" if none
+    delta: str = ""
+    #: f is the constant albedo/π (an ideal diffuse reflector; the ``albedo`` role parameter)
+    lambertian: bool = False
+
+    @property
+    def lobes(self) -> str:
+        """"reflection", "transmission" or "reflection+transmission" (the fit files' text)."""
+        return "+".join(s for s, on in (("reflection", self.reflection),
+                                        ("transmission", self.transmission)) if on)
+
+    def combined(self, other: "Capabilities") -> "Capabilities":
+        """Capabilities of the sum f = f_self + f_other."""
+        return Capabilities(
+            reflection=self.reflection or other.reflection,
+            transmission=self.transmission or other.transmission,
+            isotropic=self.isotropic and other.isotropic,
+            reciprocal=self.reciprocal and other.reciprocal,
+            delta="; ".join(d for d in (self.delta, other.delta) if d),
+            lambertian=False,
+        )
 
 
 class Option(NamedTuple):
@@ -40,10 +88,22 @@ class Model(NamedTuple):
     eval: Callable
     sample: Callable
     pdf: Callable
-    #: which side(s) of the surface the model scatters to: "reflection" or "reflection+transmission"
-    lobes: str
     #: free text: which equations, which conventions (shown by ``fitlab models``)
     reference: str
+    capabilities: Capabilities = Capabilities()
+    #: for a single microfacet interface: (params, **options) -> its MicrofacetDistribution
+    #: (Walter's empirical-D diagnostic, the exporters); None for other models
+    microfacet: Callable | None = None
+
+    @property
+    def lobes(self) -> str:
+        """Which side(s) the model scatters to: "reflection" or "reflection+transmission"."""
+        return self.capabilities.lobes
+
+    def parameters_with_role(self, role: str) -> tuple[Parameter, ...]:
+        if role not in ROLES:
+            raise KeyError(f"unknown parameter role {role!r}; roles: {', '.join(ROLES)}")
+        return tuple(p for p in self.parameters if p.role == role)
 
     def parameter(self, name: str) -> Parameter:
         for p in self.parameters:

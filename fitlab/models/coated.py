@@ -36,7 +36,7 @@ from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refract_down,
                               refract_up, solid_angle_compression, transmittance)
 from fitlab.models import rough_conductor
-from fitlab.models.base import Model, Option, Parameter
+from fitlab.models.base import Capabilities, Model, Option, Parameter
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -44,12 +44,12 @@ NAME = "coated"
 SPECULAR_CHOICES = ("delta", "lobe")
 
 COAT_ETA = Parameter("coat_eta", 1.0, 3.0, 1.5, "1",
-                     "relative index of the coat over the outside medium η = η1/η0")
+                     "relative index of the coat over the outside medium η = η1/η0", "index")
 COAT_TAU = Parameter("coat_tau", 0.0, 20.0, 0.0, "1",
                      "optical depth of the coat at normal incidence τ = σa·d (thickness times "
-                     "absorption coefficient of the channel); 0 = clear coat")
+                     "absorption coefficient of the channel); 0 = clear coat", "optical_depth")
 COAT_ALPHA = Parameter("coat_alpha", 1e-4, 1.0, 0.02, "1",
-                       "GGX width α of the coat's specular lobe (specular=lobe only)")
+                       "GGX width α of the coat's specular lobe (specular=lobe only)", "roughness")
 
 INTERREFLECTION = Option(
     "interreflection", ("single", "closed_form"), "single",
@@ -71,14 +71,14 @@ def mirror(wi):
     return wi * jnp.asarray([-1.0, -1.0, 1.0], dtype=wi.dtype)
 
 
-def _closed_form_factor(params, inner_params):
+def _closed_form_factor(params, albedo):
     """1 / (1 - ρ r): the geometric series of the reflections between a Lambertian base of
     albedo ρ and the interface. Each round trip returns the fraction ρ r of the upward diffuse
     flux, r = ∫ F_inside(μ) exp(-2τ/μ) 2μ dμ (``internal_diffuse_reflectance``): the base
     re-emits every returning photon diffusely, so the series is exact under the model's
     assumptions (smooth interface, non-scattering coat, Lambertian base)."""
     r = internal_diffuse_reflectance(params["coat_eta"], params["coat_tau"])
-    return 1.0 / (1.0 - inner_params["albedo"] * r)
+    return 1.0 / (1.0 - albedo * r)
 
 
 def make_coated(inner: Model, specular: str = "delta") -> Model:
@@ -92,8 +92,10 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
     if clash:
         raise ValueError(f"coated({inner.name}): the inner model already has parameter(s) "
                          f"{', '.join(sorted(clash))}")
-    lambertian = inner.name == "lambertian"
+    # the closed form needs a base that re-emits every photon diffusely (f = albedo/π)
+    lambertian = inner.capabilities.lambertian
     own_options = (INTERREFLECTION,) if lambertian else ()
+    albedo_name = inner.parameters_with_role("albedo")[0].name if lambertian else None
     inner_names = inner.parameter_names
     inner_option_names = tuple(o.name for o in inner.options)
 
@@ -113,7 +115,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
              * solid_angle_compression(eta) * f_in
              * beer_lambert(params["coat_tau"], wi_p[..., 2], wo_p[..., 2]))
         if opts.get("interreflection", "single") == "closed_form":
-            f = f * _closed_form_factor(params, p_in)
+            f = f * _closed_form_factor(params, p_in[albedo_name])
         return jnp.where(ok_i & ok_o, f, 0.0)
 
     def lobe_params(params):
@@ -190,7 +192,12 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
         eval=eval,
         sample=sample,
         pdf=pdf,
-        lobes="reflection",
+        capabilities=Capabilities(
+            isotropic=inner.capabilities.isotropic, reciprocal=inner.capabilities.reciprocal,
+            delta="; ".join(d for d in (
+                "" if specular == "lobe" else
+                "the smooth coat's mirror reflection F(θi) δ(ωo - mirror(ωi)) "
+                "(coated.specular_reflectance)", inner.capabilities.delta) if d)),
         reference=("bsdf_under_smooth_interface (f = T(θi)T(θo) η0²/η1² f_inner(ωi', ωo')); "
                    "Elek 2010 eq. 3 (absorption); Walter 2007 eq. 22 (Fresnel)" + lobe_note
                    + f"; inner: {inner.reference}"),

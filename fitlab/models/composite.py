@@ -10,6 +10,7 @@ component's own sampler; the pdf is the mixture pdf Σ pdf_k / K and the weight 
 
 from __future__ import annotations
 
+import functools
 from collections import Counter
 
 import jax.numpy as jnp
@@ -63,8 +64,8 @@ def make_sum(components: tuple[Model, ...]) -> Model:
         valid = p_mix > 0
         return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p_mix, 0.0)
 
-    lobes = ("reflection+transmission" if any("transmission" in m.lobes for m in components)
-             else "reflection")
+    capabilities = functools.reduce(lambda a, b: a.combined(b),
+                                    (m.capabilities for m in components))
     return Model(
         name=SEPARATOR.join(m.name for m in components),
         summary="sum of " + " and ".join(m.name for m in components),
@@ -73,7 +74,7 @@ def make_sum(components: tuple[Model, ...]) -> Model:
         eval=eval,
         sample=sample,
         pdf=pdf,
-        lobes=lobes,
+        capabilities=capabilities,
         reference="; ".join(f"{m.name}: {m.reference}" for m in components)
         + "; one-sample mixture sampling with equal probabilities",
     )

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from fitlab.models.base import Model, Parameter
+from fitlab.models.base import Capabilities, Model, Parameter
 from fitlab.numerics import safe_div
 
-ALBEDO = Parameter("albedo", 0.0, 1.0, 0.5, "1", "diffuse reflectance ρ")
+ALBEDO = Parameter("albedo", 0.0, 1.0, 0.5, "1", "diffuse reflectance ρ", "albedo")
 
 
 def _upper(wi, wo):
@@ -76,8 +76,8 @@ LAMBERTIAN = Model(
     eval=eval_lambertian,
     sample=sample_lambertian,
     pdf=pdf_cosine,
-    lobes="reflection",
     reference="Lambert; cosine-weighted hemisphere sampling",
+    capabilities=Capabilities(lambertian=True),
 )
 
 OREN_NAYAR = Model(
@@ -92,6 +92,5 @@ OREN_NAYAR = Model(
     eval=eval_oren_nayar,
     sample=sample_oren_nayar,
     pdf=pdf_cosine,
-    lobes="reflection",
     reference="Oren & Nayar 1994 qualitative model (as in Elek 2010 section 2); cosine sampling",
 )

@@ -1,10 +1,12 @@
-"""Rough dielectric interface: Walter et al. 2007 microfacet BRDF + BTDF (eqs 13-21, 37-41).
+"""Rough dielectric interface: Walter et al. 2007 microfacet BRDF + BTDF (eqs 13-21, 37-41),
+isotropic (``rough_dielectric``, width α) and anisotropic (``rough_dielectric_anisotropic``,
+widths α_x, α_y along the tangent +x, +y; Mitsuba's ``roughdielectric`` with alpha_u, alpha_v).
 
 Parameter ``eta`` is the relative index n_inside / n_outside, "inside" being the -z side.
 Either side may be the denser one (eta < 1: denser outside medium). For incidence from inside
 (wi.z < 0) the configuration is mirrored through the tangent plane and eta inverted, which is
-exact for these isotropic heightfield distributions; after the flip η_i = 1 and η_o = eta, with
-``eta`` = η_o/η_i, the incident side being +z.
+exact for these heightfield distributions (the mirror keeps x and y, so the anisotropic widths
+too); after the flip η_i = 1 and η_o = eta, with ``eta`` = η_o/η_i, the incident side being +z.
 
 The BTDF is eq. 21 (radiance transport): f_t(i,o)/η_o² = f_t(o,i)/η_i².
 """
@@ -15,31 +17,18 @@ import jax.numpy as jnp
 
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refract
-from fitlab.microfacet import get_distribution, smith_G, smith_G1, widened_alpha
-from fitlab.models.base import Model, Option, Parameter
+from fitlab.models import roughness
+from fitlab.models.base import Capabilities, Model, Parameter
 from fitlab.numerics import safe_div, safe_rsqrt, sign_nonzero
 
-PARAMETERS = (
-    Parameter("alpha", 1e-4, 1.0, 0.1, "1", "microfacet width α (Walter α_b / α_g)"),
-    Parameter("eta", 0.2, 5.0, 1.5, "1", "relative index n_inside / n_outside (inside = -z side)"),
-)
-
-OPTIONS = (
-    Option("distribution", ("ggx", "beckmann", "beckmann_rational", "phong"), "ggx",
-           "microfacet distribution (beckmann: exact erf G1; beckmann_rational: eq. 27 G1)"),
-    Option("sampling", ("standard", "widened"), "standard",
-           "sample D(m)|m·n| with α (standard) or Walter's widened α(1.2 - 0.2 sqrt|i·n|)"),
-)
+ETA = Parameter("eta", 0.2, 5.0, 1.5, "1", "relative index n_inside / n_outside (inside = -z side)",
+                "index")
 
 
 def _to_upper_frame(wi, wo, eta):
     """Mirror so that wi.z >= 0; the relative index becomes η_o/η_i for that incident side."""
     s = sign_nonzero(wi[..., 2])
     return flip_z(wi, s), flip_z(wo, s), jnp.where(s > 0, eta, 1.0 / eta), s
-
-
-def _sampling_alpha(alpha, cos_i, sampling):
-    return widened_alpha(alpha, cos_i) if sampling == "widened" else alpha
 
 
 def _half_vector(wi, wo, eta):
@@ -49,102 +38,112 @@ def _half_vector(wi, wo, eta):
     return h, is_r
 
 
-def eval(params, wi, wo, distribution="ggx", sampling="standard"):
-    """f_r (Walter eq. 20) + f_t (eq. 21), in 1/sr without the cosine.
+def make(anisotropic: bool) -> Model:
+    """The rough dielectric model, isotropic or anisotropic."""
 
-    Written on vector components (no size-3 reductions or concatenations of intermediates), so
-    that XLA compiles the whole evaluation into one elementwise loop; the steps are those of
-    ``_to_upper_frame`` and ``_half_vector`` (see ``benchmarks/bench_btdf_eval.py``)."""
-    dist = get_distribution(distribution)
-    alpha = params["alpha"]
-    ix, iy, iz = wi[..., 0], wi[..., 1], wi[..., 2]
-    ox, oy, oz = wo[..., 0], wo[..., 1], wo[..., 2]
-    # Mirror to the upper frame (wi.z >= 0); eta becomes η_o/η_i for that incident side.
-    s = sign_nonzero(iz)
-    ci, co = iz * s, oz * s
-    eta = jnp.where(s > 0, params["eta"], 1.0 / params["eta"])
-    is_r = co > 0
-    # Unnormalized half-vector: wi + wo (eq. 13) or wi + eta wo (eq. 16), turned to +z.
-    e = jnp.where(is_r, 1.0, eta)
-    t = sign_nonzero(ci + e * co)
-    hx, hy, hz = (ix + e * ox) * t, (iy + e * oy) * t, (ci + e * co) * t
-    h2 = hx * hx + hy * hy + hz * hz
-    r = safe_rsqrt(h2)  # 1/|h|: i·ĥ and o·ĥ without normalizing h itself
-    i_h = (ix * hx + iy * hy + ci * hz) * r
-    o_h = (ox * hx + oy * hy + co * hz) * r
-    F = fresnel_dielectric_Walter2007(i_h, eta)
-    D = dist.D(jnp.stack([hx, hy, hz], axis=-1), alpha)  # degree-0 homogeneous in h
-    # Walter eq. 23: separable Smith G; the sidedness factors discard backfacing microfacets.
-    G = smith_G(dist, jnp.stack([ix, iy, ci], axis=-1), jnp.stack([ox, oy, co], axis=-1),
-                i_h * ci > 0, o_h * co > 0, alpha)
-    cos_prod = ci * jnp.abs(co)
-    # Walter eq. 20, f_r = F G D / (4 |i·n| |o·n|), and eq. 21 with η_i = 1, η_o = eta,
-    # f_t = |i·h||o·h| eta² (1 - F) G D / (|i·n||o·n| |h_t|²) ((η_i(i·h) + η_o(o·h))² = |h_t|² for
-    # the unnormalized h_t), sharing one division.
-    num = jnp.where(is_r, F, jnp.abs(i_h * o_h) * eta**2 * (1.0 - F)) * G * D
-    f = safe_div(num, cos_prod * jnp.where(is_r, 4.0, h2))
-    return jnp.where(ci > 0, f, 0.0)
+    def ndf(params, distribution="ggx", **_):
+        return roughness.ndf(params, distribution, anisotropic)
+
+    def eval(params, wi, wo, distribution="ggx", sampling="standard"):
+        """f_r (Walter eq. 20) + f_t (eq. 21), in 1/sr without the cosine.
+
+        Written on vector components (no size-3 reductions or concatenations of intermediates), so
+        that XLA compiles the whole evaluation into one elementwise loop; the steps are those of
+        ``_to_upper_frame`` and ``_half_vector`` (see ``benchmarks/bench_btdf_eval.py``)."""
+        dist = ndf(params, distribution)
+        ix, iy, iz = wi[..., 0], wi[..., 1], wi[..., 2]
+        ox, oy, oz = wo[..., 0], wo[..., 1], wo[..., 2]
+        # Mirror to the upper frame (wi.z >= 0); eta becomes η_o/η_i for that incident side.
+        s = sign_nonzero(iz)
+        ci, co = iz * s, oz * s
+        eta = jnp.where(s > 0, params["eta"], 1.0 / params["eta"])
+        is_r = co > 0
+        # Unnormalized half-vector: wi + wo (eq. 13) or wi + eta wo (eq. 16), turned to +z.
+        e = jnp.where(is_r, 1.0, eta)
+        t = sign_nonzero(ci + e * co)
+        hx, hy, hz = (ix + e * ox) * t, (iy + e * oy) * t, (ci + e * co) * t
+        h2 = hx * hx + hy * hy + hz * hz
+        r = safe_rsqrt(h2)  # 1/|h|: i·ĥ and o·ĥ without normalizing h itself
+        i_h = (ix * hx + iy * hy + ci * hz) * r
+        o_h = (ox * hx + oy * hy + co * hz) * r
+        F = fresnel_dielectric_Walter2007(i_h, eta)
+        D = dist.D(jnp.stack([hx, hy, hz], axis=-1))  # degree-0 homogeneous in h
+        # Walter eq. 23: separable Smith G; the sidedness factors discard backfacing microfacets.
+        G = dist.smith_G(jnp.stack([ix, iy, ci], axis=-1), jnp.stack([ox, oy, co], axis=-1),
+                         i_h * ci > 0, o_h * co > 0)
+        cos_prod = ci * jnp.abs(co)
+        # Walter eq. 20, f_r = F G D / (4 |i·n| |o·n|), and eq. 21 with η_i = 1, η_o = eta,
+        # f_t = |i·h||o·h| eta² (1 - F) G D / (|i·n||o·n| |h_t|²) ((η_i(i·h) + η_o(o·h))² = |h_t|² for
+        # the unnormalized h_t), sharing one division.
+        num = jnp.where(is_r, F, jnp.abs(i_h * o_h) * eta**2 * (1.0 - F)) * G * D
+        f = safe_div(num, cos_prod * jnp.where(is_r, 4.0, h2))
+        return jnp.where(ci > 0, f, 0.0)
+
+    def pdf(params, wi, wo, distribution="ggx", sampling="standard"):
+        """Density of ``sample``: p_m(h)|∂ω_h/∂ω_o| times the Fresnel choice (Walter eqs 14, 17,
+        24, 38; Heitz 2018 eq. 1 for visible normals)."""
+        dist = ndf(params, distribution)
+        wi, wo, eta, _ = _to_upper_frame(wi, wo, params["eta"])
+        ci = wi[..., 2]
+        h, is_r = _half_vector(wi, wo, eta)
+        hh = normalize(h)
+        i_h, o_h = dot(wi, hh), dot(wo, hh)
+        F = fresnel_dielectric_Walter2007(i_h, eta)
+        p_m = roughness.normal_pdf(dist, wi, hh, sampling, h)  # Walter eq. 24
+        jac_r = safe_div(1.0, 4.0 * jnp.abs(o_h))  # Walter eq. 14
+        jac_t = safe_div(eta**2 * jnp.abs(o_h), dot(h, h))  # Walter eq. 17
+        p = p_m * jnp.where(is_r, F * jac_r, (1.0 - F) * jac_t)
+        # Only microfacets facing both directions can be sampled (Mitsuba does the same).
+        facing = (i_h > 0) & (o_h * wo[..., 2] > 0) & (ci > 0)
+        return jnp.where(facing, p, 0.0)
+
+    def sample(params, wi, u, distribution="ggx", sampling="standard"):
+        """Walter section 5.3: sample m ~ D(m)|m·n|, choose reflection with probability F(i,m),
+        reflect (eq. 39) or refract (eq. 40); weight by eq. 41 (times D/D† for widened sampling;
+        G1(o, m) for visible normals)."""
+        dist = ndf(params, distribution)
+        wi, _, eta, s = _to_upper_frame(wi, wi, params["eta"])
+        ci = wi[..., 2]
+        m = roughness.sample_normal(dist, wi, u, sampling)
+        c = dot(wi, m)
+        F = fresnel_dielectric_Walter2007(c, eta)
+        choose_r = u[..., 2] < F
+        wo_r = reflect(wi, m)  # Walter eq. 39
+        wo_t, _ = refract(wi, m, eta)  # Walter eq. 40 (TIR has F = 1, so it is never chosen)
+        wo = jnp.where(choose_r[..., None], wo_r, wo_t)
+        co = wo[..., 2]
+        valid = (ci > 0) & (c > 0) & jnp.where(choose_r, co > 0, co < 0)
+        weight = roughness.sample_weight(dist, wi, wo, m, sampling)  # Walter eq. 41
+        p_m = roughness.normal_pdf(dist, wi, m, sampling)
+        o_m = dot(wo, m)
+        h2 = (c + eta * o_m) ** 2
+        p = p_m * jnp.where(choose_r, F * safe_div(1.0, 4.0 * jnp.abs(o_m)),
+                            (1.0 - F) * safe_div(eta**2 * jnp.abs(o_m), h2))
+        weight = jnp.where(valid, weight, 0.0)
+        p = jnp.where(valid, p, 0.0)
+        return flip_z(wo, s), weight, p
+
+    kind = "anisotropic " if anisotropic else ""
+    return Model(
+        name="rough_dielectric_anisotropic" if anisotropic else "rough_dielectric",
+        summary=f"Walter 2007 {kind}rough dielectric interface: microfacet BRDF + BTDF",
+        parameters=roughness.parameters(anisotropic) + (ETA,),
+        options=(roughness.distribution_option(
+            anisotropic, "microfacet distribution (beckmann: exact erf G1; beckmann_rational: "
+            "eq. 27 G1)"), roughness.SAMPLING),
+        eval=eval,
+        sample=sample,
+        pdf=pdf,
+        reference="Walter et al. 2007 eqs 13-22 (BSDF), 23-36 (D, G1), 37-41 (sampling); "
+        "separable Smith G; BTDF for radiance transport (eq. 21)"
+        + ("; anisotropic D and G1 by slope stretching (Heitz 2014 eqs 80-86)" if anisotropic
+           else ""),
+        # f_t(i,o)/η_o² = f_t(o,i)/η_i²: reciprocal on the reflection side, generalized
+        # reciprocity in transmission (Walter eq. 21)
+        capabilities=Capabilities(transmission=True, isotropic=not anisotropic),
+        microfacet=ndf,
+    )
 
 
-def pdf(params, wi, wo, distribution="ggx", sampling="standard"):
-    """Density of ``sample``: p_m(h)|∂ω_h/∂ω_o| times the Fresnel choice (Walter eqs 14, 17, 24, 38)."""
-    dist = get_distribution(distribution)
-    wi, wo, eta, _ = _to_upper_frame(wi, wo, params["eta"])
-    ci = wi[..., 2]
-    alpha_s = _sampling_alpha(params["alpha"], ci, sampling)
-    h, is_r = _half_vector(wi, wo, eta)
-    hh = normalize(h)
-    i_h, o_h = dot(wi, hh), dot(wo, hh)
-    F = fresnel_dielectric_Walter2007(i_h, eta)
-    p_m = dist.D(h, alpha_s) * hh[..., 2]  # Walter eq. 24
-    jac_r = safe_div(1.0, 4.0 * jnp.abs(o_h))  # Walter eq. 14
-    jac_t = safe_div(eta**2 * jnp.abs(o_h), dot(h, h))  # Walter eq. 17
-    p = p_m * jnp.where(is_r, F * jac_r, (1.0 - F) * jac_t)
-    # Only microfacets facing both directions can be sampled (Mitsuba does the same).
-    facing = (i_h > 0) & (o_h * wo[..., 2] > 0) & (ci > 0)
-    return jnp.where(facing, p, 0.0)
-
-
-def sample(params, wi, u, distribution="ggx", sampling="standard"):
-    """Walter section 5.3: sample m ~ D(m)|m·n|, choose reflection with probability F(i,m),
-    reflect (eq. 39) or refract (eq. 40); weight by eq. 41 (times D/D† for widened sampling)."""
-    dist = get_distribution(distribution)
-    alpha = params["alpha"]
-    wi, _, eta, s = _to_upper_frame(wi, wi, params["eta"])
-    ci = wi[..., 2]
-    alpha_s = _sampling_alpha(alpha, ci, sampling)
-    m = dist.sample_m(u[..., 0], u[..., 1], alpha_s)
-    c = dot(wi, m)
-    F = fresnel_dielectric_Walter2007(c, eta)
-    choose_r = u[..., 2] < F
-    wo_r = reflect(wi, m)  # Walter eq. 39
-    wo_t, _ = refract(wi, m, eta)  # Walter eq. 40 (TIR has F = 1, so it is never chosen)
-    wo = jnp.where(choose_r[..., None], wo_r, wo_t)
-    co = wo[..., 2]
-    valid = (ci > 0) & (c > 0) & jnp.where(choose_r, co > 0, co < 0)
-    G = smith_G1(dist, wi, m, alpha) * smith_G1(dist, wo, m, alpha)
-    mz = m[..., 2]
-    ratio = safe_div(dist.D(m, alpha), dist.D(m, alpha_s)) if sampling == "widened" else 1.0
-    weight = safe_div(c * G, ci * mz) * ratio  # Walter eq. 41
-    p_m = dist.D(m, alpha_s) * mz
-    o_m = dot(wo, m)
-    h2 = (c + eta * o_m) ** 2
-    p = p_m * jnp.where(choose_r, F * safe_div(1.0, 4.0 * jnp.abs(o_m)),
-                        (1.0 - F) * safe_div(eta**2 * jnp.abs(o_m), h2))
-    weight = jnp.where(valid, weight, 0.0)
-    p = jnp.where(valid, p, 0.0)
-    return flip_z(wo, s), weight, p
-
-
-MODEL = Model(
-    name="rough_dielectric",
-    summary="Walter 2007 rough dielectric interface: microfacet BRDF + BTDF",
-    parameters=PARAMETERS,
-    options=OPTIONS,
-    eval=eval,
-    sample=sample,
-    pdf=pdf,
-    lobes="reflection+transmission",
-    reference="Walter et al. 2007 eqs 13-22 (BSDF), 23-36 (D, G1), 37-41 (sampling); "
-    "separable Smith G; BTDF for radiance transport (eq. 21)",
-)
+MODEL = make(anisotropic=False)
+ANISOTROPIC = make(anisotropic=True)

@@ -1,7 +1,8 @@
 """Weidlich–Wilkie layered BRDF, as reviewed by Elek 2010 section 2.2 (eqs 2-4) and section 3.
 
 ``weidlich_wilkie(BASE)`` is the paper's two-layer stack (Algorithm 1): one microfacet interface
-(layer 1) over a base (layer 2) that is ``lambertian``, ``oren_nayar`` or ``rough_conductor``;
+(layer 1) over a base (layer 2), any registry BRDF (a model without transmission: the paper's
+``lambertian``, ``oren_nayar`` and ``rough_conductor``, and others);
 ``weidlich_wilkie(BASE,layers=K)`` stacks K-1 interfaces over the base. Layer i (1 = top) has a
 Torrance–Sparrow / Walter microfacet BRDF (Walter eq. 20, GGX or Beckmann) with complex index
 (n_i, k_i) relative to vacuum (n_0 = 1 outside) and the optical depth τ_i = σ_i d_i of eq. 3.
@@ -26,7 +27,9 @@ The recursion (eq. 2), evaluated from the top with L, V the directions above lay
 Option ``roughness_clamp=clamp`` applies section 3's fix m_{i+1} ≥ m_i (α of every layer, and
 of a rough-conductor base, at least the largest α above it; Algorithm 1 line 21).
 The base's parameters are the registry model's, numbered as layer K: albedoK, sigmaK (Oren–Nayar)
-or alphaK, nK, kK (rough conductor, relative to vacuum; evaluated relative to n_{K-1}).
+or alphaK, nK, kK (rough conductor). A base parameter whose role is ``index`` or ``extinction``
+is relative to vacuum like the interfaces' and evaluated relative to n_{K-1}; one whose role is
+``roughness`` (a microfacet width) takes part in the roughness clamp.
 """
 
 from __future__ import annotations
@@ -38,21 +41,20 @@ import jax.numpy as jnp
 from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
 from fitlab.frame import dot, normalize
 from fitlab.interface import beer_lambert, refract_down, refract_up
-from fitlab.microfacet import get_distribution, smith_G1
+from fitlab import microfacet
 from fitlab.models import rough_conductor
-from fitlab.models.base import Model, Option, Parameter
+from fitlab.models.base import Capabilities, Model, Option, Parameter
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
 NAME = "weidlich_wilkie"
-BASES = ("lambertian", "oren_nayar", "rough_conductor")
 MAX_LAYERS = 6
 
 #: sample() reflects at interface i with probability clip(F_i(cos θ_L), 0.1, 0.9).
 _P_MIN, _P_MAX = 0.1, 0.9
 
 OPTIONS = (
-    Option("distribution", ("ggx", "beckmann"), "ggx",
+    Option("distribution", microfacet.names(), "ggx",
            "microfacet distribution of every interface and of a rough-conductor base"),
     Option("fresnel", tuple(CONDUCTOR_FRESNEL_METHODS), "exact",
            "Fresnel of the interfaces (complex index): exact, schlick, or lazanyi (Elek "
@@ -70,11 +72,15 @@ DEFAULT_OPTIONS = {o.name: o.default for o in OPTIONS}
 
 def layer_parameters(i: int) -> tuple[Parameter, ...]:
     return (
-        Parameter(f"alpha{i}", 1e-4, 1.0, 0.05, "1", f"microfacet width α of interface {i} (m_{i})"),
-        Parameter(f"n{i}", 1.0, 5.0, 1.5, "1", f"refractive index of layer {i} (real part, vacuum = 1)"),
-        Parameter(f"k{i}", 0.0, 5.0, 0.0, "1", f"extinction coefficient κ_{i} of layer {i} (Fresnel only)"),
+        Parameter(f"alpha{i}", 1e-4, 1.0, 0.05, "1", f"microfacet width α of interface {i} (m_{i})",
+                  "roughness"),
+        Parameter(f"n{i}", 1.0, 5.0, 1.5, "1", f"refractive index of layer {i} (real part, vacuum = 1)",
+                  "index"),
+        Parameter(f"k{i}", 0.0, 5.0, 0.0, "1", f"extinction coefficient κ_{i} of layer {i} (Fresnel only)",
+                  "extinction"),
         Parameter(f"tau{i}", 0.0, 20.0, 0.0, "1",
-                  f"optical depth of layer {i} at normal incidence τ = σ_{i} d_{i} (eq. 3)"),
+                  f"optical depth of layer {i} at normal incidence τ = σ_{i} d_{i} (eq. 3)",
+                  "optical_depth"),
     )
 
 
@@ -83,8 +89,10 @@ def canonical_name(base_name: str, layers: int = 2) -> str:
 
 
 def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
-    if base.name not in BASES:
-        raise ValueError(f"{NAME}({base.name}): the base must be one of {', '.join(BASES)}")
+    if base.capabilities.transmission:
+        raise ValueError(f"{NAME}({base.name}): the base must be a BRDF (a model without "
+                         f"transmission, e.g. lambertian, oren_nayar, rough_conductor); "
+                         f"{base.name} transmits")
     if not 2 <= layers <= MAX_LAYERS:
         raise ValueError(f"{NAME}(...,layers={layers}): layers counts the base too and must be "
                          f"2..{MAX_LAYERS}")
@@ -93,9 +101,6 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
     base_params = tuple(p._replace(name=f"{p.name}{K}",
                                    description=f"{p.description} (base, layer {K})")
                         for p in base.parameters)
-    if base.name == "rough_conductor":  # (n, k) relative to vacuum, like the interfaces
-        base_params = tuple(p._replace(lower=0.01, upper=10.0) if p.name == f"n{K}" else p
-                            for p in base_params)
     parameters = sum((layer_parameters(i) for i in range(1, K)), ()) + base_params
 
     def stack(params, opts):
@@ -110,30 +115,31 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
             out.append((alpha, n / n_above, params[f"k{i}"] / n_above, n / n_above,
                         params[f"tau{i}"]))
             n_above = n
-        pb = {p.name: params[f"{p.name}{K}"] for p in base.parameters}
-        if base.name == "rough_conductor":
-            pb["n"] = pb["n"] / n_above
-            pb["k"] = pb["k"] / n_above
-            if opts["roughness_clamp"] == "clamp":
-                pb["alpha"] = jnp.maximum(pb["alpha"], a_max)
+        pb = {}
+        for p in base.parameters:
+            v = params[f"{p.name}{K}"]
+            if p.role in ("index", "extinction"):  # relative to the layer above
+                v = v / n_above
+            elif p.role == "roughness" and opts["roughness_clamp"] == "clamp":
+                v = jnp.maximum(v, a_max)
+            pb[p.name] = v
         return out, pb
 
     def base_options(opts):
-        if base.name == "rough_conductor":
-            return {"distribution": opts["distribution"], "fresnel": opts["fresnel"]}
-        return {}
+        """The stack's options that the base declares too (distribution, fresnel)."""
+        return {o.name: opts[o.name] for o in base.options if o.name in opts}
 
     def interface_terms(layer, L, V, opts):
         """f_ri (Walter eq. 20), T_i = 1 - F_i(L·H) and t_i (eq. 4) of one interface."""
         alpha, n_rel, k_rel, _, _ = layer
-        dist = get_distribution(opts["distribution"])
+        dist = microfacet.get_distribution(opts["distribution"])(alpha)
         lp = {"alpha": alpha, "n": n_rel, "k": k_rel}
         f = rough_conductor.eval(lp, L, V, distribution=opts["distribution"],
                                  fresnel=opts["fresnel"])
         H = normalize(L + V)
         F = CONDUCTOR_FRESNEL_METHODS[opts["fresnel"]](dot(L, H), n_rel, k_rel)
         T = 1.0 - F
-        G = smith_G1(dist, L, H, alpha) * smith_G1(dist, V, H, alpha)
+        G = dist.smith_G1(L, H) * dist.smith_G1(V, H)
         t = (1.0 - G) + T * G  # eq. 4
         return f, T, t
 
@@ -241,7 +247,9 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         eval=eval,
         sample=sample,
         pdf=pdf,
-        lobes="reflection",
+        capabilities=Capabilities(isotropic=base.capabilities.isotropic,
+                                  reciprocal=base.capabilities.reciprocal,
+                                  delta=base.capabilities.delta),
         reference=("Elek 2010 section 2.2 eqs 2 (recursion), 3 (absorption), 4 (TIR term), "
                    "section 3 (m2 >= m1 clamp), Algorithm 1; interfaces: Walter 2007 eq. 20 "
                    f"with complex Fresnel; base: {base.reference}"),
@@ -251,7 +259,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
 def from_call(call, get_model) -> Model:
     """Build from the parsed name ``weidlich_wilkie(BASE[,layers=K])`` (models/syntax.py)."""
     base, kwargs = call_arguments(
-        call, f"{NAME}(rough_conductor) (bases: {', '.join(BASES)})",
+        call, f"{NAME}(rough_conductor) (base: any BRDF, e.g. lambertian, oren_nayar)",
         {"layers": "layers=K (interfaces + base, default 2)"})
     try:
         layers = int(kwargs.get("layers", "2"))
