@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from fitlab.errors import InputFileError
-from fitlab.io.measurement import read_measurement, sha256_of
+from fitlab.io.files import sha256_of
+from fitlab.io.measurement import read_measurement
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "data_formats" / "examples"
 INVALID = EXAMPLES / "invalid"

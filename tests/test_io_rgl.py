@@ -21,7 +21,8 @@ from fitlab.errors import InputFileError
 from fitlab.io import rgl
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.formats import describe_any, detect_format, read_any
-from fitlab.io.measurement import read_measurement, sha256_of
+from fitlab.io.files import sha256_of
+from fitlab.io.measurement import read_measurement
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgl_epfl_via_fzy28"
 NAMES = ("irid_flake_paint1_rgb", "ilm_solo_m_68_rgb", "aurora_white_rgb",

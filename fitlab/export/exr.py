@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import hashlib
 import json
 import os
 import tempfile
@@ -26,6 +25,8 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.conventions import CONVENTIONS
+from fitlab.io.files import read_bytes, sha256_of
 from fitlab.lut import KINDS, MAPPINGS, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN, TEXEL_CONVENTION, Axis, Table
 
 #: First four bytes of every OpenEXR file.
@@ -34,20 +35,6 @@ PREFIX = "fitlab."
 #: Attributes every fitlab LUT carries (JSON-encoded unless noted).
 REQUIRED = ("schema", "schema_version", "kind", "channels", "dtype", "axes", "quantity", "model",
             "params", "accuracy", "texel_convention", "conventions", "version")
-
-
-def _conventions() -> dict:
-    from fitlab.export.paramfile import CONVENTIONS
-
-    return CONVENTIONS
-
-
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def header_attributes(table: Table) -> dict:
@@ -64,7 +51,7 @@ def header_attributes(table: Table) -> dict:
         "params": json.dumps(table.params),
         "accuracy": json.dumps(table.accuracy, allow_nan=False),
         "texel_convention": TEXEL_CONVENTION,
-        "conventions": json.dumps(_conventions()),
+        "conventions": json.dumps(CONVENTIONS),
         "version": fitlab.__version__,
         "notes": json.dumps(list(table.notes)),
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -75,7 +62,7 @@ def header_attributes(table: Table) -> dict:
     if table.source_fit:
         attrs["source_fit"] = str(table.source_fit)
         with contextlib.suppress(OSError):
-            attrs["source_fit_sha256"] = _sha256(table.source_fit)
+            attrs["source_fit_sha256"] = sha256_of(table.source_fit)
     return {PREFIX + k: v for k, v in attrs.items()}
 
 
@@ -113,13 +100,8 @@ def _open(path, header_only: bool):
     import OpenEXR
 
     path = Path(path)
-    if not path.exists():
-        raise InputFileError(path, "no such file", hint="check the path")
-    if path.is_dir():
-        raise InputFileError(path, "is a folder, not a file")
-    with open(path, "rb") as fh:
-        if fh.read(4) != MAGIC:
-            raise InputFileError(path, "is not an OpenEXR file (wrong magic number)")
+    if read_bytes(path, limit=len(MAGIC)) != MAGIC:
+        raise InputFileError(path, "is not an OpenEXR file (wrong magic number)")
     try:
         return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
     except Exception as exc:  # the binding raises RuntimeError for any damage
@@ -264,10 +246,7 @@ def describe_exr(path) -> dict:
 
 def is_exr(path) -> bool:
     p = Path(path)
-    if not p.is_file():
-        return False
-    with open(p, "rb") as fh:
-        return fh.read(4) == MAGIC
+    return p.is_file() and read_bytes(p, limit=len(MAGIC)) == MAGIC
 
 
 __all__ = ["write_exr", "read_exr", "describe_exr", "header_attributes", "is_exr"]

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import InputFileError
+from fitlab.io.files import read_bytes
 
 
 #: A metadata comment: ``# key: value`` with an identifier-like key (other comments are prose).
@@ -33,14 +34,7 @@ class Table(NamedTuple):
 
 
 def _read_text(path: Path) -> str:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
-    except IsADirectoryError:
-        raise InputFileError(path, "is a folder, not a file", hint="give the path of a CSV file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
+    raw = read_bytes(path, folder_hint="give the path of a CSV file")
     if raw.startswith(b"\xef\xbb\xbf"):
         raise InputFileError(
             path, "starts with a UTF-8 byte-order mark", line=1,

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 from fitlab.errors import InputFileError
+from fitlab.io.files import read_bytes
 
 #: Bytes read from the start of a file for detection.
 HEAD_BYTES = 4096
@@ -47,18 +48,6 @@ def formats() -> dict[str, Format]:
     return out
 
 
-def _head(path: Path) -> bytes:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(HEAD_BYTES)
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
-    except IsADirectoryError:
-        raise InputFileError(path, "is a folder, not a file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
-
-
 def detect_format(path, name: str | None = None) -> Format:
     """The format of ``path``: ``name`` if given (checked against the registry), else detected."""
     path = Path(path)
@@ -67,9 +56,9 @@ def detect_format(path, name: str | None = None) -> Format:
         if name not in known:
             raise InputFileError(path, f"unknown format {name!r}",
                                  hint=f"formats: {', '.join(known)}")
-        _head(path)
+        read_bytes(path, limit=HEAD_BYTES)  # a missing or unreadable file says so first
         return known[name]
-    head = _head(path)
+    head = read_bytes(path, limit=HEAD_BYTES)
     for fmt in known.values():
         if fmt.detect(head, path):
             return fmt

@@ -29,7 +29,8 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.directions import degrees_to_direction
-from fitlab.io.measurement import Measurement, describe_loaded, sha256_of
+from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.measurement import Measurement, describe_loaded
 
 DIRECTIONS = ("Transmission Front", "Transmission Back", "Reflection Front", "Reflection Back")
 #: (incident side, exit side) of each block
@@ -331,12 +332,7 @@ def _canonical_direction(text):
 def read_klems_file(path) -> KlemsFile:
     """Parse and validate a WINDOW/Radiance BSDF XML file (matrix form, Klems bases)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
+    data = read_bytes(path)
     root, lines = parse_xml(path, data)
     if _local(root.tag) != "WindowElement":
         raise InputFileError(path, f"the root element is <{_local(root.tag)}>, not <WindowElement>",
@@ -428,7 +424,7 @@ def read_klems_file(path) -> KlemsFile:
     if not blocks:
         raise InputFileError(path, "has no BSDF blocks (Transmission/Reflection Front/Back)",
                              line=lines.get(layer), hint="the file holds no scattering matrix")
-    return KlemsFile(str(path), sha256_of(path), material, structure, bases, tuple(blocks))
+    return KlemsFile(str(path), sha256_of(data), material, structure, bases, tuple(blocks))
 
 
 # --------------------------------------------------------------------------------------------

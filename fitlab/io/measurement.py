@@ -8,7 +8,6 @@ reading, their sigma with them.
 
 from __future__ import annotations
 
-import hashlib
 import re
 from pathlib import Path
 from typing import NamedTuple
@@ -18,6 +17,7 @@ import numpy as np
 from fitlab.errors import InputFileError
 from fitlab.io.csvtable import read_table
 from fitlab.io.directions import check_angles, degrees_to_direction
+from fitlab.io.files import sha256_of
 
 DIRECTION_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
 QUANTITIES = ("bsdf", "bsdf_cos", "relative")
@@ -69,14 +69,6 @@ class Measurement(NamedTuple):
             phi_o=self.phi_o[mask], wi=self.wi[mask], wo=self.wo[mask], value=self.value[mask],
             sigma=pick(self.sigma), channel=self.channel[mask], lines=self.lines[mask],
         )
-
-
-def sha256_of(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _meta_choice(table, key, choices, default=None, hint=""):

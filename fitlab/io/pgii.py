@@ -23,7 +23,8 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.directions import degrees_to_direction
-from fitlab.io.measurement import Measurement, describe_loaded, sha256_of
+from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.measurement import Measurement, describe_loaded
 
 _KEY = re.compile(r"#\s*([A-Za-z_][\w\-]*)\s*(:?)\s*(.*?)\s*$")
 CALIBRATED = {"bsdf": "bsdf", "brdf": "bsdf", "btdf": "bsdf", "dsf": "bsdf_cos"}
@@ -124,16 +125,13 @@ def parse_header(path, header_lines) -> PgiiHeader:
 
 
 def _split_lines(path):
+    raw = read_bytes(path)
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
+        text = raw.decode("utf-8", errors="strict")
     except UnicodeDecodeError as exc:
-        line = exc.object[:exc.start].count(b"\n") + 1
+        line = raw[:exc.start].count(b"\n") + 1
         raise InputFileError(path, "is not UTF-8 text", line=line,
                              hint="a pgII scan is a text file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
     header, data = [], []
     for n, line in enumerate(text.splitlines(), start=1):
         s = line.strip()

@@ -41,7 +41,6 @@ VNDF has no mass along a row (θi = 90° only) the value is 0 instead of a divis
 
 from __future__ import annotations
 
-import hashlib
 import struct
 from pathlib import Path
 from typing import NamedTuple
@@ -50,6 +49,7 @@ import numpy as np
 
 from fitlab import colorimetry
 from fitlab.errors import InputFileError
+from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
 
 # --------------------------------------------------------------------------------------------
@@ -158,20 +158,12 @@ def parse_tensor_file(buf: bytes, path="<bytes>") -> TensorFile:
         data = np.frombuffer(buf, dtype=dtype, count=count, offset=offset).reshape(shape)
         fields[name] = TensorField(name, dtype, offset, shape, data, start)
     return TensorFile(str(path), version, fields, size, header_end,
-                      hashlib.sha256(buf).hexdigest())
+                      sha256_of(buf))
 
 
 def read_tensor_file(path) -> TensorFile:
     path = Path(path)
-    try:
-        buf = path.read_bytes()
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
-    except IsADirectoryError:
-        raise InputFileError(path, "is a folder, not a file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
-    return parse_tensor_file(buf, path)
+    return parse_tensor_file(read_bytes(path), path)
 
 
 def format_tensor_file(fields: dict) -> bytes:

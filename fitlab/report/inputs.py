@@ -69,8 +69,8 @@ def _resolve(recorded: str, fit_path: Path) -> Path | None:
 
 def load_data(record: dict, fit_path: Path, data_path=None):
     """The measurement the fit was made from, checked by its SHA-256."""
+    from fitlab.io.files import sha256_of
     from fitlab.io.formats import read_any
-    from fitlab.io.measurement import sha256_of
 
     recorded = record["data"].get("path")
     if data_path is None:
@@ -209,6 +209,7 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
     """Read and cross-check the fit record, its data file and (if any) its chain file."""
     from fitlab.export.paramfile import read_fit
     from fitlab.fit.subset import subset_mask
+    from fitlab.io.fitfile import fit_parameters
 
     say = progress or (lambda msg: None)
     fit_path = Path(fit_path)
@@ -252,7 +253,7 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
         npz = _open_chain(chain_path)
         want = (record.get("chain") or {}).get("sha256")
         if want:
-            from fitlab.io.measurement import sha256_of
+            from fitlab.io.files import sha256_of
 
             if sha256_of(chain_path) != want:
                 raise InputFileError(chain_path, f"is not the chain written with {fit_path} (its "
@@ -263,12 +264,13 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
     rows_fit = (np.ones(m.n, dtype=bool) if not record["data"].get("fit_subset")
                 else subset_mask(record["data"]["fit_subset"], m))
     channels = []
+    values = fit_parameters(record, source=fit_path)
     for fit in record["fits"]:
         idx = m.channel_names.index(fit["channel"])
         rows = np.flatnonzero(m.channel == idx)
         free = tuple(fit["covariance"]["parameters"])
-        params = {k: float(v["value"]) for k, v in fit["parameters"].items() if k != SCALE}
-        scale = float(fit["parameters"][SCALE]["value"]) if SCALE in fit["parameters"] else 1.0
+        params = {k: float(v) for k, v in values[fit["channel"]].items() if k != SCALE}
+        scale = float(values[fit["channel"]].get(SCALE, 1.0))
         try:
             fitlab.api.check_params(model, params)
         except ValueError as exc:

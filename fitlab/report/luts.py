@@ -36,7 +36,7 @@ def lut_belongs(info: dict, fit_path, fit_sha256: str) -> bool:
 def discover_luts(fit_path) -> list:
     """``*.exr`` files beside the fit file whose header names it (sorted by name)."""
     from fitlab.export.exr import describe_exr, is_exr
-    from fitlab.io.measurement import sha256_of
+    from fitlab.io.files import sha256_of
 
     fit_path = Path(fit_path)
     sha = sha256_of(fit_path)
@@ -57,7 +57,7 @@ def check_lut(path, fit_path):
     """Read and validate an EXR given with ``--lut``; (table, note) where note says when the
     table was not baked from this fit. A table baked from another fit is an error."""
     from fitlab.export.exr import describe_exr, read_exr
-    from fitlab.io.measurement import sha256_of
+    from fitlab.io.files import sha256_of
 
     table = read_exr(path)
     info = describe_exr(path)
