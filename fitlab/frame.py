@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from fitlab.fresnel import fresnel_dielectric
 from fitlab.numerics import safe_rsqrt, sign_nonzero
 
 
@@ -60,16 +61,24 @@ def refract(w, m, eta):
 
     ``eta`` = η_t / η_i, the index on the transmitted side over the incident side. Returns the
     refracted direction (Walter eq. 40 with η = η_i/η_t) and a mask that is False under total
-    internal reflection.
+    internal reflection. Snell's law and the mask come from
+    :func:`fitlab.fresnel.fresnel_dielectric`.
     """
-    inv_eta = 1.0 / eta
     c = dot(w, m)
-    k = 1.0 + inv_eta**2 * (c**2 - 1.0)
-    ok = k > 0
-    root = jnp.sqrt(jnp.where(ok, k, 1.0))
-    # Walter eq. 40 with sign(i·n) handled by the caller's frame flip (here i·m > 0).
-    wt = (inv_eta * c - root)[..., None] * m - inv_eta[..., None] * w
-    return wt, ok
+    _, cos_t, _, eta_ti = fresnel_dielectric(jnp.abs(c), eta)
+    ok = cos_t < 0  # cos θt = 0: total internal reflection
+    # under total internal reflection the direction is a placeholder with cos θt = -1 (finite,
+    # off the horizon), so that callers that evaluate both branches stay finite
+    return refracted(w, m, jnp.where(ok, cos_t, -1.0), eta_ti), ok
+
+
+def refracted(w, m, cos_theta_t, eta_ti):
+    """The refracted direction of w through a facet with normal m, from what
+    :func:`fitlab.fresnel.fresnel_dielectric` returned for this crossing (Mitsuba's
+    ``refract(wi, m, cos_theta_t, eta_ti)``): Walter eq. 40,
+    wt = (η_i/η_t (w·m) + cos θt) m - η_i/η_t w, with cos θt signed opposite to w·m."""
+    eta_ti = jnp.asarray(eta_ti)
+    return (eta_ti * dot(w, m) + cos_theta_t)[..., None] * m - eta_ti[..., None] * w
 
 
 def half_vector_reflection(wi, wo):

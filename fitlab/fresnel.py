@@ -12,21 +12,57 @@ import jax.numpy as jnp
 from fitlab.numerics import safe_div, safe_sqrt
 
 
-def fresnel_dielectric_Walter2007(cos_i, eta):
-    """Exact dielectric Fresnel reflectance, Walter eq. 22 ([CT82] form).
+def fresnel_dielectric(cos_theta_i, eta):
+    """Fresnel reflectance of a smooth dielectric interface and what a refraction through it
+    needs, computed once (Mitsuba 3's ``fresnel(cos_theta_i, eta)``).
 
-    ``eta`` = η_t / η_i (transmitted over incident index). Total internal reflection (g² < 0)
-    gives 1.
+    ``eta`` = η_inside / η_outside, the index on the -normal side over the +normal side.
+    ``cos_theta_i`` is the cosine between the incident direction (pointing away from the
+    surface) and the normal; a negative value means incidence from inside, where the relative
+    index of the crossing is 1/η. Returns ``(F, cos_theta_t, eta_it, eta_ti)``:
+
+    - F: unpolarized reflectance, Walter eq. 22 ([CT82] form); 1 under total internal reflection
+    - cos_theta_t: cosine of the transmitted direction (pointing away from the surface on the
+      other side, so of the sign opposite to cos_theta_i); 0 under total internal reflection
+    - eta_it = η_t / η_i and eta_ti = η_i / η_t of this crossing
+
+    Snell's law in Walter's variable: g = η_t/η_i · cos θt = sqrt(η_t²/η_i² - 1 + cos²θi).
+    Gradients are finite everywhere (double-where pattern); NaN inputs give NaN.
     """
-    c = jnp.abs(cos_i)
-    g2 = eta**2 - 1.0 + c**2
+    outside = cos_theta_i >= 0
+    inv_eta = safe_div(1.0, eta)
+    eta_it = jnp.where(outside, eta, inv_eta)
+    eta_ti = jnp.where(outside, inv_eta, eta)
+    c = jnp.abs(cos_theta_i)
+    g2 = eta_it**2 - 1.0 + c**2
     tir = g2 <= 0
-    g = safe_sqrt(g2)
+    # double where (finite gradient under total internal reflection); a NaN stays NaN
+    g = jnp.where(tir, 0.0, jnp.sqrt(jnp.where(tir, 1.0, g2)))
     # Walter eq. 22: F = 1/2 (g-c)²/(g+c)² (1 + (c(g+c)-1)² / (c(g-c)+1)²)
     a = safe_div(g - c, g + c)
     b = safe_div(c * (g + c) - 1.0, c * (g - c) + 1.0)
-    F = 0.5 * a**2 * (1.0 + b**2)
-    return jnp.where(tir, 1.0, jnp.clip(F, 0.0, 1.0))
+    F = jnp.where(tir, 1.0, jnp.clip(0.5 * a**2 * (1.0 + b**2), 0.0, 1.0))
+    # |cos θt| = g η_i/η_t (0 under total internal reflection, g = 0); the product can round
+    # above 1 near normal incidence, where sqrt(1 - cos²θt) of a caller would be NaN
+    cos_t = jnp.minimum(g * eta_ti, 1.0)
+    return F, jnp.where(outside, -cos_t, cos_t), eta_it, eta_ti
+
+
+def fresnel_dielectric_Walter2007(cos_i, eta):
+    """Exact dielectric Fresnel reflectance, Walter eq. 22 ([CT82] form): the F of
+    :func:`fresnel_dielectric` for incidence from the side of ``cos_i``'s normal.
+
+    ``eta`` = η_t / η_i (transmitted over incident index); ``cos_i`` enters as |cos_i|. Total
+    internal reflection (g² < 0) gives 1.
+    """
+    return fresnel_dielectric(jnp.abs(cos_i), eta)[0]
+
+
+def cos_theta_critical(eta):
+    """Cosine of the critical angle of incidence for the relative index ``eta`` = η_t / η_i:
+    total internal reflection for cos θi < sqrt(1 - η²) (where g² of Walter eq. 22 is < 0);
+    0 for η ≥ 1 (no total internal reflection)."""
+    return safe_sqrt(1.0 - eta * eta)
 
 
 def fresnel_conductor_exact(cos_i, n, k):

@@ -13,11 +13,10 @@ index below the interface over the index above it.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
-from fitlab.frame import sin2_theta
-from fitlab.fresnel import fresnel_dielectric_Walter2007
-from fitlab.numerics import safe_div, safe_sqrt
+from fitlab.fresnel import cos_theta_critical, fresnel_dielectric
+from fitlab.numerics import safe_div
+from fitlab.quadrature import gauss_legendre
 
 #: Optical paths beyond this (in units of 1/σa) transmit exp(-L) < 1e-300: treated as 0 so that
 #: neither the value nor the gradient of exp(-L) over-/underflows (thick absorbing layers).
@@ -28,26 +27,24 @@ def refract_down(w, eta):
     """Snell's law through the flat interface: the upward direction inside the lower medium whose
     refraction out of it is ``w`` (an upward direction above, w.z > 0).
 
-    sin θ' = sin θ / η with the same azimuth: w' = (w_x/η, w_y/η, sqrt(1 - sin²θ/η²)). Returns
-    (w', ok); ok is False where no such direction exists (η < 1 beyond the critical angle; the
-    light is totally reflected above the interface). Written on the tangential components, so
-    cos θ' is exact near the normal and its gradient finite at the critical angle."""
-    inv = 1.0 / eta
-    s2 = sin2_theta(w) * inv * inv
-    ok = (s2 < 1.0) & (w[..., 2] > 0)
-    cz = safe_sqrt(1.0 - s2)
-    wp = jnp.stack([w[..., 0] * inv, w[..., 1] * inv, cz], axis=-1)
+    sin θ' = sin θ / η with the same azimuth: w' = (w_x/η, w_y/η, cos θ'), cos θ' from
+    :func:`fitlab.fresnel.fresnel_dielectric` (incidence from above). Returns (w', ok); ok is
+    False where no such direction exists (η < 1 beyond the critical angle; the light is totally
+    reflected above the interface). The gradient stays finite at the critical angle."""
+    _, cos_t, _, eta_ti = fresnel_dielectric(jnp.abs(w[..., 2]), eta)
+    ok = (cos_t < 0) & (w[..., 2] > 0)
+    wp = jnp.stack([w[..., 0] * eta_ti, w[..., 1] * eta_ti, -cos_t], axis=-1)
     return wp, ok
 
 
 def refract_up(wp, eta):
     """Inverse of :func:`refract_down`: the direction above for the upward direction ``wp`` in
-    the lower medium, w = (η w'_x, η w'_y, sqrt(1 - η² sin²θ')); ok is False under total
+    the lower medium, w = (η w'_x, η w'_y, cos θ), cos θ from
+    :func:`fitlab.fresnel.fresnel_dielectric` (incidence from below); ok is False under total
     internal reflection (η sin θ' ≥ 1: the light stays inside)."""
-    s2 = sin2_theta(wp) * eta * eta
-    ok = (s2 < 1.0) & (wp[..., 2] > 0)
-    cz = safe_sqrt(1.0 - s2)
-    w = jnp.stack([wp[..., 0] * eta, wp[..., 1] * eta, cz], axis=-1)
+    _, cos_t, _, eta_ti = fresnel_dielectric(-jnp.abs(wp[..., 2]), eta)
+    ok = (cos_t > 0) & (wp[..., 2] > 0)
+    w = jnp.stack([wp[..., 0] * eta_ti, wp[..., 1] * eta_ti, cos_t], axis=-1)
     return w, ok
 
 
@@ -55,7 +52,7 @@ def transmittance(cos_above, eta):
     """Fresnel transmittance T = 1 - F of a smooth dielectric interface (Walter eq. 22 for F),
     seen from above at cos θ = ``cos_above``; equal from both sides along the same refracted
     pair (the blog's T(θo) = T(-θo'))."""
-    return 1.0 - fresnel_dielectric_Walter2007(cos_above, eta)
+    return 1.0 - fresnel_dielectric(jnp.abs(cos_above), eta)[0]
 
 
 def solid_angle_compression(eta):
@@ -77,9 +74,7 @@ def beer_lambert(tau, cos_i, cos_o):
 
 
 # Gauss–Legendre nodes and weights on [0, 1] for the hemispherical integrals below.
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(24)
-_GL_X = 0.5 * (_GL_X + 1.0)
-_GL_W = 0.5 * _GL_W
+_GL_X, _GL_W = gauss_legendre(24, 0.0, 1.0)
 
 
 def internal_diffuse_reflectance(eta, tau):
@@ -93,7 +88,7 @@ def internal_diffuse_reflectance(eta, tau):
     integrand is split at the critical cosine μc = sqrt(1 - 1/η²) (F = 1 below it) and each part
     is integrated with 24-point Gauss–Legendre; exact for τ = 0 below μc."""
     eta = jnp.asarray(eta)
-    mu_c = safe_sqrt(1.0 - 1.0 / (eta * eta))  # 0 for η <= 1: no total internal reflection
+    mu_c = cos_theta_critical(1.0 / eta)  # 0 for η <= 1: no total internal reflection
     x = jnp.asarray(_GL_X, dtype=eta.dtype)
     w = jnp.asarray(_GL_W, dtype=eta.dtype)
     mc = mu_c[..., None]
@@ -103,7 +98,7 @@ def internal_diffuse_reflectance(eta, tau):
     part1 = mu_c * jnp.sum(w * 2.0 * mu1 * _attenuation2(tau_, mu1), axis=-1)
     # [μc, 1]: Fresnel from inside (relative index 1/η)
     mu2 = mc + (1.0 - mc) * x
-    F = fresnel_dielectric_Walter2007(mu2, 1.0 / eta[..., None])
+    F = fresnel_dielectric(-mu2, eta[..., None])[0]  # incidence from below: relative index 1/η
     part2 = (1.0 - mu_c) * jnp.sum(w * F * 2.0 * mu2 * _attenuation2(tau_, mu2), axis=-1)
     return part1 + part2
 

@@ -2,8 +2,8 @@
 integrands, products of rules, and a (μ, φ) rule on the hemisphere.
 
 Pure NumPy (float64), no state: every function returns fresh ``(nodes, weights)`` arrays so
-callers may move them to JAX. Used by the LUT baker (``fitlab.lut``) and meant for the layered
-models (angular integrals over the hemisphere).
+callers may move them to JAX. Used by the LUT baker (``fitlab.lut``) and the layered interface
+(``fitlab.interface``: angular integrals over the hemisphere).
 
 Accuracy, for a rule of order n on [a, b]:
 
@@ -41,7 +41,10 @@ def _legendre_unit(n: int):
 
 
 def gauss_legendre(n: int, a: float = 0.0, b: float = 1.0):
-    """n-point Gauss–Legendre rule on [a, b]: nodes (n,), weights (n,) with Σw = b - a."""
+    """n-point Gauss–Legendre rule on [a, b]: nodes (n,), weights (n,) with Σw = b - a.
+
+    The one source of Gauss–Legendre nodes in fitlab: every other rule and every module that
+    integrates by Gauss–Legendre (``fitlab.interface``, ``fitlab.lut``) takes them from here."""
     x, w = _legendre_unit(_check_order(n))
     half = 0.5 * (b - a)
     return a + half * (x + 1.0), half * w
@@ -58,8 +61,7 @@ def gauss_legendre_panels(breaks, n: int, *, smooth_ends: bool = False, xp=np):
     turns square-root endpoint behaviour (a Fresnel term at its critical angle, a boundary that
     appears at a breakpoint) into a smooth one; nodes gather towards both ends. ``xp`` is the
     array module (NumPy, or ``jax.numpy`` inside traced code)."""
-    x, w = _legendre_unit(_check_order(n))
-    s, ws = 0.5 * (x + 1.0), 0.5 * w
+    s, ws = gauss_legendre(n, 0.0, 1.0)
     if smooth_ends:
         q, dq = s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s)
     else:

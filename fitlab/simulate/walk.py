@@ -32,7 +32,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric_Walter2007
+from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric
 from fitlab.frame import normalize
 from fitlab.models import rough_conductor, rough_dielectric
 from fitlab.phase import PHASE_FUNCTIONS, sggx_sigma
@@ -115,16 +115,13 @@ def _flip_z(w):
     return w * jnp.asarray([1.0, 1.0, -1.0], dtype=w.dtype)
 
 
-def _smooth_dielectric(w, eta_side, u):
+def _smooth_dielectric(w, eta, u):
     """Smooth interface met by propagation direction w: reflect with probability F (Walter
-    eq. 22, TIR included), else refract by Snell's law. eta_side = η_t/η_i for this side."""
-    cos_i = jnp.abs(w[..., 2])
-    F = fresnel_dielectric_Walter2007(cos_i, eta_side)
-    inv = 1.0 / eta_side
-    sin2_t = inv * inv * (w[..., 0] ** 2 + w[..., 1] ** 2)
-    cos_t = jnp.sqrt(jnp.maximum(1.0 - sin2_t, 0.0))
-    sgn = jnp.where(w[..., 2] < 0, -1.0, 1.0).astype(w.dtype)
-    w_t = jnp.stack([w[..., 0] * inv, w[..., 1] * inv, sgn * cos_t], axis=-1)
+    eq. 22, TIR included), else refract by Snell's law; both from one
+    :func:`fitlab.fresnel.fresnel_dielectric` (eta = n_below / n_above; the light comes from
+    above when w.z < 0, i.e. the incident direction -w has a positive cosine)."""
+    F, cos_t, _, eta_ti = fresnel_dielectric(-w[..., 2], eta)
+    w_t = jnp.stack([w[..., 0] * eta_ti, w[..., 1] * eta_ti, cos_t], axis=-1)
     reflect = u < F
     return jnp.where(reflect[..., None], _flip_z(w), w_t)
 
@@ -147,9 +144,7 @@ def _boundary_event(cfg, arr, st, b, u):
         if g == "pass":
             continue
         if g == "smooth":
-            eta = arr.eta[b]
-            eta_side = jnp.where(w[..., 2] < 0, eta, 1.0 / eta)
-            gw = _smooth_dielectric(w, eta_side, u[:, 2])
+            gw = _smooth_dielectric(w, arr.eta[b], u[:, 2])
             gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
         elif g.startswith("rough:"):
             params = {"alpha": arr.alpha[b], "eta": arr.eta[b]}
