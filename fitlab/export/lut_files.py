@@ -106,27 +106,6 @@ def from_fit(path, channel=None):
     return model.name, dict(rec["model"].get("options") or {}), params
 
 
-def _fresnel_params(params, model_name):
-    """The Fresnel material of each channel: (n, k) or eta, under plain or sum-qualified names."""
-    out = {}
-    for ch, p in params.items():
-        def pick(name):
-            hits = [v for k, v in p.items() if k == name or k.endswith("." + name)]
-            return hits[0] if len(hits) == 1 else None
-
-        n, k, eta = pick("n"), pick("k"), pick("eta")
-        if n is not None and k is not None:
-            out[ch] = {"n": n, "k": k}
-        elif eta is not None:
-            out[ch] = {"eta": eta}
-        else:
-            what = f"model {model_name!r}" if model_name else "the given parameters"
-            raise FitlabError(f"a fresnel table needs conductor n and k (or --preset) or a "
-                              f"dielectric eta; {what} has {', '.join(p) or 'none'} "
-                              f"(channel {ch})")
-    return out
-
-
 def build_table(kind_name, *, fit=None, channel=None, model=None, param_items=None,
                 option_items=None, preset=None, size=None, mapping_items=None, alpha_range=None,
                 eta_range=None, dtype="half", check_points=None, progress=None):
@@ -158,28 +137,14 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, param_items=No
             model = m.name
         elif option_items:
             options = parse_options(option_items)
-    if preset:
-        if kind.name != "fresnel":
-            raise FitlabError("--preset applies to fresnel tables only")
-        try:
-            params = lut.conductor_preset(preset)
-        except ValueError as exc:
-            raise FitlabError(str(exc)) from None
-    if kind.name == "fresnel":
-        params = _fresnel_params(params, model)
-    elif kind.name == "model":
-        if not model:
-            raise FitlabError("a model table needs --from-fit FILE.json or --model NAME --param ...")
-    elif kind.name != "model" and kind.name != "fresnel":
-        dist = options.get("distribution", "ggx")
-        if dist not in ("ggx", "beckmann", "beckmann_rational", "phong"):
-            raise FitlabError(f"option distribution={dist!r} is unknown; use ggx, beckmann, "
-                              "beckmann_rational or phong")
-        if kind.name != "D" and dist == "phong":
-            raise FitlabError("albedo and DFG tables support distribution ggx, beckmann or "
-                              "beckmann_rational (phong has no closed-form sampling CDF here)")
-        options = {"distribution": dist}
     try:
+        if preset:
+            if kind.preset is None:
+                with_presets = [k.name for k in lut.KINDS.values() if k.preset is not None]
+                raise ValueError(f"--preset applies to {' and '.join(with_presets)} tables only")
+            params = kind.preset(preset)
+        # what the kind needs from the model's or fit's parameters and options
+        options, params = kind.prepare(model, options, params)
         spec = lut.make_spec(kind.name, size=sizes, mappings=mappings, model=model, params=params,
                              options=options,
                              alpha_range=parse_range(alpha_range, "alpha"),

@@ -1,0 +1,464 @@
+"""The table kinds: the evaluator behind each (the direct evaluation the accuracy is measured
+against), and the registry :data:`KINDS`, whose entries carry what a kind needs from a model's or
+fit's parameters (``prepare``) and its table maker (``make``). :func:`make_spec` dispatches
+through it; nothing here compares a kind's name.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+import fitlab
+from fitlab.fresnel import (
+    CONDUCTOR_FRESNEL_METHODS, CONDUCTOR_PRESETS, fresnel_dielectric_Walter2007,
+)
+from fitlab.lut.albedo import ALBEDO_DISTRIBUTIONS, QUAD_ORDERS, albedo_with_error, average_over_mu
+from fitlab.lut.axes import MU_MIN, Spec, Table, alpha_axis, lookup, make_axis, mu_axis
+from fitlab.lut.baking import error_stats, relative_error
+from fitlab.microfacet import DISTRIBUTIONS, get_distribution
+from fitlab.numerics import ALPHA_MIN
+
+#: The distribution a table uses when option ``distribution`` is not given.
+DEFAULT_DISTRIBUTION = "ggx"
+#: Default range of the albedo_dielectric table's η axis.
+ETA_RANGE = (1.05, 3.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Table kinds: the evaluator behind each
+# --------------------------------------------------------------------------------------------
+
+
+def spec_D(distribution="ggx", size=(512, 512), mappings=("u8", "log"),
+           alpha_range=(ALPHA_MIN, 1.0)):
+    dist = get_distribution(distribution)
+    axes = (make_axis("cos_theta_h", 0.0, 1.0, size[0], mappings[0],
+                  "cos θh = n·h of the microfacet normal (half vector)"),
+            alpha_axis(size[1], mappings[1], alpha_range))
+
+    def evaluate(coords):
+        c = np.clip(coords[:, 0], 0.0, 1.0)
+        a = coords[:, 1]
+        m = np.stack([np.sqrt((1.0 - c) * (1.0 + c)), np.zeros_like(c), c], axis=-1)
+        D = np.asarray(dist.D(jnp.asarray(m), jnp.asarray(a)))
+        return (np.pi * a * a * D)[:, None], None
+
+    return Spec("D", ("pi_alpha2_D",), axes, evaluate,
+                f"π α² D(cos θh; α) of the {distribution} distribution ({dist.reference}); "
+                "D in 1/sr = value / (π α²)",
+                {"name": None, "options": {"distribution": distribution}}, {},
+                "exact evaluation at the sample points (float64)")
+
+
+def _conductor_channels(params):
+    out = {}
+    for ch, p in params.items():
+        missing = [k for k in ("n", "k") if k not in p]
+        if missing:
+            raise ValueError(f"a conductor Fresnel table needs n and k; channel {ch} lacks "
+                             f"{', '.join(missing)}")
+        out[ch] = (float(p["n"]), float(p["k"]))
+    return out
+
+
+def spec_fresnel(params, size=128, mapping="linear", fresnel="exact"):
+    """``params``: {channel: {"n": .., "k": ..}} (conductor) or {channel: {"eta": ..}}
+    (dielectric, η = n_inside / n_outside)."""
+    axes = (make_axis("cos_theta", 0.0, 1.0, size, mapping,
+                  "cos θ between the direction and the (micro)surface normal"),)
+    if not params:
+        raise ValueError("a Fresnel table needs a material: conductor n and k (or a preset) or "
+                         "a dielectric eta")
+    if all("eta" in p for p in params.values()):
+        etas = {ch: float(p["eta"]) for ch, p in params.items()}
+        for ch, e in etas.items():
+            if not (np.isfinite(e) and e > 0):
+                raise ValueError(f"eta must be a positive number, got {e!r} (channel {ch})")
+        single = list(etas) == ["Y"]
+        channels = tuple(f"{'' if single else ch + '.'}F_{side}" for ch in etas
+                         for side in ("outside", "inside"))
+
+        def evaluate(coords):
+            c = jnp.asarray(np.clip(coords[:, 0], 0.0, 1.0))
+            cols = []
+            for e in etas.values():
+                cols.append(np.asarray(fresnel_dielectric_Walter2007(c, jnp.full_like(c, e))))
+                cols.append(np.asarray(fresnel_dielectric_Walter2007(c, jnp.full_like(c, 1.0 / e))))
+            return np.stack(cols, axis=-1), None
+
+        quantity = ("unpolarized dielectric Fresnel reflectance F(cos θ) (Walter eq. 22) for "
+                    "incidence from outside (relative index η) and from inside (1/η, total "
+                    "internal reflection = 1)")
+        return Spec("fresnel", channels, axes, evaluate, quantity,
+                    {"name": None, "options": {}}, {ch: {"eta": e} for ch, e in etas.items()},
+                    "exact evaluation at the sample points (float64)")
+    nk = _conductor_channels(params)
+    method = CONDUCTOR_FRESNEL_METHODS[fresnel]
+
+    def evaluate(coords):
+        c = jnp.asarray(np.clip(coords[:, 0], 0.0, 1.0))
+        cols = [np.asarray(method(c, jnp.full_like(c, n), jnp.full_like(c, k)))
+                for n, k in nk.values()]
+        return np.stack(cols, axis=-1), None
+
+    return Spec("fresnel", tuple(nk), axes, evaluate,
+                f"conductor Fresnel reflectance F(cos θ), method {fresnel!r} "
+                "(exact: unpolarized average of Rs and Rp for complex index n + ik)",
+                {"name": None, "options": {"fresnel": fresnel}},
+                {ch: {"n": n, "k": k} for ch, (n, k) in nk.items()},
+                "exact evaluation at the sample points (float64)")
+
+
+def _quad_note(orders):
+    return (f"quadrature over microfacet normals in the sampling's coordinates (Walter eqs 28/35, "
+            f"weight eq. 41): Gauss-Legendre panels with smoothed ends in theta_m (as tan t = "
+            f"tan theta_m / alpha) and phi_m, split at the analytic breakpoints and graded "
+            f"towards the horizons, {2 * orders['n_u']} nodes per theta_m panel and "
+            f"{2 * orders['n_phi']} per phi_m panel; averages over mu by Gauss-Legendre with "
+            f"{2 * orders['n_mu']} nodes; error estimate = |Q(n) - Q(2n)| at the orders n in "
+            f"accuracy.quadrature.orders")
+
+
+def spec_albedo_conductor(distribution="ggx", size=(32, 32), mappings=("linear", "linear"),
+                          alpha_range=(ALPHA_MIN, 1.0), orders=None):
+    orders = {**QUAD_ORDERS, **(orders or {})}
+    axes = (mu_axis(size[0], mappings[0]), alpha_axis(size[1], mappings[1], alpha_range))
+
+    def evaluate(coords):
+        E, dE = albedo_with_error(coords[:, 0], coords[:, 1], None, distribution, "conductor",
+                                   orders)
+        Ea, dEa = average_over_mu(coords[:, 1], None, distribution, "conductor", orders)
+        return np.concatenate([E, Ea], axis=1), np.concatenate([dE, dEa], axis=1)
+
+    return Spec("albedo_conductor", ("E", "E_avg"), axes, evaluate,
+                f"directional albedo E(μ, α) = ∫ f cos θo dωo of the {distribution} microfacet "
+                "BRDF with F = 1 and separable Smith G (Walter eqs 20, 23), and E_avg(α) = "
+                "2 ∫ E(μ) μ dμ (constant along μ); energy compensation as in Kulla & Conty 2017",
+                {"name": "rough_conductor", "options": {"distribution": distribution}}, {},
+                _quad_note(orders), n_check=128, orders=orders)
+
+
+def spec_dfg(distribution="ggx", size=(64, 64), mappings=("linear", "linear"),
+             alpha_range=(ALPHA_MIN, 1.0), orders=None):
+    orders = {**QUAD_ORDERS, **(orders or {})}
+    axes = (mu_axis(size[0], mappings[0]), alpha_axis(size[1], mappings[1], alpha_range))
+
+    def evaluate(coords):
+        return albedo_with_error(coords[:, 0], coords[:, 1], None, distribution, "dfg", orders)
+
+    return Spec("dfg", ("scale", "bias"), axes, evaluate,
+                f"split-sum DFG terms of the {distribution} microfacet BRDF (separable Smith G): "
+                "∫ f cos θo dωo = F0 · scale + bias under Schlick's Fresnel "
+                "F = F0 + (1 - F0)(1 - v·h)^5 (Karis 2013); scale + bias = E with F = 1",
+                {"name": "rough_conductor", "options": {"distribution": distribution}}, {},
+                _quad_note(orders), n_check=256, orders=orders)
+
+
+def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
+                           mappings=("linear", "linear", "linear"), alpha_range=(ALPHA_MIN, 1.0),
+                           eta_range=(1.05, 3.0), orders=None):
+    orders = {**QUAD_ORDERS, **(orders or {})}
+    lo, hi = eta_range
+    if lo < 1.0 + 1e-3 or hi > 5.0:
+        raise ValueError(f"axis eta: the range must lie within [1.001, 5] (incidence from inside "
+                         f"covers 1/eta), got [{lo:g}, {hi:g}]")
+    axes = (mu_axis(size[0], mappings[0]), alpha_axis(size[1], mappings[1], alpha_range),
+            make_axis("eta", lo, hi, size[2], mappings[2],
+                  "relative index η = n_inside / n_outside (inside = -z side)"))
+
+    def evaluate(coords):
+        mu, a, e = coords[:, 0], coords[:, 1], coords[:, 2]
+        out, err = albedo_with_error(mu, a, e, distribution, "dielectric", orders)
+        inn, ierr = albedo_with_error(mu, a, 1.0 / e, distribution, "dielectric", orders)
+        avg_o, davg_o = average_over_mu(a, e, distribution, "dielectric", orders)
+        avg_i, davg_i = average_over_mu(a, 1.0 / e, distribution, "dielectric", orders)
+        return (np.concatenate([out, inn, avg_o, avg_i], axis=1),
+                np.concatenate([err, ierr, davg_o, davg_i], axis=1))
+
+    channels = ("R_outside", "T_outside", "R_inside", "T_inside",
+                "Ravg_outside", "Tavg_outside", "Ravg_inside", "Tavg_inside")
+    return Spec("albedo_dielectric", channels, axes, evaluate,
+                f"rough dielectric ({distribution}, separable Smith G, Walter eqs 20-22) "
+                "directional albedos: R = ∫ f_r cos θo dωo, T = ∫ f_t |cos θo| dωo (BTDF for "
+                "radiance, eq. 21) for incidence from outside (relative index η) and from inside "
+                "(1/η); *avg = 2 ∫ (.)(μ) μ dμ, constant along μ",
+                {"name": "rough_dielectric", "options": {"distribution": distribution}}, {},
+                _quad_note(orders), n_check=48, orders=orders)
+
+
+def halfdiff_directions(cos_theta_h, cos_theta_d):
+    """Directions of Rusinkiewicz's (θh, θd) at φh = 0, φd = 90°:
+    wi = (sin θh cos θd, sin θd, cos θh cos θd), wo = (sin θh cos θd, -sin θd, cos θh cos θd).
+    Cosines are clamped to [MU_MIN, 1]: at 0 both directions lie in the horizon, where a model
+    returns 0 although its limit (the table's first texel) is finite."""
+    ch = np.clip(np.asarray(cos_theta_h, float), MU_MIN, 1.0)
+    cd = np.clip(np.asarray(cos_theta_d, float), MU_MIN, 1.0)
+    sh, sd = np.sqrt((1 - ch) * (1 + ch)), np.sqrt((1 - cd) * (1 + cd))
+    wi = np.stack([sh * cd, sd, ch * cd], axis=-1)
+    wo = np.stack([sh * cd, -sd, ch * cd], axis=-1)
+    return wi, wo
+
+
+def halfdiff_coordinates(wi, wo):
+    """(cos θh, cos θd) of direction pairs: h = normalize(wi + wo), cos θh = h.z, cos θd = wi·h."""
+    h = np.asarray(wi, float) + np.asarray(wo, float)
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    return np.clip(h[..., 2], 0.0, 1.0), np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+
+
+def spec_model(model_name, params, options=None, size=(256, 256), mappings=("u8", "linear")):
+    """``params``: {channel: {parameter: value}} of a registry model (every parameter given)."""
+    model = fitlab.get_model(model_name)
+    opts = fitlab.api.resolve_options(model, options)
+    clean = {}
+    for ch, p in params.items():
+        p = {k: float(v) for k, v in p.items() if k in model.parameter_names}
+        fitlab.api.check_params(model, p)
+        clean[ch] = p
+    axes = (make_axis("cos_theta_h", 0.0, 1.0, size[0], mappings[0],
+                  "cos θh = n·h, h = normalize(wi + wo)"),
+            make_axis("cos_theta_d", 0.0, 1.0, size[1], mappings[1],
+                  "cos θd = wi·h (Rusinkiewicz's difference angle), at φd = 90°"))
+
+    def evaluate(coords):
+        wi, wo = halfdiff_directions(coords[:, 0], coords[:, 1])
+        cols = [np.asarray(fitlab.eval_bsdf(model.name, p, wi, wo, opts)) for p in clean.values()]
+        return np.stack(cols, axis=-1), None
+
+    notes = ("2D (θh, θd) tables are exact for BRDFs that depend on θh and θd only; other "
+             "isotropic BRDFs (G and Oren–Nayar depend on φd) are represented at φd = 90°: "
+             "accuracy.parameterization gives the error this makes over random direction pairs",)
+    if "transmission" in model.lobes:
+        notes += ("the model also transmits; the table holds its reflection (wo.z > 0) only",)
+    return Spec("model", tuple(clean), axes, evaluate,
+                f"BRDF f(wi, wo) in 1/sr (without the cosine) of {model.name} at "
+                "(cos θh, cos θd, φd = 90°)", {"name": model.name, "options": opts}, clean,
+                "exact evaluation at the sample points (float64)", notes,
+                checks=(("parameterization", parameterization_error),))
+
+
+def parameterization_error(table, spec, n, seed=1):
+    """Table lookup at (cos θh, cos θd) of random upper-hemisphere direction pairs vs the model
+    at those pairs (includes the φd = 90° assumption)."""
+    rng = np.random.default_rng(seed)
+
+    def hemi(u):
+        z = u[:, 0]
+        r = np.sqrt(1 - z * z)
+        return np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]), z], -1)
+
+    wi, wo = hemi(rng.random((n, 2))), hemi(rng.random((n, 2)))
+    ch, cd = halfdiff_coordinates(wi, wo)
+    approx = lookup(table, np.stack([ch, cd], -1))
+    name = spec.model["name"]
+    ref = np.stack([np.asarray(fitlab.eval_bsdf(name, p, wi, wo, spec.model["options"]))
+                    for p in spec.params.values()], -1)
+    scale = np.abs(table.values).reshape(-1, len(table.channels)).max(axis=0)
+    return {"points": n, "reference": "the model at random direction pairs of the upper "
+            "hemisphere (uniform in solid angle)",
+            **error_stats(relative_error(approx, ref, scale))}
+
+
+# --------------------------------------------------------------------------------------------
+# What a kind needs from a model's or fit's parameters
+# --------------------------------------------------------------------------------------------
+
+
+def _one_of(names):
+    names = list(names)
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+
+
+def _distribution(kind, options, supported):
+    """The distribution named by option ``distribution`` (default ggx), checked against the
+    registry (fitlab.microfacet.DISTRIBUTIONS) and the distributions the kind supports."""
+    name = options.get("distribution", DEFAULT_DISTRIBUTION)
+    if name not in DISTRIBUTIONS:
+        raise ValueError(f"option distribution={name!r} is unknown; use {_one_of(DISTRIBUTIONS)}")
+    if name not in supported:
+        raise ValueError(f"{kind} tables support the distributions {_one_of(supported)}, not "
+                         f"{name!r} (its sampling has no closed-form inverse CDF here)")
+    return name
+
+
+def _prepare_distribution(kind, supported, model, options, params):
+    """Distribution tables read option distribution only (a fit's other options and its
+    parameters do not enter)."""
+    return {"distribution": _distribution(kind, options, supported)}, {}
+
+
+def _prepare_fresnel(model, options, params):
+    """The Fresnel material of each channel: (n, k) or eta, under plain or sum-qualified names
+    (``base.n`` of a composite model)."""
+    out = {}
+    for ch, p in params.items():
+        def pick(name):
+            hits = [v for k, v in p.items() if k == name or k.endswith("." + name)]
+            return hits[0] if len(hits) == 1 else None
+
+        n, k, eta = pick("n"), pick("k"), pick("eta")
+        if n is not None and k is not None:
+            out[ch] = {"n": n, "k": k}
+        elif eta is not None:
+            out[ch] = {"eta": eta}
+        else:
+            what = f"model {model!r}" if model else "the given parameters"
+            raise ValueError(f"a fresnel table needs conductor n and k (or --preset) or a "
+                             f"dielectric eta; {what} has {', '.join(p) or 'none'} "
+                             f"(channel {ch})")
+    return options, out
+
+
+def _prepare_model(model, options, params):
+    """A model table evaluates the model itself: every parameter (checked by spec_model)."""
+    if not model:
+        raise ValueError("a model table needs --from-fit FILE.json or --model NAME --param ...")
+    return options, params
+
+
+def conductor_preset(name: str) -> dict:
+    """{R, G, B: {n, k}} of a CONDUCTOR_PRESETS entry (Elek 2010 appendix A)."""
+    try:
+        p = CONDUCTOR_PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(CONDUCTOR_PRESETS)}") \
+            from None
+    return {ch: {"n": p["n"][i], "k": p["k"][i]} for i, ch in enumerate("RGB")}
+
+
+# --------------------------------------------------------------------------------------------
+# Table makers: make(size, mappings, *, model, params, options, alpha_range, eta_range, orders)
+# --------------------------------------------------------------------------------------------
+
+
+def _make_D(size, mappings, *, options, alpha_range, **_):
+    return spec_D(_distribution("D", options, D_DISTRIBUTIONS), size, mappings, alpha_range)
+
+
+def _make_fresnel(size, mappings, *, params, options, **_):
+    return spec_fresnel(params, size[0], mappings[0], options.get("fresnel", "exact"))
+
+
+def _make_albedo_conductor(size, mappings, *, options, alpha_range, orders, **_):
+    return spec_albedo_conductor(_distribution("albedo_conductor", options, ALBEDO_DISTRIBUTIONS),
+                                 size, mappings, alpha_range, orders)
+
+
+def _make_dfg(size, mappings, *, options, alpha_range, orders, **_):
+    return spec_dfg(_distribution("dfg", options, ALBEDO_DISTRIBUTIONS), size, mappings,
+                    alpha_range, orders)
+
+
+def _make_albedo_dielectric(size, mappings, *, options, alpha_range, eta_range, orders, **_):
+    return spec_albedo_dielectric(
+        _distribution("albedo_dielectric", options, ALBEDO_DISTRIBUTIONS), size, mappings,
+        alpha_range, eta_range, orders)
+
+
+def _make_model(size, mappings, *, model, params, options, **_):
+    if model is None:
+        raise ValueError("a model table needs a model (--model NAME --param ... or --from-fit)")
+    return spec_model(model, params, options, size, mappings)
+
+
+# --------------------------------------------------------------------------------------------
+# Kinds registry and the one entry point
+# --------------------------------------------------------------------------------------------
+
+
+class Kind(NamedTuple):
+    """A table kind: what it holds, its axes and their defaults, what it needs from a model's or
+    fit's parameters and how it makes its :class:`Spec`."""
+
+    name: str
+    summary: str
+    n_axes: int
+    default_size: tuple
+    default_mappings: tuple
+    needs: str  # which parameters the table needs from a model / fit (for help texts)
+    axis_names: tuple
+    #: make(size, mappings, *, model, params, options, alpha_range, eta_range, orders) -> Spec
+    make: Callable
+    #: prepare(model name or None, options, {channel: params}) -> (options, params): the
+    #: table's inputs from a model's or fit's (ValueError when they lack what the table needs)
+    prepare: Callable
+    #: the registry distributions the table supports (option distribution); () if it reads none
+    distributions: tuple = ()
+    #: preset(name) -> {channel: params}: named materials (``--preset``); None if the kind has none
+    preset: Callable | None = None
+
+
+#: Distributions of the D table: every one of the registry.
+D_DISTRIBUTIONS = tuple(DISTRIBUTIONS)
+
+
+def _distribution_kind(name, summary, n_axes, default_size, default_mappings, axis_names, make,
+                       distributions):
+    return Kind(name, summary, n_axes, default_size, default_mappings,
+                "none (option distribution)", axis_names, make,
+                functools.partial(_prepare_distribution, name, distributions), distributions)
+
+
+KINDS = {k.name: k for k in (
+    _distribution_kind("D", "microfacet distribution π α² D(cos θh; α) (Elek 2010 section 3.1)",
+                       2, (512, 512), ("u8", "log"), ("cos_theta_h", "alpha"), _make_D,
+                       D_DISTRIBUTIONS),
+    Kind("fresnel", "Fresnel reflectance F(cos θ) of one material per channel", 1, (128,),
+         ("linear",), "conductor n, k (or --preset) or dielectric eta", ("cos_theta",),
+         _make_fresnel, _prepare_fresnel, preset=conductor_preset),
+    _distribution_kind("albedo_conductor", "E(μ, α) and E_avg(α) of a microfacet conductor with "
+                       "F = 1 (energy compensation)", 2, (32, 32), ("linear", "linear"),
+                       ("mu", "alpha"), _make_albedo_conductor, ALBEDO_DISTRIBUTIONS),
+    _distribution_kind("albedo_dielectric", "R and T albedos of a rough dielectric over "
+                       "(μ, α, η), from outside and inside, and their averages", 3, (32, 32, 16),
+                       ("linear", "linear", "linear"), ("mu", "alpha", "eta"),
+                       _make_albedo_dielectric, ALBEDO_DISTRIBUTIONS),
+    _distribution_kind("dfg", "split-sum DFG scale and bias over (μ, α)", 2, (64, 64),
+                       ("linear", "linear"), ("mu", "alpha"), _make_dfg, ALBEDO_DISTRIBUTIONS),
+    Kind("model", "a model's or fit's BRDF over (cos θh, cos θd) at φd = 90°", 2, (256, 256),
+         ("u8", "linear"), "every parameter of the model", ("cos_theta_h", "cos_theta_d"),
+         _make_model, _prepare_model),
+)}
+
+
+def get_kind(name: str) -> Kind:
+    try:
+        return KINDS[name]
+    except KeyError:
+        raise ValueError(f"unknown table kind {name!r}; choose one of {', '.join(KINDS)}") from None
+
+
+def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, options=None,
+              alpha_range=None, eta_range=None, orders=None) -> Spec:
+    """The :class:`Spec` of a table kind from uniform arguments (what the CLI and the EXR
+    reader use): ``model`` a registry name or None, ``params`` {channel: {name: value}},
+    ``options`` the model options (``distribution``, ``fresnel``). Each kind's ``make`` takes
+    what it needs from these."""
+    k = get_kind(kind)
+    size = tuple(int(s) for s in (size or k.default_size))
+    if len(size) != k.n_axes:
+        raise ValueError(f"table {kind} has {k.n_axes} axes; give {k.n_axes} sizes "
+                         f"({'x'.join(map(str, k.default_size))} by default), got {len(size)}")
+    mappings = tuple(mappings or k.default_mappings)
+    if len(mappings) != k.n_axes:
+        raise ValueError(f"table {kind} has {k.n_axes} axes, got {len(mappings)} mappings")
+    return k.make(size, mappings, model=model, params=params or {}, options=dict(options or {}),
+                  alpha_range=tuple(alpha_range or (ALPHA_MIN, 1.0)),
+                  eta_range=tuple(eta_range or ETA_RANGE), orders=orders)
+
+
+def spec_of_table(table: Table) -> Spec:
+    """Rebuild the evaluator of a baked (or read) table from its description, to re-measure it."""
+    ax = table.axes
+    by = {a.name: a for a in ax}
+    orders = (table.accuracy.get("quadrature") or {}).get("orders")
+    model = table.model or {}
+    return make_spec(table.kind, size=[a.size for a in ax], mappings=[a.mapping for a in ax],
+                     model=model.get("name"), params=table.params, options=model.get("options"),
+                     alpha_range=(by["alpha"].lo, by["alpha"].hi) if "alpha" in by else None,
+                     eta_range=(by["eta"].lo, by["eta"].hi) if "eta" in by else None,
+                     orders=orders)
