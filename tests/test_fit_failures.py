@@ -215,3 +215,25 @@ def test_loss_registry_carries_behaviour():
         loss_weights("chi2", v, None, c)
     with pytest.raises(ValueError, match="unknown loss 'l1'; choose one of chi2, relative"):
         loss_weights("l1", v, s, c)
+
+
+# --------------------------------------------------------------------------------------------
+# The CLI prints the record's warnings
+# --------------------------------------------------------------------------------------------
+
+
+def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
+    from fitlab.cli import main
+
+    nan_where_albedo_above(0.95)
+    data = Path(__file__).resolve().parent.parent / "data_formats" / "examples" / \
+        "measurement_rgb_sigma.csv"
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(data), "--model", "lambertian", "--channel", "R",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    fit = json.loads(out.read_text())["fits"][0]
+    assert fit["global_search"]["non_finite"] > 0 and fit["warnings"]
+    for w in fit["warnings"]:
+        assert f"warning: channel R: {w}\n" in err
+    assert "non-finite cost" in err
