@@ -42,7 +42,7 @@ def test_models_lists_every_model(capsys):
         assert name in out
         for p in model.parameters:
             assert f"--param {p.name}=" in out
-    assert "normal = +z" in out and "eta = n_inside/n_outside" in out
+    assert "normal = +z" in out and "eta = n_inside / n_outside" in out
 
 
 def test_models_json(capsys):
@@ -181,3 +181,57 @@ def test_output_into_a_closed_pipe_is_not_an_error():
     stderr = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 0, stderr
     assert "Traceback" not in stderr, stderr
+
+
+def _help(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv + ["--help"])
+    assert info.value.code == 0
+    return " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+
+
+def _option(parser_argv, dest):
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[parser_argv]
+    return next(a for a in sub._actions if a.dest == dest)
+
+
+def test_choices_and_help_come_from_the_registries(capsys):
+    """No list of names the registries hold is written out in the CLI: formats, writers, LUT
+    kinds, mappings, losses, presets are each listed from their registry."""
+    from fitlab import lut
+    from fitlab.export.writers import DEFAULT, WRITERS, writer_for
+    from fitlab.fit.losses import LOSSES
+    from fitlab.io.formats import formats
+    from fitlab.models.presets import PRESETS
+
+    assert list(_option("convert", "to").choices) == list(WRITERS)
+    assert list(_option("fit", "loss").choices) == list(LOSSES)
+    for w in WRITERS.values():
+        for suffix in w.suffixes:
+            assert writer_for(f"out{suffix.upper()}") is w
+    convert = _help(["convert"], capsys)
+    for w in WRITERS.values():
+        assert w.spec in convert
+        assert w.name == DEFAULT or f"{w.name} for *{w.suffixes[0]}" in convert
+    for command in ("fit", "info", "convert"):
+        text = _help([command], capsys)
+        assert all(name in text for name in formats()), command
+    text = _help(["lut"], capsys)
+    assert all(f"{k} (" in text for k in lut.KINDS) and all(m in text for m in lut.MAPPINGS)
+    assert all(p in _help(["eval"], capsys) for p in PRESETS)
+
+
+def test_models_json_carries_the_conventions(capsys):
+    from fitlab.io.conventions import conventions_text
+
+    assert main(["models", "lambertian", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["conventions"] == conventions_text()
+
+
+def test_info_of_a_parameter_file(capsys):
+    fit = EXAMPLE.parents[2] / "fits" / "walter_rough_glass.json"
+    assert main(["info", str(fit), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["format"] == "fit-json" and info["channels"] == ["Y"]
+    assert set(info["parameters"]["Y"]) == {"alpha", "eta", "scale"}

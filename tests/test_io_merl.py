@@ -2,12 +2,13 @@
 written from registry models and read back (bin centres, float64), the lookup at arbitrary
 directions, broken files, and the CLI (info, convert, fit) through the format registry.
 
-No MERL data are used or stored: every file here is written by fitlab.io.merl.write_merl."""
+No MERL data are used or stored: every file here is written by fitlab.export.merl.write_merl."""
 
 from __future__ import annotations
 
 import json
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,10 +16,12 @@ import pytest
 import fitlab
 from fitlab.cli import main
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.export import merl as merl_out
 from fitlab.io import merl
 from fitlab.io.formats import detect_format, read_any
 from fitlab.io.measurement import read_measurement
 
+ROOT = Path(__file__).resolve().parents[1]
 CONDUCTOR = [{"alpha": 0.08, "n": 0.2, "k": 3.0}, {"alpha": 0.15, "n": 1.0, "k": 2.6},
              {"alpha": 0.3, "n": 1.5, "k": 2.0}]
 ALBEDO = (0.3, 0.5, 0.7)
@@ -27,14 +30,14 @@ ALBEDO = (0.3, 0.5, 0.7)
 @pytest.fixture(scope="module")
 def conductor_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("merl") / "conductor.binary"
-    merl.write_merl(path, "rough_conductor", CONDUCTOR)
+    merl_out.write_merl(path, "rough_conductor", CONDUCTOR)
     return path
 
 
 @pytest.fixture(scope="module")
 def lambert_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("merl") / "lambert.binary"
-    merl.write_merl(path, "lambertian", [{"albedo": a} for a in ALBEDO])
+    merl_out.write_merl(path, "lambertian", [{"albedo": a} for a in ALBEDO])
     return path
 
 
@@ -204,10 +207,10 @@ def test_write_is_atomic_and_reading_does_not_modify(tmp_path, lambert_file):
     merl.read_merl(lambert_file)
     assert lambert_file.read_bytes() == before
     with pytest.raises(FitlabError):
-        merl.write_merl(tmp_path / "nope" / "x.binary", "lambertian", {"albedo": 0.5})
+        merl_out.write_merl(tmp_path / "nope" / "x.binary", "lambertian", {"albedo": 0.5})
     target = tmp_path / "x.binary"
     with pytest.raises(ValueError):  # albedo out of bounds: nothing written
-        merl.write_merl(target, "lambertian", {"albedo": 2.0})
+        merl_out.write_merl(target, "lambertian", {"albedo": 2.0})
     assert list(tmp_path.iterdir()) == []
 
 
@@ -283,3 +286,96 @@ def test_cli_info_convert_and_fit(tmp_path, lambert_file, capsys):
                  "--starts", "1", "--quiet", "--out", str(fit)]) == 0
     rec = json.loads(fit.read_text())
     assert rec["fits"][0]["parameters"]["albedo"]["value"] == pytest.approx(0.7, rel=1e-9)
+
+
+def _bins_sample(table, n=4000, seed=3):
+    """Random bins that hold a value in every channel, and their centre directions."""
+    rng = np.random.default_rng(seed)
+    i, j, k = (rng.integers(0, d, n) for d in merl.DIMS)
+    keep = np.all(table.brdf[:, i, j, k] >= 0, axis=0)
+    i, j, k = i[keep], j[keep], k[keep]
+    return (i, j, k), merl.bin_directions(i, j, k)
+
+
+def test_convert_fit_to_merl_round_trip(tmp_path, capsys):
+    """`fitlab convert FIT.json OUT.binary`: an R, G, B fit tabulated channel by channel, read
+    back by the MERL reader equal to the model at the bin centres."""
+    fit = ROOT / "fits" / "rgl_aurora_white_lambert_ggx_conductor.json"
+    rec = json.loads(fit.read_text())
+    out = tmp_path / "aurora.binary"
+    assert main(["convert", str(fit), str(out)]) == 0
+    assert "MERL BRDF of lambertian+rough_conductor (R/G/B)" in capsys.readouterr().err
+    assert detect_format(out).name == "merl"
+    table = merl.read_merl_table(out)
+    (i, j, k), (wi, wo) = _bins_sample(table)
+    assert i.size > 3000
+    for c, f in enumerate(rec["fits"]):
+        assert f["channel"] == merl.CHANNELS[c]
+        params = {n: p["value"] for n, p in f["parameters"].items()}
+        want = np.asarray(fitlab.eval_bsdf(rec["model"]["name"], params, wi, wo,
+                                           rec["model"]["options"]))
+        np.testing.assert_allclose(table.brdf[c, i, j, k], want, rtol=1e-13)
+    # one channel of it, with --to naming the writer for an unclaimed suffix: all three the same
+    out_g = tmp_path / "aurora_g.dat"
+    assert main(["convert", str(fit), str(out_g), "--to", "merl", "--channel", "G"]) == 0
+    green = merl.read_merl_table(out_g)
+    valid = table.valid[1]
+    for c in range(3):
+        np.testing.assert_array_equal(green.valid[c], valid)
+        np.testing.assert_allclose(green.brdf[c][valid], table.brdf[1][valid], rtol=1e-12)
+
+
+def test_convert_model_to_merl(tmp_path, capsys):
+    out = tmp_path / "white.binary"
+    assert main(["convert", "--model", "lambertian", "--param", "albedo=0.5", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "wrote " + str(out) in err and "note:" not in err
+    m = read_any(out)
+    assert m.channel_names == ("R", "G", "B")
+    np.testing.assert_allclose(m.value, 0.5 / np.pi, rtol=1e-14)
+    # a model that also transmits: its BRDF is written, and the command says what is left out
+    glass = tmp_path / "glass.binary"
+    assert main(["convert", "--model", "rough_dielectric", "--param", "alpha=0.3", "--param",
+                 "eta=1.5", str(glass)]) == 0
+    assert "a MERL file holds its reflection (BRDF) only" in capsys.readouterr().err
+    table = merl.read_merl_table(glass)
+    (i, j, k), (wi, wo) = _bins_sample(table, n=1000)
+    want = np.asarray(fitlab.eval_bsdf("rough_dielectric", {"alpha": 0.3, "eta": 1.5}, wi, wo))
+    np.testing.assert_allclose(table.brdf[0, i, j, k], want, rtol=1e-13)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    # MERL holds reflection only: a transmission (BTDF) request is a Zemax setting
+    (["--model", "rough_dielectric", "--param", "alpha=0.3", "--param", "eta=1.5",
+      "--scatter", "BTDF", "{out}/t.binary"], "--scatter: applies to Zemax output only"),
+    (["--model", "lambertian", "--param", "albedo=0.5", "--aoi", "0,10", "{out}/t.binary"],
+     "--aoi: applies to Zemax output only; name the output *.bsdf (or give --to zemax)"),
+    # measured data are not resampled into bins
+    (["{lambert}", "{out}/t.binary"], "measured data would need resampling"),
+    # a fit is tabulated, not copied into a measurement CSV
+    (["{fit}", "{out}/t.csv"], "applies to Zemax or MERL output only; name the output *.bsdf "
+     "or *.binary (or give --to zemax or --to merl)"),
+    (["{fit}", "{out}/t.binary", "--channel", "Z"], "--channel Z: "),
+    (["--model", "lambertian", "--param", "albedo=2", "{out}/t.binary"], "outside its bounds"),
+])
+def test_convert_to_merl_refused(tmp_path, lambert_file, capsys, argv, fragment):
+    work = tmp_path / "work"
+    work.mkdir()
+    fit = ROOT / "fits" / "rgl_aurora_white_lambert_ggx_conductor.json"
+    argv = [a.format(out=work, lambert=lambert_file, fit=fit) for a in argv]
+    assert main(["convert", *argv]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.startswith("fitlab convert: error:"), err
+    assert list(work.iterdir()) == []
+
+
+def test_xyz_fit_needs_a_channel_for_merl(tmp_path, capsys):
+    fit = json.loads((ROOT / "fits" / "rgl_aurora_white_lambert_ggx_conductor.json").read_text())
+    for f, c in zip(fit["fits"], "XYZ"):
+        f["channel"] = c
+    path = tmp_path / "xyz.json"
+    path.write_text(json.dumps(fit))
+    assert main(["convert", str(path), str(tmp_path / "x.binary")]) == 2
+    assert "a MERL file holds one channel or R, G, B: choose one with --channel" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "x.binary").exists()

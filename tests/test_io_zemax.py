@@ -13,6 +13,7 @@ import pytest
 import fitlab
 from fitlab.cli import main
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.export import zemax as zemax_out
 from fitlab.io import zemax
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.formats import describe_any, detect_format, read_any
@@ -196,7 +197,7 @@ def test_round_trip_brdf(tmp_path):
     out = tmp_path / "conductor.bsdf"
     params = {"albedo": 0.2, "alpha": 0.25, "n": 1.5, "k": 3.0}
     model = "lambertian+rough_conductor"
-    summary = zemax.write_zemax(out, model, params)
+    summary = zemax_out.write_zemax(out, model, params)
     assert summary["symmetry"] == "PlaneSymmetrical" and summary["grid"] == \
         {"rotation": 1, "aoi": 17, "azimuth": 19, "radial": 29}
     m = read_any(out)  # detected from the content
@@ -218,7 +219,7 @@ def test_round_trip_brdf(tmp_path):
 def test_round_trip_btdf(tmp_path):
     out = tmp_path / "glass.bsdf"
     params = {"alpha": 0.3, "eta": 1.5}
-    zemax.write_zemax(out, "rough_dielectric", params, scatter="btdf")
+    zemax_out.write_zemax(out, "rough_dielectric", params, scatter="btdf")
     text = out.read_text()
     assert "ScatterType  BTDF" in text and "# eta_inside: 1.5" in text
     m = zemax.read_zemax(out)
@@ -255,7 +256,7 @@ def test_round_trip_btdf(tmp_path):
 def test_tristimulus_round_trip_and_layouts(tmp_path):
     out = tmp_path / "xyz.bsdf"
     params = {"X": {"albedo": 0.3}, "Y": {"albedo": 0.4}, "Z": {"albedo": 0.5}}
-    zemax.write_zemax(out, "lambertian", params, aoi="0,40", azimuth="0:180:45", radial="0:90:30")
+    zemax_out.write_zemax(out, "lambertian", params, aoi="0,40", azimuth="0:180:45", radial="0:90:30")
     text = out.read_text()
     assert "SpectralContent  XYZ" in text and text.count("DataBegin") == 3
     m = zemax.read_zemax(out)
@@ -308,7 +309,7 @@ def test_more_header_errors(tmp_path, edit, line, fragment):
 
 def test_missing_colour(tmp_path):
     f = tmp_path / "xyz.bsdf"
-    zemax.write_zemax(f, "lambertian", {c: {"albedo": 0.5} for c in "XYZ"}, aoi="0", radial="0,30",
+    zemax_out.write_zemax(f, "lambertian", {c: {"albedo": 0.5} for c in "XYZ"}, aoi="0", radial="0,30",
                       azimuth="0,180")
     text = f.read_text()
     f.write_text(text[: text.index("TristimulusZ")])
@@ -324,23 +325,23 @@ def test_btdf_aoi_beyond_the_critical_angle(tmp_path):
                        "eta = 1.5"):
         zemax.read_zemax(f, eta=1.5)
     with pytest.raises(FitlabError, match="refracted ray"):
-        zemax.resolve_grid(aoi="0,50", scatter="BTDF", eta=1.5)
+        zemax_out.resolve_grid(aoi="0,50", scatter="BTDF", eta=1.5)
 
 
 def test_parse_angles():
-    assert zemax.parse_angles("0:80:5", "aoi") == tuple(float(x) for x in range(0, 81, 5))
-    assert zemax.parse_angles("30, 0,15", "aoi") == (0.0, 15.0, 30.0)
-    assert zemax.parse_angles("0:1:0.25", "radial") == (0.0, 0.25, 0.5, 0.75, 1.0)
+    assert zemax_out.parse_angles("0:80:5", "aoi") == tuple(float(x) for x in range(0, 81, 5))
+    assert zemax_out.parse_angles("30, 0,15", "aoi") == (0.0, 15.0, 30.0)
+    assert zemax_out.parse_angles("0:1:0.25", "radial") == (0.0, 0.25, 0.5, 0.75, 1.0)
     for bad in ("", "a,b", "0:10:0", "10:0:5", "5,5", "nan"):
         with pytest.raises(FitlabError):
-            zemax.parse_angles(bad, "aoi")
+            zemax_out.parse_angles(bad, "aoi")
     with pytest.raises(FitlabError, match="outside"):
-        zemax.resolve_grid(radial="0,190")
+        zemax_out.resolve_grid(radial="0,190")
 
 
 def test_btdf_of_a_reflector_is_refused(tmp_path):
     with pytest.raises(FitlabError, match="only in reflection"):
-        zemax.write_zemax(tmp_path / "x.bsdf", "lambertian", {"albedo": 0.5}, scatter="BTDF")
+        zemax_out.write_zemax(tmp_path / "x.bsdf", "lambertian", {"albedo": 0.5}, scatter="BTDF")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -1,18 +1,17 @@
 """`fitlab lut`: from command-line values or a fit file to a baked table, its EXR and its shader
-snippets. The CLI parses arguments; everything that decides something lives here (testable
-without argparse). Output is written only after every input has been validated and the table
-baked: nothing is written on error, and the EXR is removed again if a snippet cannot be written.
+snippets. The CLI (fitlab/cli/lut.py) parses the arguments shared with other commands (model,
+--param, --option) and prints; what is particular to tables (sizes, axis mappings, ranges, which
+parameters a kind needs) is checked here, testable without argparse. Output is written only
+after every input has been validated and the table baked: nothing is written on error, and the
+EXR is removed again if a snippet cannot be written.
 """
 
 from __future__ import annotations
 
-import sys
-import time
 from pathlib import Path
 
 import fitlab
 from fitlab import lut
-from fitlab.assignments import parse_assignments
 from fitlab.errors import FitlabError
 
 
@@ -65,78 +64,38 @@ def parse_range(text, what):
     return r
 
 
-def parse_options(items) -> dict:
-    """--option NAME=VALUE items → {name: value} (each name once)."""
-    return parse_assignments(items, "option")
-
-
-def params_from_cli(items) -> dict:
-    """--param NAME=V or NAME=R,G,B → {channel: {name: value}} (channels Y, or R G B)."""
-    raw = {}
-    for name, value in parse_assignments(items, "param").items():
-        try:
-            raw[name] = [float(v) for v in value.split(",")]
-        except ValueError:
-            raise FitlabError(f"--param {name}={value}: values must be numbers "
-                              "(one value, or three as R,G,B)") from None
-    lengths = {len(v) for v in raw.values()}
-    if lengths - {1, 3}:
-        raise FitlabError("--param takes one value or three (R,G,B) per parameter")
-    if 3 in lengths:
-        return {ch: {n: (v[i] if len(v) == 3 else v[0]) for n, v in raw.items()}
-                for i, ch in enumerate("RGB")}
-    return {"Y": {n: v[0] for n, v in raw.items()}} if raw else {}
-
-
 def from_fit(path, channel=None):
     """(model name, options, {channel: {name: value}}) of a parameter file; ``scale`` (the
     unknown factor of relative data) is not part of the model and is left out."""
     from fitlab.export.paramfile import read_fit
+    from fitlab.io.fitfile import fit_parameters
 
     rec = read_fit(path)
-    fits = rec["fits"]
-    names = [f["channel"] for f in fits]
-    if channel is not None:
-        if channel not in names:
-            raise FitlabError(f"--channel {channel}: {path} has channels {', '.join(names)}")
-        fits = [f for f in fits if f["channel"] == channel]
-    model = fitlab.get_model(rec["model"]["name"])
-    params = {f["channel"]: {k: v["value"] for k, v in f["parameters"].items()
-                             if k in model.parameter_names} for f in fits}
-    return model.name, dict(rec["model"].get("options") or {}), params
+    params = fit_parameters(rec, source=path, channel=channel, scale=False)
+    return fitlab.get_model(rec["model"]["name"]).name, dict(rec["model"].get("options") or {}), \
+        params
 
 
-def build_table(kind_name, *, fit=None, channel=None, model=None, param_items=None,
-                option_items=None, preset=None, size=None, mapping_items=None, alpha_range=None,
-                eta_range=None, dtype="half", check_points=None, progress=None):
-    """Validate the inputs of `fitlab lut` and bake the table (nothing written)."""
+def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, options=None,
+                preset=None, size=None, mapping_items=None, alpha_range=None, eta_range=None,
+                dtype="half", check_points=None, progress=None):
+    """Validate the inputs of `fitlab lut` and bake the table (nothing written). ``model`` is a
+    registry name, ``params`` {channel: {name: value}} and ``options`` the model's options
+    (the command line parses them: fitlab.cli.common); ``fit`` a parameter file instead."""
     try:
         kind = lut.get_kind(kind_name)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
-    if fit and (model or param_items or preset):
+    if fit and (model or params or preset):
         raise FitlabError("give either --from-fit or --model/--param/--preset, not both")
     sizes = parse_size(size, kind) if size else None
     mappings = parse_mappings(mapping_items, kind)
-    options = {}
     if fit:
         model, options, params = from_fit(fit, channel)
     else:
         if channel:
             raise FitlabError("--channel applies to --from-fit only")
-        params = params_from_cli(param_items)
-        if model:
-            try:
-                m = fitlab.get_model(model)
-            except ValueError as exc:
-                raise FitlabError(str(exc)) from None
-            try:
-                options = fitlab.api.resolve_options(m, parse_options(option_items))
-            except ValueError as exc:
-                raise FitlabError(f"{exc} (see `fitlab models {m.name}`)") from None
-            model = m.name
-        elif option_items:
-            options = parse_options(option_items)
+        params, options = dict(params or {}), dict(options or {})
     try:
         if preset:
             if kind.preset is None:
@@ -181,43 +140,5 @@ def write_outputs(table, out, *, shader=True, hlsl=False):
     return written
 
 
-def run(args) -> int:
-    t0 = time.perf_counter()
-
-    def progress(msg):
-        if not args.quiet:
-            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr)
-
-    out = Path(args.out)
-    if out.suffix.lower() != ".exr":
-        raise FitlabError(f"--out {out}: the table file must end in .exr")
-    if not out.parent.exists():
-        raise FitlabError(f"--out {out}: the folder {out.parent} does not exist; create it first")
-    table = build_table(args.kind, fit=args.from_fit, channel=args.channel, model=args.model,
-                        param_items=args.param, option_items=args.option, preset=args.preset,
-                        size=args.size, mapping_items=args.mapping, alpha_range=args.alpha_range,
-                        eta_range=args.eta_range, dtype=args.dtype,
-                        check_points=args.check_points, progress=progress)
-    written = write_outputs(table, out, shader=not args.no_shader, hlsl=args.hlsl)
-    acc = table.accuracy
-    if not args.quiet:
-        h, w, c = table.values.shape
-        print(f"wrote {', '.join(map(str, written))}: {table.kind}, {w} x {h} texels, {c} "
-              f"channel(s) ({', '.join(table.channels)}), {table.dtype}", file=sys.stderr)
-        print(f"  storage rounding: max rel {acc['storage']['max_rel']:.3g}", file=sys.stderr)
-        if "quadrature" in acc:
-            q = acc["quadrature"]
-            print(f"  quadrature error estimate: max abs {q['max_abs_error_estimate']:.3g}",
-                  file=sys.stderr)
-        if "interpolation" in acc:
-            i = acc["interpolation"]
-            print(f"  lookup vs direct evaluation at {i['points']} random points: max rel "
-                  f"{i['max_rel']:.3g}, RMS rel {i['rms_rel']:.3g}", file=sys.stderr)
-        if "parameterization" in acc:
-            p = acc["parameterization"]
-            print(f"  lookup vs the model at random direction pairs (phi_d = 90 deg assumed): "
-                  f"max rel {p['max_rel']:.3g}, RMS rel {p['rms_rel']:.3g}", file=sys.stderr)
-    return 0
-
-
-__all__ = ["build_table", "write_outputs", "run", "parse_size", "params_from_cli", "from_fit"]
+__all__ = ["build_table", "write_outputs", "parse_size", "parse_mappings", "parse_range",
+           "from_fit"]

@@ -1,4 +1,5 @@
-"""MERL BRDF database binary files (Matusik et al. 2003): reading, lookup and writing.
+"""MERL BRDF database binary files (Matusik et al. 2003): reading, lookup, and the bytes of a
+table to write (:func:`merl_bytes`; fitlab.export.merl tabulates registry models and fits).
 Spec and decisions: data_formats/merl_binary.md.
 
 Layout (little-endian): ``int32 dims[3] = (90, 90, 180)``, then 3 × 1,458,000 float64, all red
@@ -28,7 +29,8 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.measurement import Measurement, describe_loaded, sha256_of
+from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.measurement import Measurement, describe_loaded
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
 DIMS = (N_THETA_H, N_THETA_D, N_PHI_D)
@@ -189,12 +191,7 @@ def _check_size_and_header(path: Path, size: int, head: bytes):
 def read_merl_table(path) -> MerlTable:
     """Read and validate a MERL .binary file into f (1/sr) per channel; the file is not modified."""
     path = Path(path)
-    try:
-        raw_bytes = path.read_bytes()
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})") from None
+    raw_bytes = read_bytes(path)
     _check_size_and_header(path, len(raw_bytes), raw_bytes)
     raw = np.frombuffer(raw_bytes, dtype="<f8", offset=HEADER_BYTES).reshape(3, *DIMS)
     bad = ~np.isfinite(raw)
@@ -206,7 +203,7 @@ def read_merl_table(path) -> MerlTable:
                              "value(s) in the file are not finite", hint="a MERL table holds finite numbers only "
                              "(negative marks a bin without value); re-copy the file")
     brdf = raw * np.asarray(SCALES).reshape(3, 1, 1, 1)
-    return MerlTable(str(path), sha256_of(path), brdf)
+    return MerlTable(str(path), sha256_of(raw_bytes), brdf)
 
 
 def eval_merl(table: MerlTable, wi, wo) -> np.ndarray:
@@ -278,29 +275,8 @@ def read_merl(path, stride=DEFAULT_STRIDE) -> Measurement:
 
 
 # --------------------------------------------------------------------------------------------
-# Writing
+# Serializing (tabulating a model for it: fitlab.export.merl)
 # --------------------------------------------------------------------------------------------
-
-
-def tabulate_model(model: str, params, options: dict | None = None) -> np.ndarray:
-    """Raw MERL table (3, 90, 90, 180) of a registry model at the bin centres: f / scale per
-    channel, INVALID_RAW where wi or wo is below the horizon. ``params`` is one dict for all
-    three channels or a sequence of three dicts (R, G, B)."""
-    from fitlab.api import eval_bsdf
-
-    per_channel = [params] * 3 if isinstance(params, dict) else list(params)
-    if len(per_channel) != 3:
-        raise ValueError("params must be one dict or three dicts (R, G, B)")
-    i, j, k = np.meshgrid(*(np.arange(n) for n in DIMS), indexing="ij")
-    wi, wo = bin_directions(i.ravel(), j.ravel(), k.ravel())
-    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-    raw = np.empty((3, N_BINS))
-    for c, p in enumerate(per_channel):
-        f = np.asarray(eval_bsdf(model, p, wi, wo, options), dtype=np.float64)
-        if not np.all(np.isfinite(f[above])):
-            raise ValueError(f"model {model!r} gave non-finite values for channel {CHANNELS[c]}")
-        raw[c] = np.where(above, f / SCALES[c], INVALID_RAW)
-    return raw.reshape(3, *DIMS)
 
 
 def merl_bytes(raw: np.ndarray) -> bytes:
@@ -311,15 +287,6 @@ def merl_bytes(raw: np.ndarray) -> bytes:
     buf.write(HEADER)
     buf.write(raw.astype("<f8").tobytes())
     return buf.getvalue()
-
-
-def write_merl(path, model: str, params, options: dict | None = None) -> None:
-    """Tabulate a registry model as a MERL .binary file (atomically)."""
-    from fitlab.io.atomic import atomic_open
-
-    data = merl_bytes(tabulate_model(model, params, options))
-    with atomic_open(path, "wb") as fh:
-        fh.write(data)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,50 @@
+"""fitlab command line: thin subcommands over the library, one module each (its ``add_parser``
+and ``run``), no physics here. Choices and help come from the registries (models, file formats,
+writers, LUT kinds)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+
+import fitlab
+from fitlab.cli.common import Parser
+from fitlab.errors import FitlabError
+
+#: The subcommands, in the order ``fitlab --help`` lists them: fitlab.cli.<name>.
+COMMANDS = ("models", "eval", "fit", "report", "info", "convert", "lut", "simulate")
+
+
+def build_parser():
+    parser = Parser(
+        prog="fitlab",
+        description="Fit, evaluate and tabulate physically based BSDF models (Walter 2007 "
+        "microfacet models and more). Conventions: data_formats/CONVENTIONS.md.",
+    )
+    parser.add_argument("--version", action="version", version=f"fitlab {fitlab.__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    for name in COMMANDS:
+        module = importlib.import_module(f"fitlab.cli.{name}")
+        module.add_parser(sub).set_defaults(func=module.run)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except FitlabError as exc:
+        print(f"fitlab {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        return 0
+
+
+__all__ = ["COMMANDS", "build_parser", "main"]

@@ -1,0 +1,152 @@
+"""What the subcommands share: the parser class, the arguments several of them declare (with
+help derived from the registries) and turning those arguments into a model, its parameters and
+its options, with errors that say what to do."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import fitlab
+from fitlab.assignments import parse_assignments
+from fitlab.errors import FitlabError
+from fitlab.models.presets import CHANNELS as PRESET_CHANNELS
+
+#: Colour channels of the RGB forms (--param NAME=R,G,B, --preset ... --channel C).
+RGB = PRESET_CHANNELS
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own usage errors keep exit status 2
+        self.print_usage(sys.stderr)
+        self.exit(2, f"fitlab: error: {message}\n")
+
+
+# --------------------------------------------------------------------------------------------
+# Arguments declared by several subcommands
+# --------------------------------------------------------------------------------------------
+
+
+def add_model(p, help="registry model (see `fitlab models`)", **kwargs):
+    p.add_argument("--model", help=help, **kwargs)
+
+
+def add_param(p, help, metavar="NAME=VALUE"):
+    p.add_argument("--param", action="append", metavar=metavar, help=help)
+
+
+def add_option(p, help="a model option, e.g. distribution=beckmann"):
+    p.add_argument("--option", action="append", metavar="NAME=VALUE", help=help)
+
+
+def add_channel(p, help, choices=None):
+    p.add_argument("--channel", choices=choices, help=help)
+
+
+def add_quiet(p, help="no progress or summary on the terminal"):
+    p.add_argument("--quiet", action="store_true", help=help)
+
+
+def add_json(p):
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+
+def add_format(p, help="input format"):
+    from fitlab.io.formats import formats
+
+    p.add_argument("--format", metavar="FORMAT",
+                   help=f"{help}: {', '.join(formats())} (default: detected from the content)")
+
+
+# --------------------------------------------------------------------------------------------
+# From arguments to a model, its parameters and options
+# --------------------------------------------------------------------------------------------
+
+
+def get_model(name: str):
+    """The registry model ``name`` (sums and layered models too)."""
+    try:
+        return fitlab.get_model(name)
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+
+
+def param_values(items, *, rgb: bool = False) -> dict[str, list[float]]:
+    """--param NAME=VALUE items → {name: [value]}; with ``rgb`` also NAME=R,G,B (three values)."""
+    out = {}
+    for name, text in parse_assignments(items, "param").items():
+        try:
+            out[name] = [float(v) for v in text.split(",")] if rgb else [float(text)]
+        except ValueError:
+            if rgb:
+                raise FitlabError(f"--param {name}={text}: values must be numbers (one value, "
+                                  "or three as R,G,B)") from None
+            raise FitlabError(f"--param {name}={text!r}: the value must be a number") from None
+    if rgb and {len(v) for v in out.values()} - {1, 3}:
+        raise FitlabError("--param takes one value or three (R,G,B) per parameter")
+    return out
+
+
+def model_params(model, items, base=None) -> dict:
+    """--param items of ``model``, checked against its registry entry (``base``: values they
+    override, e.g. a preset's)."""
+    params = dict(base or {})
+    params.update({name: v[0] for name, v in param_values(items).items()})
+    try:
+        fitlab.api.check_params(model, params)
+    except ValueError as exc:
+        raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
+    return params
+
+
+def channel_params(items) -> dict:
+    """--param NAME=V or NAME=R,G,B → {channel: {name: value}} (channel Y, or R G B)."""
+    raw = param_values(items, rgb=True)
+    if any(len(v) == 3 for v in raw.values()):
+        return {ch: {n: (v[i] if len(v) == 3 else v[0]) for n, v in raw.items()}
+                for i, ch in enumerate(RGB)}
+    return {"Y": {n: v[0] for n, v in raw.items()}} if raw else {}
+
+
+def model_options(model, items, base=None) -> dict:
+    """--option items of ``model`` with its defaults filled in (``base``: options they override)."""
+    try:
+        return fitlab.api.resolve_options(model, {**(base or {}),
+                                                  **parse_assignments(items, "option")})
+    except ValueError as exc:
+        raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
+
+
+def _preset(args):
+    """(model name, parameters, options) of --preset NAME --channel C, or the model argument."""
+    if not getattr(args, "preset", None):
+        return args.model, {}, {}
+    from fitlab.models.presets import get_preset, preset_params
+
+    try:
+        preset = get_preset(args.preset)
+        if args.model and fitlab.get_model(args.model).name != fitlab.get_model(preset.model).name:
+            raise FitlabError(f"--preset {args.preset} is a {preset.model} preset, not "
+                              f"{args.model}; leave out the model name")
+        if not args.channel:
+            raise FitlabError(f"--preset {args.preset} needs --channel R, G or B (its values "
+                              "differ per channel; `fitlab models` lists them)")
+        return preset.model, preset_params(args.preset, args.channel), dict(preset.options)
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+
+
+def model_from_args(args):
+    """(model, params, options) from the model argument (or --preset/--channel), --param and
+    --option."""
+    name, base_params, base_options = _preset(args)
+    if not name:
+        raise FitlabError("give a model name (see `fitlab models`) or --preset NAME")
+    model = get_model(name)
+    return model, model_params(model, args.param, base_params), \
+        model_options(model, args.option, base_options)
+
+
+__all__ = ["Parser", "RGB", "add_model", "add_param", "add_option", "add_channel", "add_quiet",
+           "add_json", "add_format", "get_model", "param_values", "model_params",
+           "channel_params", "model_options", "model_from_args"]

@@ -1,0 +1,143 @@
+"""fitlab convert: measured data to measurement CSV; a fit or a registry model tabulated by any
+writer of the registry (fitlab.export.writers: Zemax IS-BSDF, MERL binary)."""
+
+from __future__ import annotations
+
+import sys
+
+from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_param,
+                               model_from_args)
+from fitlab.errors import FitlabError
+
+#: Flags that describe the model to tabulate (read by writers that tabulate models).
+MODEL_FLAGS = ("model", "param", "option")
+
+
+def _writers():
+    from fitlab.export.writers import DEFAULT, WRITERS
+
+    return WRITERS, DEFAULT
+
+
+def _suffix_text(writers) -> str:
+    return " or ".join(f"*{s}" for w in writers for s in w.suffixes)
+
+
+def add_parser(sub):
+    writers, default = _writers()
+    tabulating = [w for w in writers.values() if w.write_model]
+    types = "; ".join(f"{w.name}: {w.description} ({_suffix_text([w])}, {w.spec})"
+                      for w in writers.values())
+    p = sub.add_parser(
+        "convert", help="convert data to measurement CSV; tabulate a fit or model as "
+        + " or ".join(f"{w.title} {w.suffixes[0]}" for w in tabulating),
+        description="Three forms, each writing atomically (nothing is left on failure). "
+        "(1) INPUT OUTPUT.csv: read any supported measurement format (e.g. a Zemax .bsdf) and "
+        "write a fitlab measurement CSV (data_formats/measurement_csv.md). "
+        "(2) FIT.json OUTPUT.bsdf or OUTPUT.binary: tabulate a fitted model (parameter file) as "
+        "a Zemax / Radiant IS-BSDF text file (data_formats/zemax_bsdf.md) or a MERL BRDF binary "
+        "(data_formats/merl_binary.md). A Zemax file holds one channel or X, Y, Z (tristimulus), "
+        "a MERL file one channel (written to R, G and B) or R, G, B; other multi-channel fits "
+        "need --channel; a relative fit's 'scale' is not applied (the file holds the absolute "
+        "model f). "
+        "(3) --model NAME --param NAME=VALUE ... OUTPUT.bsdf or OUTPUT.binary: the same for any "
+        "registry model. "
+        "The Zemax grid is --grid standard (light at 0..80 deg in 5 deg steps, azimuth 0..180 "
+        "in 10 deg steps, plane-symmetric, radial 0..180 deg, fine near the specular ray) or "
+        "the angles of an existing .bsdf file, with --aoi/--azimuth/--radial replacing lists. "
+        "A MERL file holds the BRDF at the centres of its 90 x 90 x 180 (theta_h, theta_d, "
+        "phi_d) bins: reflection only, so a model that does not reflect is refused. "
+        f"Output types (--to; otherwise from the suffix, else {default}): {types}.",
+        epilog="examples: fitlab convert data_formats/examples/zemax_brown_vinyl.bsdf vinyl.csv; "
+        "fitlab convert fits/vinyl.json vinyl_fit.bsdf --grid data_formats/examples/"
+        "zemax_brown_vinyl.bsdf; fitlab convert --model rough_dielectric --param alpha=0.3 "
+        "--param eta=1.5 --scatter BTDF --aoi 0:40:5 glass_btdf.bsdf; fitlab convert "
+        "fits/rgl_aurora_white_lambert_ggx_conductor.json aurora.binary",
+    )
+    p.add_argument("paths", nargs="+", metavar="FILE",
+                   help="INPUT OUTPUT, or only OUTPUT with --model")
+    add_format(p)
+    p.add_argument("--to", choices=list(writers),
+                   help="output type (default: from the suffix, "
+                   + ", ".join(f"{w.name} for {_suffix_text([w])}" for w in writers.values()
+                               if w.name != default) + f", else {default})")
+    add_model(p, help="tabulate this registry model (see `fitlab models`)")
+    add_param(p, "a parameter of --model; give every parameter")
+    add_option(p, "an option of --model, e.g. distribution=beckmann")
+    p.add_argument("--scatter", type=str.upper, choices=("BRDF", "BTDF"),
+                   help="Zemax ScatterType (default BRDF); for BTDF the angles are about the "
+                   "refracted ray and --aoi lists refraction angles")
+    p.add_argument("--grid", metavar="standard|FILE.bsdf",
+                   help="Zemax: 'standard' (default) or a Zemax file whose angles to reuse")
+    p.add_argument("--aoi", metavar="ANGLES", help="Zemax AngleOfIncidence list in degrees, "
+                   "'0,15,30' or START:STOP:STEP (e.g. 0:80:5)")
+    p.add_argument("--azimuth", metavar="ANGLES", help="Zemax ScatterAzimuth list; all within "
+                   "0..180 writes PlaneSymmetrical data, beyond 180 Asymmetrical")
+    p.add_argument("--radial", metavar="ANGLES", help="Zemax ScatterRadial list, 0..180")
+    add_channel(p, "the channel of a multi-channel fit to write")
+    return p
+
+
+def _reads(writer, flag: str) -> bool:
+    """Whether ``writer`` uses the convert flag ``flag``."""
+    if flag in MODEL_FLAGS:
+        return writer.write_model is not None
+    if flag == "channel":
+        return writer.write_fit is not None
+    return flag in writer.settings
+
+
+def _elsewhere(what: str, writers) -> FitlabError:
+    titles = " or ".join(w.title for w in writers)
+    to = " or ".join(f"--to {w.name}" for w in writers)
+    return FitlabError(f"{what}: applies to {titles} output only; name the output "
+                       f"{_suffix_text(writers)} (or give {to})")
+
+
+def _check_flags(args, writer, writers):
+    """Refuse flags the chosen writer does not read, naming the outputs that do."""
+    flags = list(MODEL_FLAGS) + ["channel"] + list(dict.fromkeys(
+        s for w in writers.values() for s in w.settings))
+    unread = [f for f in flags if getattr(args, f) and not _reads(writer, f)]
+    if unread:
+        takers = [w for w in writers.values() if all(_reads(w, f) for f in unread)]
+        raise _elsewhere(" ".join(f"--{f}" for f in unread), takers)
+
+
+def run(args):
+    from fitlab.export.writers import writer_for
+    from fitlab.io.fitfile import is_fit_file
+
+    writers, _ = _writers()
+    if args.model:
+        if len(args.paths) != 1:
+            raise FitlabError("with --model give only the output file: fitlab convert --model "
+                              "NAME --param NAME=VALUE ... OUT.bsdf")
+        source, output = None, args.paths[0]
+    elif len(args.paths) != 2:
+        raise FitlabError("give INPUT OUTPUT (or --model NAME --param ... OUT.bsdf)")
+    else:
+        source, output = args.paths
+    writer = writer_for(output, args.to)
+    _check_flags(args, writer, writers)
+    settings = {k: getattr(args, k) for k in writer.settings if getattr(args, k) is not None}
+    if args.model:
+        model, params, options = model_from_args(args)
+        summary = writer.write_model(output, model.name, params, options, **settings)
+    elif is_fit_file(source):
+        if writer.write_fit is None:
+            raise _elsewhere(source, [w for w in writers.values() if w.write_fit])
+        summary = writer.write_fit(output, source, channel=args.channel, **settings)
+    elif writer.write_data is None:
+        raise FitlabError(f"{source}: only a parameter file (fit JSON) or --model NAME can be "
+                          f"written as a {writer.title} {writer.suffixes[0]}; measured data "
+                          "would need resampling onto its grid (fit a model, then convert the "
+                          "fit)")
+    else:
+        from fitlab.io.formats import read_any
+
+        summary = writer.write_data(output, read_any(source, args.format), source)
+    print(writer.describe(summary), file=sys.stderr)
+    for note in summary.get("notes", []):
+        print(f"note: {note}", file=sys.stderr)
+    return 0

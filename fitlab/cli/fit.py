@@ -1,0 +1,190 @@
+"""fitlab fit: a registry model fitted to a measurement file (least squares with global starts,
+optional MCMC), written as a parameter file (and a report)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+import fitlab
+from fitlab.assignments import parse_assignments
+from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
+                               get_model, model_options)
+from fitlab.errors import FitlabError
+from fitlab.fit.losses import LOSSES
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "fit", help="fit a model to measurements (least squares, global starts, optional MCMC)",
+        description="Fit a registry model to a measurement file (data_formats/measurement_csv.md): "
+        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (jaxopt, vmapped over the starts), "
+        "covariance from the Jacobian, optional posterior sampling with emcee. Writes a parameter "
+        "file (data_formats/fit_json.md). Compiled kernels are kept on disk for later runs, in "
+        "$FITLAB_CACHE_DIR or else $XDG_CACHE_HOME/fitlab/xla or ~/.cache/fitlab/xla "
+        "(FITLAB_NO_CACHE=1: no cache).",
+        epilog="example: fitlab fit data_formats/examples/walter_rough_glass.csv --model "
+        "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_rough_glass.json",
+    )
+    p.add_argument("data", help="measurement CSV")
+    add_model(p, help="model name (see `fitlab models`)", required=True)
+    add_option(p, help="a model option")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="hold a parameter at a value (e.g. --fix eta=1.51)")
+    p.add_argument("--free", action="append", metavar="NAME",
+                   help="fit a parameter the data file would fix (eta from # eta_inside/outside)")
+    p.add_argument("--loss", choices=list(LOSSES),
+                   help="default: chi2 when the data have sigma, else relative")
+    p.add_argument("--fit-subset", metavar="EXPR",
+                   help="fit only these rows, predict the rest, e.g. 'theta_i == 0', "
+                   "'value > 0.01 and theta_o < 80', 'row %% 8 == 0', 'specular_deg > 3' (names: "
+                   "theta_i, phi_i, theta_o, phi_o, value, channel, row, specular_deg = angle "
+                   "to the mirror direction, to leave out a smooth coat's delta peak; + - * / %%, "
+                   "comparisons, and/or/not, abs)")
+    add_channel(p, "fit only this channel (default: every channel separately)")
+    p.add_argument("--mcmc", action="store_true", help="sample the posterior with emcee")
+    p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")
+    p.add_argument("--walkers", type=int, help="number of walkers (default max(32, 4 x dim))")
+    p.add_argument("--starts", type=int, default=8,
+                   help="low-discrepancy Levenberg-Marquardt starts besides the global search "
+                   "(default 8)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--walter-diagnostics", action="store_true",
+                   help="add Walter 2007 section 6.1's empirical D points to the parameter file")
+    p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
+    p.add_argument("--chain", metavar="FILE.npz", help="also write the MCMC chain")
+    p.add_argument("--report", metavar="DIR",
+                   help="then write an HTML report of the fit into DIR (as `fitlab report`; "
+                   "needs --out; with --chain it shows posterior bands and MCMC plots)")
+    add_quiet(p)
+    add_format(p)
+    return p
+
+
+def _fixed_from_cli(model, items):
+    fixed = {}
+    for name, text in parse_assignments(items, "fix").items():
+        if name not in model.parameter_names:
+            raise FitlabError(f"--fix {name}: model {model.name!r} has no parameter {name!r} "
+                              f"(its parameters: {', '.join(model.parameter_names)})")
+        try:
+            fixed[name] = float(text)
+        except ValueError:
+            raise FitlabError(f"--fix {name}={text!r}: the value must be a number") from None
+    try:
+        fitlab.api.check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+    return fixed
+
+
+def _print_summary(record):
+    for fit in record["fits"]:
+        print(f"channel {fit['channel']}:", file=sys.stderr)
+        for name, p in fit["parameters"].items():
+            if p["fixed"]:
+                print(f"  {name:>8} = {p['value']:.6g} (fixed)", file=sys.stderr)
+                continue
+            line = f"  {name:>8} = {p['value']:.6g} ± {p['stderr'] or float('nan'):.2g} (LS)"
+            post = p.get("posterior")
+            if post:
+                line += (f";  posterior median {post['median']:.6g}, 68% "
+                         f"[{post['p16']:.6g}, {post['p84']:.6g}]")
+            print(line, file=sys.stderr)
+        st = fit["statistics"]
+        if st.get("chi2_per_dof") is not None:
+            print(f"  chi2/dof = {st['chi2_per_dof']:.3f}", file=sys.stderr)
+        print(f"  RMS relative error (fitted rows) = {st['rms_relative_error_fit']:.4f}",
+              file=sys.stderr)
+        for row in st["per_incidence"]:
+            err = row["rms_relative_error"]
+            line = (f"    theta_i = {row['theta_i']:6.2f}  phi_i = {row['phi_i']:6.2f}  "
+                    f"{row['role']:>10}  n = {row['n']:4d}  RMS rel. error = "
+                    f"{'n/a' if err is None else f'{err:.4f}'}")
+            if row["role"] == "partly fit" and row["rms_relative_error_fitted_rows"] is not None:
+                line += f" (fitted rows {row['rms_relative_error_fitted_rows']:.4f})"
+            print(line, file=sys.stderr)
+        for w in fit.get("warnings", []):
+            print(f"warning: channel {fit['channel']}: {w}", file=sys.stderr)
+
+
+def run(args):
+    import time
+
+    from fitlab.fit.cache import enable_compilation_cache
+
+    enable_compilation_cache()  # before any computation; FITLAB_NO_CACHE=1 turns it off
+    from fitlab.export.paramfile import build_record, chains_payload, write_fit
+    from fitlab.fit.driver import fit_measurement
+    from fitlab.fit.subset import subset_mask
+    from fitlab.io.formats import read_any
+
+    t0 = time.perf_counter()
+    model = get_model(args.model)
+    options = model_options(model, args.option)
+    fixed = _fixed_from_cli(model, args.fix)
+    for name in args.free or []:
+        if name not in model.parameter_names:
+            raise FitlabError(f"--free {name}: model {model.name!r} has no parameter {name!r}")
+    if args.chain and not args.mcmc:
+        raise FitlabError("--chain needs --mcmc: there is no chain to write")
+    if args.report and not args.out:
+        raise FitlabError("--report needs --out FILE.json: the report is built from the "
+                          "parameter file")
+    if args.mcmc and args.mcmc_steps < 100:
+        raise FitlabError("--mcmc-steps must be at least 100")
+    m = read_any(args.data, args.format)
+    t_read = time.perf_counter() - t0
+    subset = subset_mask(args.fit_subset, m) if args.fit_subset else None
+    channels = None
+    if args.channel:
+        if args.channel not in m.channel_names:
+            raise FitlabError(f"--channel {args.channel}: {args.data} has channels "
+                              f"{', '.join(m.channel_names)}")
+        channels = [m.channel_names.index(args.channel)]
+    try:
+        result = fit_measurement(m, model.name, options=options, fixed=fixed, free=args.free or (),
+                                 loss=args.loss, subset=subset, mcmc=args.mcmc,
+                                 mcmc_steps=args.mcmc_steps, mcmc_walkers=args.walkers,
+                                 seed=args.seed, n_starts=args.starts, quiet=args.quiet,
+                                 channels=channels, warn=False)  # _print_summary prints them
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+    for note in result["notes"]:
+        if not args.quiet:
+            print(f"note: {note}", file=sys.stderr)
+    timings = {"read": t_read, "total": time.perf_counter() - t0}
+    record = build_record(result, m, subset_expr=args.fit_subset, timings=timings)
+    if args.walter_diagnostics:
+        from fitlab.fit.walter import add_empirical_D
+
+        add_empirical_D(record, result, m)
+    chains = chains_payload(result) if args.chain else None
+    if args.out:
+        write_fit(args.out, record, chains, args.chain)
+        if not args.quiet:
+            _print_summary(record)
+            print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
+                  file=sys.stderr)
+        if args.report:
+            from fitlab.report import build_report
+
+            summary = build_report(args.out, args.report, data_path=args.data,
+                                   chain_path=args.chain, progress=not args.quiet)
+            if not args.quiet:
+                print(f"wrote the report {summary['index']}", file=sys.stderr)
+    else:
+        if chains:
+            from fitlab.io.atomic import atomic_open
+            import io as _io
+
+            buf = _io.BytesIO()
+            np.savez_compressed(buf, **chains)
+            with atomic_open(args.chain, "wb") as fh:
+                fh.write(buf.getvalue())
+        if not args.quiet:
+            _print_summary(record)
+        print(json.dumps(record, indent=2, allow_nan=False))
+    return 0

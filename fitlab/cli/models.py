@@ -1,0 +1,71 @@
+"""fitlab models: the registry's models with their parameters, bounds, units, options, presets
+and sources, and the conventions they share."""
+
+from __future__ import annotations
+
+import json
+
+import fitlab
+from fitlab.cli.common import add_json, get_model
+from fitlab.io.conventions import conventions_text
+from fitlab.models.presets import CHANNELS, PRESETS
+
+
+def add_parser(sub):
+    p = sub.add_parser("models", help="list the models with their parameters, bounds and conventions",
+                       description="List every registry model: parameters (bounds, units), "
+                       "options, source equations, and the conventions all models share.")
+    p.add_argument("name", nargs="?", help="show only this model")
+    add_json(p)
+    return p
+
+
+def _model_record(model):
+    return {
+        "name": model.name,
+        "summary": model.summary,
+        "lobes": model.lobes,
+        "parameters": [p._asdict() for p in model.parameters],
+        "options": [{"name": o.name, "choices": list(o.choices), "default": o.default,
+                     "description": o.description} for o in model.options],
+        "reference": model.reference,
+    }
+
+
+def _presets_of(model):
+    return [p for p in PRESETS.values() if fitlab.get_model(p.model).name == model.name]
+
+
+def run(args):
+    names = [args.name] if args.name else list(fitlab.MODELS)
+    models = [get_model(n) for n in names]
+    if args.json:
+        print(json.dumps({"conventions": conventions_text(),
+                          "models": [_model_record(m) for m in models]}, indent=2))
+        return 0
+    print(f"Conventions: {conventions_text()}\n")
+    if not args.name:
+        print("Models add up with '+': e.g. lambertian+rough_conductor is f_lambertian + "
+              "f_rough_conductor (`fitlab models lambertian+rough_conductor` lists its "
+              "parameters).\n")
+        print("Layered models take a model as argument: coated(INNER) puts any model (sums "
+              "too) under a smooth dielectric coat, coated(INNER,specular=lobe) adds a narrow "
+              "coat lobe; weidlich_wilkie(BASE[,layers=K]) stacks K-1 microfacet interfaces "
+              "over a lambertian, oren_nayar or rough_conductor base "
+              "(data_formats/layered_models.md).\n")
+    for m in models:
+        print(f"{m.name}: {m.summary}  [{m.lobes}]")
+        for p in m.parameters:
+            print(f"  --param {p.name}=VALUE   {p.description}; bounds [{p.lower:g}, {p.upper:g}], "
+                  f"unit {p.unit}, typical {p.default:g}")
+        for o in m.options:
+            print(f"  --option {o.name}={'|'.join(o.choices)}   {o.description} "
+                  f"(default {o.default})")
+        for pr in _presets_of(m):
+            values = ", ".join(f"{k}={'/'.join(f'{x:g}' for x in v) if isinstance(v, tuple) else f'{v:g}'}"
+                               for k, v in pr.params.items())
+            print(f"  --preset {pr.name} --channel {'|'.join(CHANNELS)}   {values} "
+                  f"({'/'.join(CHANNELS)})\n"
+                  f"      {pr.description}")
+        print(f"  source: {m.reference}\n")
+    return 0

@@ -1,0 +1,90 @@
+"""Registry of the files fitlab writes from data, a fit or a model (what ``fitlab convert``
+reaches): each writer says which sources it takes (measured data as they are, a registry model,
+a fit's parameter file), the settings it reads besides them, the file suffixes it goes with and
+how to summarize what it wrote. Readers are the format registry (fitlab.io.formats); the
+lookup tables of ``fitlab lut`` are the LUT kinds (fitlab.lut.KINDS)."""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+from fitlab.export import merl, zemax
+from fitlab.io.atomic import atomic_write_text
+from fitlab.io.measurement import format_measurement_csv
+
+
+class Writer(NamedTuple):
+    name: str
+    title: str  # what the file is called in messages ("Zemax", "MERL")
+    description: str
+    suffixes: tuple  # lower-case output suffixes that choose this writer
+    spec: str  # the data_formats/ document
+    #: write_data(path, measurement, source) -> summary; None: measured data need a model first
+    write_data: Callable | None
+    #: write_model(path, model, params, options, **settings) -> summary; None: data only
+    write_model: Callable | None
+    #: write_fit(path, fit_path, channel=None, **settings) -> summary
+    write_fit: Callable | None
+    #: describe(summary) -> the line the command prints about the file written
+    describe: Callable
+    #: keyword settings of write_model / write_fit (each a `fitlab convert` flag)
+    settings: tuple = ()
+
+
+def _write_csv(path, m, source) -> dict:
+    text = format_measurement_csv(m, {"converted_from": f"{source} ({m.file_quantity})"})
+    atomic_write_text(path, text)
+    return {"path": str(path), "rows": m.n, "channels": list(m.channel_names)}
+
+
+def _describe_csv(s) -> str:
+    return f"wrote {s['rows']} rows ({', '.join(s['channels'])}) to {s['path']}"
+
+
+def _describe_zemax(s) -> str:
+    g = s["grid"]
+    return (f"wrote {s['path']}: Zemax {s['scatter']} of {s['model']} ({s['symmetry']}, "
+            f"{'/'.join(s['channels'])}), {g['aoi']} AOI x {g['azimuth']} azimuth x "
+            f"{g['radial']} radial angles; TIS {s['tis_range'][0]:.4g} .. {s['tis_range'][1]:.4g}")
+
+
+def _describe_merl(s) -> str:
+    g = s["grid"]
+    return (f"wrote {s['path']}: MERL BRDF of {s['model']} ({'/'.join(s['channels'])}), "
+            f"{g['theta_h']} theta_h x {g['theta_d']} theta_d x {g['phi_d']} phi_d bins, "
+            f"{s['bins_with_value']} with a value; f {s['f_range'][0]:.4g} .. "
+            f"{s['f_range'][1]:.4g} 1/sr")
+
+
+WRITERS: dict[str, Writer] = {
+    w.name: w
+    for w in (
+        Writer("csv", "measurement CSV", "fitlab measurement CSV of any file fitlab reads",
+               (".csv",), "data_formats/measurement_csv.md", _write_csv, None, None,
+               _describe_csv),
+        Writer("zemax", "Zemax", "Zemax / Radiant IS-BSDF text tabulating a model or fit",
+               (".bsdf",), "data_formats/zemax_bsdf.md", None, zemax.write_zemax,
+               zemax.write_zemax_from_fit, _describe_zemax,
+               ("grid", "aoi", "azimuth", "radial", "scatter")),
+        Writer("merl", "MERL", "MERL BRDF binary (90x90x180 RGB) tabulating a model or fit",
+               (".binary",), "data_formats/merl_binary.md", None, merl.write_merl,
+               merl.write_merl_from_fit, _describe_merl),
+    )
+}
+
+#: The writer of an output whose suffix no writer claims.
+DEFAULT = "csv"
+
+
+def writer_for(path, name: str | None = None) -> Writer:
+    """``name``'s writer if given, else the one claiming ``path``'s suffix, else DEFAULT's."""
+    if name is not None:
+        return WRITERS[name]
+    suffix = str(path).lower()
+    for w in WRITERS.values():
+        if any(suffix.endswith(s) for s in w.suffixes):
+            return w
+    return WRITERS[DEFAULT]
+
+
+__all__ = ["Writer", "WRITERS", "DEFAULT", "writer_for"]
