@@ -54,6 +54,9 @@ class Capabilities(NamedTuple):
     delta: str = ""
     #: f is the constant albedo/π (an ideal diffuse reflector; the ``albedo`` role parameter)
     lambertian: bool = False
+    #: ∫ f |cos θo| dωo <= 1 for every parameter value inside the bounds (a sum of lobes is not:
+    #: its components' albedos may add up to more than one)
+    energy_conserving: bool = True
 
     @property
     def lobes(self) -> str:
@@ -70,6 +73,7 @@ class Capabilities(NamedTuple):
             reciprocal=self.reciprocal and other.reciprocal,
             delta="; ".join(d for d in (self.delta, other.delta) if d),
             lambertian=False,
+            energy_conserving=False,
         )
 
 
