@@ -22,6 +22,16 @@ from fitlab.io.files import read_bytes
 _METADATA = re.compile(r"#\s*([A-Za-z_][A-Za-z0-9_]*)\s*:(.*)$")
 
 
+def text_lines(text: str):
+    """(line number, stripped line, metadata) of every non-blank line; metadata is (key
+    lower-cased, value) for a ``# key: value`` comment, else None. Shared by the text readers."""
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if stripped:
+            meta = _METADATA.match(stripped) if stripped.startswith("#") else None
+            yield lineno, stripped, (meta.group(1).lower(), meta.group(2).strip()) if meta else None
+
+
 class Table(NamedTuple):
     path: str
     columns: dict[str, np.ndarray]
@@ -72,16 +82,10 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     header = None
     rows: list[list[float]] = []
     lines: list[int] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped:
-            continue
+    for lineno, stripped, meta in text_lines(text):
         if stripped.startswith("#"):
-            meta = _METADATA.match(stripped)
             if meta:
-                key = meta.group(1).lower()
-                metadata[key] = meta.group(2).strip()
-                metadata_lines[key] = lineno
+                metadata[meta[0]], metadata_lines[meta[0]] = meta[1], lineno
             continue
         _check_delimiters(path, lineno, stripped)
         fields = [f.strip() for f in stripped.split(",")]

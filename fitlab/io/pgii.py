@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
@@ -133,10 +134,7 @@ def _split_lines(path):
         raise InputFileError(path, "is not UTF-8 text", line=line,
                              hint="a pgII scan is a text file") from None
     header, data = [], []
-    for n, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if not s:
-            continue
+    for n, s, _ in text_lines(text):
         (header if s.startswith("#") else data).append((n, s))
     return header, data
 

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.csvtable import _METADATA
+from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
@@ -85,14 +85,10 @@ def _read_text(path: Path) -> str:
 def _lines(text):
     """(line number, tokens) of every non-blank, non-comment line, plus the comment lines."""
     content, comments, metadata = [], [], {}
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if not s:
-            continue
+    for lineno, s, meta in text_lines(text):
         if s.startswith("#"):
-            meta = _METADATA.match(s)
             if meta:
-                metadata[meta.group(1).lower()] = meta.group(2).strip()
+                metadata[meta[0]] = meta[1]
             else:
                 comments.append(s.lstrip("#").strip())
             continue
