@@ -13,9 +13,9 @@ and b+1. A path has a region, a depth ``z`` below the region's top, a propagatio
 by σs when volume scattering is compiled, Beer–Lambert weights for absorption); it either
 scatters in the volume (phase function sampled exactly, fitlab/phase.py) or meets a boundary,
 where the boundary's BSDF is sampled with the existing models (rough dielectric: Walter
-section 5.3 through fitlab.models.rough_dielectric.sample, weight eq. 41; rough conductor:
-fitlab.models.rough_conductor.sample; Lambertian: cosine sampling; smooth dielectric: Fresnel
-choice between mirror and Snell directions). Paths that leave into region 0 upward or region M+1
+section 5.3 through fitlab.models.rough_dielectric.MODEL.sample, weight eq. 41; rough
+conductor: fitlab.models.rough_conductor.MODEL.sample; Lambertian: cosine sampling; smooth
+dielectric: Fresnel choice between mirror and Snell directions, fitlab.fresnel.fresnel_dielectric). Paths that leave into region 0 upward or region M+1
 downward exit; their final direction and weight are tallied after the loop.
 
 Bounce order: the number of turns from downward to upward travel below the top interface (the
@@ -148,7 +148,7 @@ def _boundary_event(cfg, arr, st, b, u):
             gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
         elif g.startswith("rough:"):
             params = {"alpha": arr.alpha[b], "eta": arr.eta[b]}
-            gw, wt, _ = rough_dielectric.sample(params, wi, u[:, 0:3], distribution=g[6:])
+            gw, wt, _ = rough_dielectric.MODEL.sample(params, wi, u[:, 0:3], distribution=g[6:])
             gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
         elif g == "lambertian":
             # cosine-weighted hemisphere (Malley), weight = albedo
@@ -163,8 +163,8 @@ def _boundary_event(cfg, arr, st, b, u):
             gd = jnp.zeros((B,), dtype=bool)
         elif g.startswith("conductor:"):
             params = {"alpha": arr.alpha[b][:, None], "n": arr.cond_n[b], "k": arr.cond_k[b]}
-            wo, wt, _ = rough_conductor.sample(params, wi[:, None, :], u[:, None, 0:3],
-                                               distribution=g[10:])
+            wo, wt, _ = rough_conductor.MODEL.sample(params, wi[:, None, :], u[:, None, 0:3],
+                                                     distribution=g[10:])
             gw, gf, gd = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool)
         else:  # pragma: no cover - scene.py admits no other kind
             raise ValueError(g)
