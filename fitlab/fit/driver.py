@@ -71,7 +71,7 @@ def _scale_reference(model, options, start, m, rows, in_chan):
     """Least-squares scale of the model at ``start`` to the fitted rows' values. The model is
     evaluated on every row of the channel (the shape the final prediction uses too, so both are
     one compiled kernel)."""
-    f = model_values(model.name, tuple(sorted(options.items())), start, m.wi[in_chan],
+    f = model_values(model, tuple(sorted(options.items())), start, m.wi[in_chan],
                      m.wo[in_chan])[rows[in_chan]]
     v = m.value[rows]
     den = float(f @ f)

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab.models import get_model
+from fitlab.models import Model, get_model
 
 SCALE = "scale"
 
@@ -35,14 +35,19 @@ class FreeParameter(NamedTuple):
 
 
 class StaticSpace(NamedTuple):
-    """What a compiled kernel depends on (hashable)."""
+    """What a compiled kernel depends on (hashable). Holds the model object itself, so that
+    kernels cached on it are never reused for a model redefined under the same name."""
 
-    model_name: str
+    model: Model
     options: tuple  # sorted (name, value) pairs
     names: tuple[str, ...]  # free parameters in order, the scale last if relative
     log: tuple[bool, ...]
     fixed_names: tuple[str, ...]
     relative: bool
+
+    @property
+    def model_name(self) -> str:
+        return self.model.name
 
 
 class FitSpace(NamedTuple):
@@ -64,7 +69,7 @@ class FitSpace(NamedTuple):
 
     @property
     def model(self):
-        return get_model(self.static.model_name)
+        return self.static.model
 
     @property
     def options(self) -> dict:
@@ -109,7 +114,7 @@ class FitSpace(NamedTuple):
                 scale = float(v)
             else:
                 params[name] = v
-        f = model_values(self.static.model_name, self.static.options, params, wi, wo)
+        f = model_values(self.static.model, self.static.options, params, wi, wo)
         return scale * f
 
 
@@ -132,21 +137,22 @@ def predict(static: StaticSpace, theta, fixed: dict, wi, wo):
             scale = theta[k]
         else:
             params[name] = theta[k]
-    model = get_model(static.model_name)
-    return scale * model.eval(params, wi, wo, **dict(static.options))
+    return scale * static.model.eval(params, wi, wo, **dict(static.options))
 
 
 @functools.lru_cache(maxsize=64)
-def model_kernel(model_name: str, options: tuple):
-    """The model's ``eval(params, wi, wo)`` jitted for one set of options (sorted pairs)."""
-    return jax.jit(functools.partial(get_model(model_name).eval, **dict(options)))
+def model_kernel(model: Model, options: tuple):
+    """The model's ``eval(params, wi, wo)`` jitted for one set of options (sorted pairs), cached
+    on the model object."""
+    return jax.jit(functools.partial(model.eval, **dict(options)))
 
 
-def model_values(model_name: str, options: tuple, params: dict, wi, wo) -> np.ndarray:
+def model_values(model: Model | str, options: tuple, params: dict, wi, wo) -> np.ndarray:
     """f(wi, wo) for parameter values ``params`` (name -> number), in float64, as NumPy."""
+    model = get_model(model) if isinstance(model, str) else model
     params = {k: np.float64(v) for k, v in params.items()}
-    return np.asarray(model_kernel(model_name, tuple(options))(params, np.asarray(wi, float),
-                                                                np.asarray(wo, float)))
+    return np.asarray(model_kernel(model, tuple(options))(params, np.asarray(wi, float),
+                                                           np.asarray(wo, float)))
 
 
 def make_space(model, options: dict, fixed: dict, relative: bool,
@@ -162,7 +168,7 @@ def make_space(model, options: dict, fixed: dict, relative: bool,
         free.append(FreeParameter(SCALE, float(lo), float(hi), True, "data units per 1/sr"))
     if not free:
         raise ValueError("every parameter is fixed: nothing to fit")
-    static = StaticSpace(model.name, tuple(sorted(options.items())),
+    static = StaticSpace(model, tuple(sorted(options.items())),
                          tuple(p.name for p in free), tuple(p.log for p in free),
                          tuple(sorted(fixed)), relative)
     return FitSpace(static, tuple(free), dict(fixed))

@@ -110,7 +110,8 @@ def _space_of(fit: dict, record: dict) -> FitSpace:
         free.append(FreeParameter(name, float(p["bounds"][0]), float(p["bounds"][1]),
                                   p.get("transform") == "log", p.get("unit", "")))
     fixed = {k: v["value"] for k, v in fit["parameters"].items() if v["fixed"]}
-    static = StaticSpace(record["model"]["name"], tuple(sorted(record["model"]["options"].items())),
+    static = StaticSpace(fitlab.get_model(record["model"]["name"]),
+                         tuple(sorted(record["model"]["options"].items())),
                          tuple(f.name for f in free), tuple(f.log for f in free),
                          tuple(sorted(fixed)), SCALE in fit["parameters"])
     return FitSpace(static, tuple(free), fixed)
