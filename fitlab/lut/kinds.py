@@ -123,6 +123,15 @@ def _quad_note(orders):
             f"accuracy.quadrature.orders")
 
 
+def _quadrature_spec(kind, channels, axes, evaluate, quantity, model, distribution, orders,
+                     n_check):
+    """The Spec of a table integrated by :mod:`fitlab.lut.albedo` (``model``: the registry model
+    whose albedo the table holds)."""
+    return Spec(kind, channels, axes, evaluate, quantity,
+                {"name": model, "options": {"distribution": distribution}}, {},
+                _quad_note(orders), n_check=n_check, orders=orders)
+
+
 def spec_albedo_conductor(distribution="ggx", size=(32, 32), mappings=("linear", "linear"),
                           alpha_range=(ALPHA_MIN, 1.0), orders=None):
     orders = {**QUAD_ORDERS, **(orders or {})}
@@ -130,16 +139,16 @@ def spec_albedo_conductor(distribution="ggx", size=(32, 32), mappings=("linear",
 
     def evaluate(coords):
         E, dE = albedo_with_error(coords[:, 0], coords[:, 1], None, distribution, "conductor",
-                                   orders)
+                                  orders)
         Ea, dEa = average_over_mu(coords[:, 1], None, distribution, "conductor", orders)
         return np.concatenate([E, Ea], axis=1), np.concatenate([dE, dEa], axis=1)
 
-    return Spec("albedo_conductor", ("E", "E_avg"), axes, evaluate,
-                f"directional albedo E(μ, α) = ∫ f cos θo dωo of the {distribution} microfacet "
-                "BRDF with F = 1 and separable Smith G (Walter eqs 20, 23), and E_avg(α) = "
-                "2 ∫ E(μ) μ dμ (constant along μ); energy compensation as in Kulla & Conty 2017",
-                {"name": "rough_conductor", "options": {"distribution": distribution}}, {},
-                _quad_note(orders), n_check=128, orders=orders)
+    return _quadrature_spec(
+        "albedo_conductor", ("E", "E_avg"), axes, evaluate,
+        f"directional albedo E(μ, α) = ∫ f cos θo dωo of the {distribution} microfacet BRDF with "
+        "F = 1 and separable Smith G (Walter eqs 20, 23), and E_avg(α) = 2 ∫ E(μ) μ dμ (constant "
+        "along μ); energy compensation as in Kulla & Conty 2017",
+        "rough_conductor", distribution, orders, n_check=128)
 
 
 def spec_dfg(distribution="ggx", size=(64, 64), mappings=("linear", "linear"),
@@ -150,17 +159,17 @@ def spec_dfg(distribution="ggx", size=(64, 64), mappings=("linear", "linear"),
     def evaluate(coords):
         return albedo_with_error(coords[:, 0], coords[:, 1], None, distribution, "dfg", orders)
 
-    return Spec("dfg", ("scale", "bias"), axes, evaluate,
-                f"split-sum DFG terms of the {distribution} microfacet BRDF (separable Smith G): "
-                "∫ f cos θo dωo = F0 · scale + bias under Schlick's Fresnel "
-                "F = F0 + (1 - F0)(1 - v·h)^5 (Karis 2013); scale + bias = E with F = 1",
-                {"name": "rough_conductor", "options": {"distribution": distribution}}, {},
-                _quad_note(orders), n_check=256, orders=orders)
+    return _quadrature_spec(
+        "dfg", ("scale", "bias"), axes, evaluate,
+        f"split-sum DFG terms of the {distribution} microfacet BRDF (separable Smith G): "
+        "∫ f cos θo dωo = F0 · scale + bias under Schlick's Fresnel "
+        "F = F0 + (1 - F0)(1 - v·h)^5 (Karis 2013); scale + bias = E with F = 1",
+        "rough_conductor", distribution, orders, n_check=256)
 
 
 def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
                            mappings=("linear", "linear", "linear"), alpha_range=(ALPHA_MIN, 1.0),
-                           eta_range=(1.05, 3.0), orders=None):
+                           eta_range=ETA_RANGE, orders=None):
     orders = {**QUAD_ORDERS, **(orders or {})}
     lo, hi = eta_range
     if lo < 1.0 + 1e-3 or hi > 5.0:
@@ -168,7 +177,7 @@ def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
                          f"covers 1/eta), got [{lo:g}, {hi:g}]")
     axes = (mu_axis(size[0], mappings[0]), alpha_axis(size[1], mappings[1], alpha_range),
             make_axis("eta", lo, hi, size[2], mappings[2],
-                  "relative index η = n_inside / n_outside (inside = -z side)"))
+                      "relative index η = n_inside / n_outside (inside = -z side)"))
 
     def evaluate(coords):
         mu, a, e = coords[:, 0], coords[:, 1], coords[:, 2]
@@ -181,13 +190,13 @@ def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
 
     channels = ("R_outside", "T_outside", "R_inside", "T_inside",
                 "Ravg_outside", "Tavg_outside", "Ravg_inside", "Tavg_inside")
-    return Spec("albedo_dielectric", channels, axes, evaluate,
-                f"rough dielectric ({distribution}, separable Smith G, Walter eqs 20-22) "
-                "directional albedos: R = ∫ f_r cos θo dωo, T = ∫ f_t |cos θo| dωo (BTDF for "
-                "radiance, eq. 21) for incidence from outside (relative index η) and from inside "
-                "(1/η); *avg = 2 ∫ (.)(μ) μ dμ, constant along μ",
-                {"name": "rough_dielectric", "options": {"distribution": distribution}}, {},
-                _quad_note(orders), n_check=48, orders=orders)
+    return _quadrature_spec(
+        "albedo_dielectric", channels, axes, evaluate,
+        f"rough dielectric ({distribution}, separable Smith G, Walter eqs 20-22) directional "
+        "albedos: R = ∫ f_r cos θo dωo, T = ∫ f_t |cos θo| dωo (BTDF for radiance, eq. 21) for "
+        "incidence from outside (relative index η) and from inside (1/η); *avg = 2 ∫ (.)(μ) μ "
+        "dμ, constant along μ",
+        "rough_dielectric", distribution, orders, n_check=48)
 
 
 def halfdiff_directions(cos_theta_h, cos_theta_d):
