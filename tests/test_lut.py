@@ -268,3 +268,76 @@ def test_bad_input_is_refused_with_a_clear_message(call, match):
         spec = call()
         if isinstance(spec, lut.Spec):  # albedo distribution errors surface when evaluating
             spec.evaluate(np.array([[0.5, 0.5]]))
+
+
+# --------------------------------------------------------------------------------------------
+# the kinds registry: every kind carries its maker and what it needs from a model or fit
+# --------------------------------------------------------------------------------------------
+
+
+def test_every_kind_makes_its_own_spec_through_the_registry():
+    from fitlab.microfacet import DISTRIBUTIONS
+
+    params = {"fresnel": {"Y": {"eta": 1.5}},
+              "model": {"Y": {"alpha": 0.3, "n": 1.2, "k": 3.0}}}
+    for name, kind in lut.KINDS.items():
+        assert kind.name == name and len(kind.axis_names) == kind.n_axes
+        assert len(kind.default_size) == len(kind.default_mappings) == kind.n_axes
+        assert set(kind.distributions) <= set(DISTRIBUTIONS)  # names from the registry
+        sizes = (3,) * kind.n_axes
+        options, p = kind.prepare("rough_conductor", {}, params.get(name, {}))
+        spec = kind.make(sizes, kind.default_mappings, model="rough_conductor", params=p,
+                         options=options, alpha_range=(0.01, 1.0), eta_range=(1.1, 2.0),
+                         orders=SMALL)
+        assert isinstance(spec, lut.Spec) and spec.kind == name
+        assert tuple(a.name for a in spec.axes) == kind.axis_names
+        assert lut.make_spec(name, size=sizes, model="rough_conductor", params=p,
+                             options=options, orders=SMALL).kind == name
+
+
+def test_distribution_kinds_take_their_distributions_from_the_registry():
+    from fitlab.microfacet import DISTRIBUTIONS
+
+    assert lut.KINDS["D"].distributions == tuple(DISTRIBUTIONS)
+    for name in ("albedo_conductor", "albedo_dielectric", "dfg"):
+        kind = lut.KINDS[name]
+        assert kind.distributions == lut.ALBEDO_DISTRIBUTIONS
+        assert set(kind.distributions) < set(DISTRIBUTIONS) and "phong" not in kind.distributions
+        # a fit's other options and its parameters do not enter a distribution table
+        options, params = kind.prepare("rough_conductor", {"distribution": "beckmann",
+                                                           "fresnel": "schlick"},
+                                       {"Y": {"alpha": 0.1}})
+        assert options == {"distribution": "beckmann"} and params == {}
+        with pytest.raises(ValueError, match="phong"):
+            kind.prepare(None, {"distribution": "phong"}, {})
+    with pytest.raises(ValueError, match="is unknown; use ggx"):
+        lut.KINDS["D"].prepare(None, {"distribution": "cauchy"}, {})
+    assert lut.KINDS["D"].prepare(None, {}, {}) == ({"distribution": "ggx"}, {})
+
+
+def test_fresnel_and_model_kinds_prepare_what_they_need():
+    fresnel = lut.KINDS["fresnel"]
+    # plain and sum-qualified names (a composite's base.n), conductor or dielectric
+    _, p = fresnel.prepare("x", {}, {"R": {"base.n": 0.2, "base.k": 3.9, "alpha": 0.1},
+                                     "G": {"eta": 1.5}})
+    assert p == {"R": {"n": 0.2, "k": 3.9}, "G": {"eta": 1.5}}
+    with pytest.raises(ValueError, match="needs conductor n and k"):
+        fresnel.prepare("lambertian", {}, {"Y": {"albedo": 0.5}})
+    assert fresnel.preset("copper") == lut.conductor_preset("copper")
+    assert all(k.preset is None for n, k in lut.KINDS.items() if n != "fresnel")
+    model = lut.KINDS["model"]
+    with pytest.raises(ValueError, match="needs --from-fit"):
+        model.prepare(None, {}, {})
+    assert model.prepare("lambertian", {"a": 1}, {"Y": {"albedo": 0.5}}) == (
+        {"a": 1}, {"Y": {"albedo": 0.5}})
+
+
+def test_spec_of_table_rebuilds_every_kind():
+    for name, kw in [("D", {}), ("fresnel", {"params": {"Y": {"eta": 1.5}}}),
+                     ("dfg", {"orders": SMALL}),
+                     ("model", {"model": "lambertian", "params": {"Y": {"albedo": 0.5}}})]:
+        size = (4,) * lut.KINDS[name].n_axes
+        table = lut.bake(lut.make_spec(name, size=size, **kw), "float", check_points=4)
+        spec = lut.spec_of_table(table)
+        assert spec.kind == name and spec.axes == table.axes and spec.params == table.params
+        assert ("parameterization" in table.accuracy) == (name == "model")
