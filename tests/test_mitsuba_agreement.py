@@ -6,6 +6,16 @@ configuration (distribution × α × index) gets its own fixed-seed random direc
 the lobe (a random microfacet normal within a few α, then reflection or refraction of a random
 ``wi`` on either side of the surface) and 1/4 uniform over sphere × sphere.
 
+Anisotropic configurations (α given as a pair): Mitsuba's ``alpha_u``, ``alpha_v`` against
+fitlab's ``rough_dielectric_anisotropic`` / ``rough_conductor_anisotropic`` with
+(alpha_x, alpha_y) = (alpha_u, alpha_v), both along the local frame's +x and +y. The lobe pairs'
+microfacet slopes are stretched by (α_u, α_v) and every azimuth is drawn uniformly, so the
+pairs probe the lobe off its axes; the same criterion applies, and the test also asserts that
+fitlab with the two widths swapped would fail it (the comparison sees the axes). Mitsuba samples
+the anisotropic normal's azimuth as φm = atan(α_v/α_u tan 2πu₂) (quadrant of 2πu₂) and
+tan²θm with 1/α² = cos²φm/α_u² + sin²φm/α_v²: the same map of the uniforms as fitlab's slope
+stretching, so the sample comparison keeps the same u.
+
 * ``eval``. Mitsuba's value includes |cos θo|, and in radiance mode it is a radiance BSDF whose
   ``si.wi`` points toward the camera. Three exact identities are checked:
 
@@ -65,7 +75,8 @@ import pytest
 from conftest import skip_or_fail
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf
 from fitlab.fresnel import fresnel_dielectric_Walter2007
-from fitlab.microfacet import get_distribution, widened_alpha
+from fitlab.microfacet import widened_alpha, widening_factor
+from fitlab.models import get_model
 
 pytestmark = pytest.mark.mitsuba
 
@@ -99,9 +110,33 @@ CONDUCTOR_CONFIGS = [  # (distribution, alpha, eta, k); fitlab n = eta
     for n, k in ((0.2, 3.9), (1.5, 0.3), (2.9, 3.2))
 ]
 
+#: Anisotropic widths (alpha_u, alpha_v) = fitlab (alpha_x, alpha_y): wide along y, wide along
+#: x, and one very narrow axis.
+ANISO_ALPHAS = ((0.05, 0.4), (0.5, 0.1), (0.3, 0.02))
+DIELECTRIC_ANISO_CONFIGS = [  # (distribution, (alpha_u, alpha_v), int_ior, ext_ior)
+    (dist, alpha, int_ior, ext_ior)
+    for dist in ("ggx", "beckmann")
+    for alpha in ANISO_ALPHAS
+    for int_ior, ext_ior in ((1.5, 1.0), (1.0, 1.33))
+]
+CONDUCTOR_ANISO_CONFIGS = [  # (distribution, (alpha_u, alpha_v), eta, k)
+    (dist, alpha, n, k)
+    for dist in ("ggx", "beckmann")
+    for alpha in ANISO_ALPHAS
+    for n, k in ((0.2, 3.9), (2.9, 3.2))
+]
+
+
+def _anisotropic(alpha):
+    return isinstance(alpha, tuple)
+
+
+def _alpha_id(alpha):
+    return f"aniso{alpha[0]}x{alpha[1]}" if _anisotropic(alpha) else str(alpha)
+
 
 def _config_id(cfg):
-    return "-".join(str(c) for c in cfg)
+    return "-".join(_alpha_id(c) if j == 1 else str(c) for j, c in enumerate(cfg))
 
 
 def _seed(kind, cfg):
@@ -130,13 +165,18 @@ def mi():
         mitsuba.set_variant(previous)
 
 
+def _mi_alpha(alpha):
+    """Mitsuba's roughness entries: ``alpha``, or ``alpha_u`` and ``alpha_v``."""
+    return {"alpha_u": alpha[0], "alpha_v": alpha[1]} if _anisotropic(alpha) else {"alpha": alpha}
+
+
 def _mi_dielectric(mi, dist, alpha, int_ior, ext_ior):
-    return mi.load_dict({"type": "roughdielectric", "distribution": dist, "alpha": alpha,
+    return mi.load_dict({"type": "roughdielectric", "distribution": dist, **_mi_alpha(alpha),
                          "int_ior": int_ior, "ext_ior": ext_ior, "sample_visible": False})
 
 
 def _mi_conductor(mi, dist, alpha, n, k):
-    return mi.load_dict({"type": "roughconductor", "distribution": dist, "alpha": alpha,
+    return mi.load_dict({"type": "roughconductor", "distribution": dist, **_mi_alpha(alpha),
                          "eta": n, "k": k, "sample_visible": False})
 
 
@@ -189,16 +229,19 @@ def _uniform_sphere(rng, n):
 def _direction_pairs(rng, n, alpha, eta, transmit_fraction, lower_fraction):
     """float32 (wi, wo): 3/4 in the lobe around a random microfacet normal, 1/4 uniform.
 
+    ``alpha``: the width, or the widths (α_u, α_v) that stretch the normal's slope along x and y;
     ``eta`` = n_inside / n_outside; a ``lower_fraction`` of the lobe pairs has wi below the
     surface; a ``transmit_fraction`` of them refracts (where there is no TIR)."""
+    alpha_x, alpha_y = alpha if _anisotropic(alpha) else (alpha, alpha)
     n_lobe = 3 * n // 4
     wi = _uniform_sphere(rng, n_lobe)
     below = rng.uniform(size=n_lobe) < lower_fraction
     wi[:, 2] = np.where(below, -np.abs(wi[:, 2]), np.abs(wi[:, 2]))
-    tan_m = 1.5 * alpha * np.abs(rng.normal(size=n_lobe))
+    g = np.abs(rng.normal(size=n_lobe))
+    tan_x, tan_y = 1.5 * alpha_x * g, 1.5 * alpha_y * g
     phi = rng.uniform(0.0, 2.0 * np.pi, n_lobe)
     side = np.where(below, -1.0, 1.0)
-    m = _unit(np.stack([tan_m * np.cos(phi), tan_m * np.sin(phi), side], axis=-1))
+    m = _unit(np.stack([tan_x * np.cos(phi), tan_y * np.sin(phi), side], axis=-1))
     c = np.sum(wi * m, axis=-1)
     wo_r = 2.0 * c[:, None] * m - wi
     inv = np.where(below, eta, 1.0 / eta)  # η_i / η_t
@@ -223,9 +266,16 @@ def _half_vector(wi, wo, eta=None):
     return _unit(h * np.where(h[:, 2] < 0, -1.0, 1.0)[:, None])
 
 
-def _D_cos(fdist, h, alpha):
-    """fitlab's D(h) cos θh, the quantity Mitsuba's cutoff tests; ``alpha`` may be per pair."""
-    return np.asarray(get_distribution(fdist).D(h, alpha)) * h[:, 2]
+def _ndf(model, fdist, params, cos_i=None):
+    """The model's microfacet distribution with the widths in ``params`` (asked of the model);
+    with ``cos_i``, Walter's widened one (section 5.3) for that incidence."""
+    dist = get_model(model).microfacet(params, distribution=fdist)
+    return dist if cos_i is None else dist.scaled(widening_factor(cos_i))
+
+
+def _D_cos(dist, h):
+    """fitlab's D(h) cos θh, the quantity Mitsuba's cutoff tests."""
+    return np.asarray(dist.D(h)) * h[:, 2]
 
 
 def _grazing(wi, wo, h):
@@ -309,17 +359,28 @@ def _check(label, ours, theirs, *, sens, singular, cutoff_ok=None):
 # ----------------------------------------------------------------------------------------------
 
 
+def _widths(alpha):
+    """fitlab's roughness parameters, float32-rounded as Mitsuba stores them."""
+    if _anisotropic(alpha):
+        return {"alpha_x": float(np.float32(alpha[0])), "alpha_y": float(np.float32(alpha[1]))}
+    return {"alpha": float(np.float32(alpha))}
+
+
 def _dielectric_setup(cfg):
+    """(fitlab model, distribution, parameters) of a roughdielectric configuration."""
     dist, alpha, int_ior, ext_ior = cfg
     # scalar_rgb stores eta = int_ior / ext_ior as a float32 quotient of float32s, α in float32
     eta = float(np.float32(int_ior) / np.float32(ext_ior))
-    return FITLAB_DISTRIBUTION[dist], {"alpha": float(np.float32(alpha)), "eta": eta}
+    model = "rough_dielectric_anisotropic" if _anisotropic(alpha) else "rough_dielectric"
+    return model, FITLAB_DISTRIBUTION[dist], {**_widths(alpha), "eta": eta}
 
 
 def _conductor_setup(cfg):
+    """(fitlab model, distribution, parameters) of a roughconductor configuration."""
     dist, alpha, n, k = cfg
-    return FITLAB_DISTRIBUTION[dist], {"alpha": float(np.float32(alpha)),
-                                       "n": float(np.float32(n)), "k": float(np.float32(k))}
+    model = "rough_conductor_anisotropic" if _anisotropic(alpha) else "rough_conductor"
+    return model, FITLAB_DISTRIBUTION[dist], {**_widths(alpha), "n": float(np.float32(n)),
+                                              "k": float(np.float32(k))}
 
 
 def _compare_eval_pdf(mi, bsdf, tag, model, fdist, sampling, params, wi32, wo32, eta, rng):
@@ -347,10 +408,9 @@ def _compare_eval_pdf(mi, bsdf, tag, model, fdist, sampling, params, wi32, wo32,
 
     h = _half_vector(wi, wo, eta)
     grazing = _grazing(wi, wo, h)
-    alpha_s = np.asarray(widened_alpha(params["alpha"], wi[:, 2])) if sampling == "widened" \
-        else params["alpha"]
-    cut_eval = _D_cos(fdist, h, params["alpha"]) <= CUTOFF * 1.01
-    cut_pdf = _D_cos(fdist, h, alpha_s) <= CUTOFF * 1.01
+    cut_eval = _D_cos(_ndf(model, fdist, params), h) <= CUTOFF * 1.01
+    cut_pdf = _D_cos(_ndf(model, fdist, params, wi[:, 2] if sampling == "widened" else None),
+                     h) <= CUTOFF * 1.01
     # Mitsuba always evaluates in the given order, so that order's conditioning bounds its
     # rounding; the swapped comparison takes the worse of the two orders.
     sens_same = _eval_sensitivity(f_cos_radiance, params, wi, wo, rng)
@@ -370,26 +430,32 @@ def _compare_eval_pdf(mi, bsdf, tag, model, fdist, sampling, params, wi32, wo32,
             assert np.all(theirs[~both_up] == 0) and np.all(ours[~both_up] == 0), f"{tag} {name}"
         out.append(_check(f"{tag} {name}", ours, theirs, sens=sens,
                           singular=grazing < GRAZING, cutoff_ok=cut_ok))
+    if "alpha_x" in params:
+        # The comparison sees the axes: fitlab with α_x and α_y swapped fails the criterion.
+        swapped = {**params, "alpha_x": params["alpha_y"], "alpha_y": params["alpha_x"]}
+        rel = _relative_difference(np.asarray(f_cos(swapped, wi, wo)), mi_imp)
+        fraction = float(np.mean(rel[~cut_eval] <= RTOL))
+        assert fraction < MIN_FRACTION, f"{tag}: insensitive to the axes ({fraction:.4f})"
+        out[0]["swapped_axes_fraction"] = fraction
     return out
 
 
 def run_dielectric_eval_pdf(mi, cfg, n=N_DIELECTRIC):
-    fdist, params = _dielectric_setup(cfg)
+    model, fdist, params = _dielectric_setup(cfg)
     rng = np.random.default_rng(_seed("dielectric-eval", cfg))
     wi32, wo32 = _direction_pairs(rng, n, cfg[1], params["eta"], transmit_fraction=0.5,
                                   lower_fraction=0.5)
     return _compare_eval_pdf(mi, _mi_dielectric(mi, *cfg), f"roughdielectric {_config_id(cfg)}",
-                             "rough_dielectric", fdist, "widened", params, wi32, wo32,
-                             params["eta"], rng)
+                             model, fdist, "widened", params, wi32, wo32, params["eta"], rng)
 
 
 def run_conductor_eval_pdf(mi, cfg, n=N_CONDUCTOR):
-    fdist, params = _conductor_setup(cfg)
+    model, fdist, params = _conductor_setup(cfg)
     rng = np.random.default_rng(_seed("conductor-eval", cfg))
     # 10 % of the lobe pairs (and half the uniform ones) have wi below: both must give 0 there.
     wi32, wo32 = _direction_pairs(rng, n, cfg[1], 1.0, transmit_fraction=0.0, lower_fraction=0.1)
     return _compare_eval_pdf(mi, _mi_conductor(mi, *cfg), f"roughconductor {_config_id(cfg)}",
-                             "rough_conductor", fdist, "standard", params, wi32, wo32, None, rng)
+                             model, fdist, "standard", params, wi32, wo32, None, rng)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -415,6 +481,18 @@ def _u1_from_sin2(fdist, s2, alpha_s):
     return -np.expm1(-s2 / (1.0 - s2) / a2)
 
 
+def _sampling_width(params, cos_i, u2, widened):
+    """The width with which the normal sampled from u₂ gets its tan²θm (Walter eqs 28, 35):
+    α, or for α_x ≠ α_y the width along the sampled slope azimuth φ = 2πu₂,
+    sqrt(α_x² cos²φ + α_y² sin²φ) (Heitz 2014 section 5.3); widened where ``widened``."""
+    if "alpha" in params:
+        alpha = params["alpha"]
+    else:
+        phi = 2.0 * np.pi * u2
+        alpha = np.hypot(params["alpha_x"] * np.cos(phi), params["alpha_y"] * np.sin(phi))
+    return np.asarray(widened_alpha(alpha, cos_i)) if widened else alpha
+
+
 def _sample_perturbed(fn, params, wi, u, rng, fdist, widened, k=8):
     """fn(params, wi, u) -> (n, c) at the inputs and at k perturbations of one float32 ulp:
     2⁻²³ relative on wi and the parameters; on the uniforms 2⁻²⁴ absolute (Mitsuba's float32
@@ -427,7 +505,7 @@ def _sample_perturbed(fn, params, wi, u, rng, fdist, widened, k=8):
     for _ in range(k):
         p = {name: _ulp_jitter(rng, v) for name, v in ps[0].items()}
         w = _ulp_jitter(rng, wi)
-        a_s = np.asarray(widened_alpha(p["alpha"], w[:, 2])) if widened else p["alpha"]
+        a_s = _sampling_width(p, w[:, 2], u[:, 1], widened)
         s2 = _sin2_theta_m(fdist, u[:, 0], a_s) + rng.uniform(-1.0, 1.0, n) * 2.0**-22
         u1 = _u1_from_sin2(fdist, s2, a_s) + rng.uniform(-1.0, 1.0, n) * 2.0**-24
         u2 = u[:, 1] + rng.uniform(-1.0, 1.0, n) * 2.0**-23
@@ -439,12 +517,11 @@ def _sample_perturbed(fn, params, wi, u, rng, fdist, widened, k=8):
     return f[0], f[1:]
 
 
-def _widened_ratio(fdist, alpha, wi, u):
+def _widened_ratio(model, fdist, params, wi, u):
     """D†(m)/D(m) and m, for the normal sampled from u with the widened width (Walter §5.3)."""
-    dist = get_distribution(fdist)
-    a_s = np.asarray(widened_alpha(alpha, wi[..., 2]))
-    m = np.asarray(dist.sample_m(u[..., 0], u[..., 1], a_s))
-    return np.asarray(dist.D(m, a_s)) / np.asarray(dist.D(m, alpha)), m
+    dist, dist_s = _ndf(model, fdist, params), _ndf(model, fdist, params, wi[..., 2])
+    m = np.asarray(dist_s.sample_m(u))
+    return np.asarray(dist_s.D(m)) / np.asarray(dist.D(m)), m
 
 
 def _compare_samples(mi, bsdf, tag, outputs, params, wi32, u32, u_fit, lobe_edge, fdist,
@@ -462,7 +539,7 @@ def _compare_samples(mi, bsdf, tag, outputs, params, wi32, u32, u_fit, lobe_edge
     sens_pdf = _rel_sensitivity(f0[:, 4], fk[:, :, 4])
     sens_wo = np.max(np.abs(fk[:, :, :3] - f0[None, :, :3]), axis=(0, 2))
     # float32-singular: grazing, or a sampled normal close to +z (Mitsuba's float32 sin θm)
-    a_s = np.asarray(widened_alpha(params["alpha"], wi[:, 2])) if widened else params["alpha"]
+    a_s = _sampling_width(params, wi[:, 2], u_fit[:, 1], widened)
     singular = (_grazing(wi, wo, _half_vector(wi, wo, eta)) < GRAZING) | (
         _sin2_theta_m(fdist, u_fit[:, 0], a_s) < NEAR_NORMAL**2)
 
@@ -487,7 +564,7 @@ def _compare_samples(mi, bsdf, tag, outputs, params, wi32, u32, u_fit, lobe_edge
 
 
 def run_dielectric_sample(mi, cfg, n=N_DIELECTRIC):
-    fdist, params = _dielectric_setup(cfg)
+    model, fdist, params = _dielectric_setup(cfg)
     eta = params["eta"]
     rng = np.random.default_rng(_seed("dielectric-sample", cfg))
     wi32 = _unit(_uniform_sphere(rng, n)).astype(np.float32)
@@ -501,14 +578,14 @@ def run_dielectric_sample(mi, cfg, n=N_DIELECTRIC):
 
     def outputs(p, a, uu):
         wo, weight, pdf = (np.asarray(x) for x in sample_bsdf(
-            "rough_dielectric", p, a, uu, {"distribution": fdist, "sampling": "widened"}))
-        d_ratio, _ = _widened_ratio(fdist, p["alpha"], a, uu)  # Mitsuba's weight lacks D/D†
+            model, p, a, uu, {"distribution": fdist, "sampling": "widened"}))
+        d_ratio, _ = _widened_ratio(model, fdist, p, a, uu)  # Mitsuba's weight lacks D/D†
         trans = a[:, 2] * wo[:, 2] < 0
         radiance = np.where(trans, np.where(a[:, 2] > 0, 1.0 / p["eta"], p["eta"]) ** 2, 1.0)
         return np.concatenate([wo, (weight * d_ratio * radiance)[:, None], pdf[:, None]], axis=-1)
 
     # Lobe choice: sample1 against F(i·m) in fitlab's upper frame (η_t/η_i = eta or 1/eta).
-    d_ratio, m = _widened_ratio(fdist, params["alpha"], wi, u_fit)
+    d_ratio, m = _widened_ratio(model, fdist, params, wi, u_fit)
     wi_up = np.concatenate([wi[:, :2], np.abs(wi[:, 2:])], axis=-1)
     F = np.asarray(fresnel_dielectric_Walter2007(np.sum(wi_up * m, axis=-1),
                                                  np.where(inside, 1.0 / eta, eta)))
@@ -533,7 +610,7 @@ def run_dielectric_sample(mi, cfg, n=N_DIELECTRIC):
 
 
 def run_conductor_sample(mi, cfg, n=N_CONDUCTOR):
-    fdist, params = _conductor_setup(cfg)
+    model, fdist, params = _conductor_setup(cfg)
     rng = np.random.default_rng(_seed("conductor-sample", cfg))
     wi32 = _unit(_uniform_sphere(rng, n)).astype(np.float32)
     wi32[:, 2] = np.where(rng.uniform(size=n) < 0.9, np.abs(wi32[:, 2]), -np.abs(wi32[:, 2]))
@@ -541,7 +618,7 @@ def run_conductor_sample(mi, cfg, n=N_CONDUCTOR):
 
     def outputs(p, a, uu):  # sample1 unused by both; no widening; weight = eval·cos/pdf
         wo, weight, pdf = (np.asarray(x) for x in sample_bsdf(
-            "rough_conductor", p, a, uu, {"distribution": fdist, "sampling": "standard"}))
+            model, p, a, uu, {"distribution": fdist, "sampling": "standard"}))
         return np.concatenate([wo, weight[:, None], pdf[:, None]], axis=-1)
 
     tag = f"roughconductor {_config_id(cfg)} sample"
@@ -555,24 +632,39 @@ def run_conductor_sample(mi, cfg, n=N_CONDUCTOR):
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("cfg", DIELECTRIC_CONFIGS, ids=_config_id)
+def _print_figures(rows):
+    """The figures of one configuration (seen with ``pytest -s``): per compared quantity the
+    fraction of pairs within RTOL (of those Mitsuba evaluates with its formula) and the largest
+    relative difference among them."""
+    for r in rows:
+        extra = "".join(f" {k}={r[k]:.4f}" for k in ("swapped_axes_fraction",) if k in r)
+        print(f"\n{r['label']}: within {RTOL:g} {r['fraction']:.4f} of {r['n'] - r['cutoff']} "
+              f"(max rel {r['max']:.2e}, q99 {r['q99']:.2e}; cutoff {r['cutoff']}, "
+              f"float32 {r['float32']}, negligible {r['negligible']}){extra}", end="")
+
+
+ALL_DIELECTRIC_CONFIGS = DIELECTRIC_CONFIGS + DIELECTRIC_ANISO_CONFIGS
+ALL_CONDUCTOR_CONFIGS = CONDUCTOR_CONFIGS + CONDUCTOR_ANISO_CONFIGS
+
+
+@pytest.mark.parametrize("cfg", ALL_DIELECTRIC_CONFIGS, ids=_config_id)
 def test_roughdielectric_eval_pdf(mi, cfg):
-    run_dielectric_eval_pdf(mi, cfg)
+    _print_figures(run_dielectric_eval_pdf(mi, cfg))
 
 
-@pytest.mark.parametrize("cfg", DIELECTRIC_CONFIGS, ids=_config_id)
+@pytest.mark.parametrize("cfg", ALL_DIELECTRIC_CONFIGS, ids=_config_id)
 def test_roughdielectric_sample(mi, cfg):
-    run_dielectric_sample(mi, cfg)
+    _print_figures(run_dielectric_sample(mi, cfg))
 
 
-@pytest.mark.parametrize("cfg", CONDUCTOR_CONFIGS, ids=_config_id)
+@pytest.mark.parametrize("cfg", ALL_CONDUCTOR_CONFIGS, ids=_config_id)
 def test_roughconductor_eval_pdf(mi, cfg):
-    run_conductor_eval_pdf(mi, cfg)
+    _print_figures(run_conductor_eval_pdf(mi, cfg))
 
 
-@pytest.mark.parametrize("cfg", CONDUCTOR_CONFIGS, ids=_config_id)
+@pytest.mark.parametrize("cfg", ALL_CONDUCTOR_CONFIGS, ids=_config_id)
 def test_roughconductor_sample(mi, cfg):
-    run_conductor_sample(mi, cfg)
+    _print_figures(run_conductor_sample(mi, cfg))
 
 
 def test_worked_example(mi):
@@ -621,11 +713,12 @@ def _markdown_row(model, cfg, rows):
         return f"{by[name]['q99']:.1e} / {by[name]['max']:.1e}"
 
     index = f"{cfg[2]}/{cfg[3]}" if model == "roughdielectric" else f"{cfg[2]}+{cfg[3]}i"
+    alpha = f"{cfg[1][0]}, {cfg[1][1]}" if _anisotropic(cfg[1]) else cfg[1]
     pdf = "pdf widened" if model == "roughdielectric" else "pdf standard"
     worst = min(r["fraction"] for r in rows)
     explained = "/".join(str(sum(r[k] for r in rows)) for k in ("float32", "negligible"))
     pairs = by["eval radiance"]["n"]
-    return (f"| {model} | {cfg[0]} | {cfg[1]} | {index} | {pairs} | {qm('eval radiance')} | "
+    return (f"| {model} | {cfg[0]} | {alpha} | {index} | {pairs} | {qm('eval radiance')} | "
             f"{by['eval radiance swapped']['max']:.1e} | {qm(pdf)} | {qm('sample weight')} | "
             f"{qm('sample pdf')} | {by['sample weight']['wo_max_abs']:.1e} | {worst:.4f} | "
             f"{by['eval radiance']['cutoff']} | {explained} |")
@@ -641,8 +734,9 @@ if __name__ == "__main__":
     mitsuba.set_variant("scalar_rgb")
     table, markdown = [], []
     for model, configs, runs in (
-        ("roughdielectric", DIELECTRIC_CONFIGS, (run_dielectric_eval_pdf, run_dielectric_sample)),
-        ("roughconductor", CONDUCTOR_CONFIGS, (run_conductor_eval_pdf, run_conductor_sample)),
+        ("roughdielectric", ALL_DIELECTRIC_CONFIGS,
+         (run_dielectric_eval_pdf, run_dielectric_sample)),
+        ("roughconductor", ALL_CONDUCTOR_CONFIGS, (run_conductor_eval_pdf, run_conductor_sample)),
     ):
         for c in configs:
             rows = [r for run in runs for r in run(mitsuba, c)]
