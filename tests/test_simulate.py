@@ -31,6 +31,7 @@ INVALID = {
                                            "the substrate is opaque",
     "scene_no_acceptance.toml": "detector.acceptance_sr: is missing",
     "scene_no_detector.toml": "detector: is missing",
+    "scene_anisotropic_vmf.toml": "stack[0].alpha_x: the vmf distribution is isotropic",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "
                               "declaration (at line 2, column 8))",
 }
@@ -70,7 +71,14 @@ def _base(**over):
 @pytest.mark.parametrize("patch, fragment", [
     (lambda d: d["stack"][0].update(kappa=10.0), "stack[0].kappa: only a vmf distribution"),
     (lambda d: d["stack"][0].update(alpha=0.0), "stack[0].alpha: 0 is out of range"),
-    (lambda d: d["stack"][0].update(distribution="phong"), "stack[0].distribution: 'phong' is not"),
+    (lambda d: d["stack"][0].update(distribution="cosine"), "stack[0].distribution: 'cosine' is not"),
+    (lambda d: d["stack"][0].update(alpha_x=0.1, alpha_y=0.3),
+     "stack[0].alpha: give either alpha or alpha_x and alpha_y"),
+    (lambda d: d["stack"][0].update(alpha=None) or d["stack"][0].pop("alpha") and None
+     or d["stack"][0].update(alpha_x=0.1), "stack[0].alpha_y: is missing"),
+    (lambda d: d["stack"].__setitem__(0, {"type": "interface", "distribution": "vmf",
+                                          "alpha_x": 0.1, "alpha_y": 0.3}),
+     "stack[0].alpha_x: the vmf distribution is isotropic"),
     (lambda d: d.update(effects={"max_bounces": -1}), "effects.max_bounces: -1 is not"),
     (lambda d: d.update(effects={"color": "mono"}, below={"index": 1.0}, stack=[
         {"type": "interface"}, {"type": "medium", "index": 1.5, "thickness": 1.0,
@@ -91,6 +99,19 @@ def test_scene_from_dict_errors(patch, fragment):
     with pytest.raises(InputFileError) as exc:
         scene_from_dict(d, source="mine.toml")
     assert str(exc.value).startswith("mine.toml: ") and fragment in str(exc.value)
+
+
+def test_anisotropic_widths_reach_the_boundary():
+    d = _base()
+    d["stack"][0] = {"type": "interface", "distribution": "beckmann", "alpha_x": 0.1,
+                     "alpha_y": 0.3}
+    b = scene_from_dict(d).boundaries[0]
+    assert (b.distribution, b.alpha, b.alpha_y) == ("beckmann", 0.1, 0.3)
+    assert _base_boundary().alpha_y is None
+
+
+def _base_boundary():
+    return scene_from_dict(_base()).boundaries[0]
 
 
 def test_vmf_kappa_maps_to_alpha():

@@ -56,7 +56,7 @@ def test_rough_dielectric_interface_matches_walter_brdf_btdf(theta_i):
         "detector": {"type": "hemisphere", "theta_bins": T, "phi_bins": P}})
     r = simulate(scene, N, seed=11)
     rows = detectors.hemisphere_rows(T, P, ("reflection", "transmission"))
-    f = lambda wi, wo: np.asarray(rough_dielectric.eval(  # noqa: E731
+    f = lambda wi, wo: np.asarray(rough_dielectric.MODEL.eval(  # noqa: E731
         {"alpha": 0.3, "eta": 1.5}, jnp.asarray(wi), jnp.asarray(wo)))
     expected = np.array([_bin_average(f, theta_i, t, p, 90 / T, 360 / P, cw)
                          for t, p, cw in zip(r.theta_o, r.phi_o, rows.cos_solid_angle)])
@@ -221,3 +221,35 @@ def test_bounce_limit_equals_the_low_orders_of_the_full_run():
     m2 = (fs > 0) & (refl_only.sigma[:, 0] > 0)
     z2 = (refl_only.value[m2, 0] - fv[m2]) / np.hypot(refl_only.sigma[m2, 0], fs[m2])
     assert stats.chi2.sf(np.sum(z2**2), z2.size) > 1e-3
+
+
+@pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
+def test_anisotropic_rough_conductor_substrate_matches_the_anisotropic_model(distribution):
+    """A bare rough conductor with α_x = 0.1, α_y = 0.4 at 40° incidence from φi = 0: every
+    well-populated (θo, φo) bin χ²-consistent with the bin average of
+    rough_conductor_anisotropic (the azimuthal structure of the lobe included)."""
+    T, P, N = 8, 16, 300_000
+    params = {"alpha_x": 0.1, "alpha_y": 0.4, "n": 0.2, "k": 3.9}
+    scene = scene_from_dict({
+        "stack": [], "substrate": {"type": "conductor", "distribution": distribution,
+                                   "alpha_x": 0.1, "alpha_y": 0.4, "n": 0.2, "k": 3.9},
+        "illumination": {"theta_i": [40.0]},
+        "detector": {"type": "hemisphere", "theta_bins": T, "phi_bins": P}})
+    r = simulate(scene, N, seed=13)
+    rows = detectors.hemisphere_rows(T, P, ("reflection",))
+    model = fitlab.get_model("rough_conductor_anisotropic")
+    f = lambda wi, wo: np.asarray(model.eval(  # noqa: E731
+        params, jnp.asarray(wi), jnp.asarray(wo), distribution=distribution))
+    expected = np.array([_bin_average(f, 40.0, t, p, 90 / T, 360 / P, cw)
+                         for t, p, cw in zip(r.theta_o, r.phi_o, rows.cos_solid_angle)])
+    mask = (expected * rows.cos_solid_angle * N > 100) & (r.sigma[:, 0] > 0)
+    assert mask.sum() > 30
+    p, chi2, dof = _chi2_pvalue(r.value[:, 0], expected, r.sigma[:, 0], mask)
+    assert p > 1e-3, (chi2, dof)
+    # the anisotropy shows: the lobe is wider along y than along x
+    iso = fitlab.get_model("rough_conductor")
+    f_iso = np.array([_bin_average(lambda wi, wo: np.asarray(iso.eval(
+        {"alpha": 0.25, "n": 0.2, "k": 3.9}, jnp.asarray(wi), jnp.asarray(wo),
+        distribution=distribution)), 40.0, t, ph, 90 / T, 360 / P, cw)
+        for t, ph, cw in zip(r.theta_o, r.phi_o, rows.cos_solid_angle)])
+    assert _chi2_pvalue(r.value[:, 0], f_iso, r.sigma[:, 0], mask)[0] < 1e-6

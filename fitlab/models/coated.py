@@ -130,7 +130,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
     def eval(params, wi, wo, **opts):
         f = inner_term(params, wi, wo, opts)
         if specular == "lobe":
-            f = f + rough_conductor.eval(lobe_params(params), wi, wo)
+            f = f + rough_conductor.MODEL.eval(lobe_params(params), wi, wo)
         return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), f, 0.0)
 
     def pdf_inner(params, wi, wo, opts):
@@ -148,7 +148,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
         p = pdf_inner(params, wi, wo, opts)
         if specular == "lobe":
             P = p_lobe(params, wi)
-            p = P * rough_conductor.pdf(lobe_params(params), wi, wo) + (1.0 - P) * p
+            p = P * rough_conductor.MODEL.pdf(lobe_params(params), wi, wo) + (1.0 - P) * p
         return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), p, 0.0)
 
     def sample(params, wi, u, **opts):
@@ -168,7 +168,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
         wo, ok_o = refract_up(wo_p, eta)
         valid = ok_i & ok_o & (p_s > 0)
         if specular == "lobe":
-            wo_l, _, p_l = rough_conductor.sample(lobe_params(params), wi, uu)
+            wo_l, _, p_l = rough_conductor.MODEL.sample(lobe_params(params), wi, uu)
             wo = jnp.where(choose_lobe[..., None], wo_l, wo)
             valid = jnp.where(choose_lobe, p_l > 0, valid)
         p = pdf(params, wi, wo, **opts)

@@ -87,6 +87,3 @@ def make(anisotropic: bool) -> Model:
 
 MODEL = make(anisotropic=False)
 ANISOTROPIC = make(anisotropic=True)
-
-#: The isotropic model's functions, used by the layered models for their interfaces.
-eval, pdf, sample = MODEL.eval, MODEL.pdf, MODEL.sample

@@ -134,7 +134,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         alpha, n_rel, k_rel, _, _ = layer
         dist = microfacet.get_distribution(opts["distribution"])(alpha)
         lp = {"alpha": alpha, "n": n_rel, "k": k_rel}
-        f = rough_conductor.eval(lp, L, V, distribution=opts["distribution"],
+        f = rough_conductor.MODEL.eval(lp, L, V, distribution=opts["distribution"],
                                  fresnel=opts["fresnel"])
         H = normalize(L + V)
         F = CONDUCTOR_FRESNEL_METHODS[opts["fresnel"]](dot(L, H), n_rel, k_rel)
@@ -193,7 +193,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         total = 0.0
         for j, layer in enumerate(layers_):
             lp = {"alpha": layer[0], "n": layer[1], "k": layer[2]}
-            p = rough_conductor.pdf(lp, Ls[j], V, distribution=opts["distribution"])
+            p = rough_conductor.MODEL.pdf(lp, Ls[j], V, distribution=opts["distribution"])
             total = total + jnp.where(okv & oks[j], probs[j] * p * jac, 0.0)
             eta = layer[3]
             Vp, ok = refract_down(V, eta)
@@ -222,7 +222,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
             uu = jnp.concatenate([u[..., :2], u3[..., None]], axis=-1)
             if j < len(layers_):
                 lp = {"alpha": layers_[j][0], "n": layers_[j][1], "k": layers_[j][2]}
-                w, _, p_s = rough_conductor.sample(lp, Ls[j], uu,
+                w, _, p_s = rough_conductor.MODEL.sample(lp, Ls[j], uu,
                                                    distribution=opts["distribution"])
             else:
                 w, _, p_s = base.sample(pb, Ls[j], uu, **base_options(opts))

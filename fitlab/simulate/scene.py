@@ -23,11 +23,15 @@ import tomllib
 from pathlib import Path
 from typing import NamedTuple
 
+from fitlab import microfacet
 from fitlab.errors import InputFileError
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
 #: Microfacet distributions an interface or substrate may use ("smooth" = a flat interface).
-INTERFACE_DISTRIBUTIONS = ("smooth", "ggx", "beckmann", "vmf")
+#: every registry distribution (fitlab.microfacet.REGISTRY) is a choice.
+INTERFACE_DISTRIBUTIONS = ("smooth",) + tuple(microfacet.REGISTRY)
+#: ... and these take anisotropic widths alpha_x, alpha_y.
+ANISOTROPIC_DISTRIBUTIONS = microfacet.names(walter=None, anisotropic=True)
 PHASES = ("isotropic", "hg", "sggx_surface", "sggx_fiber")
 SUBSTRATES = ("lambertian", "conductor", "dielectric")
 DETECTORS = ("hemisphere", "inplane", "measurement")
@@ -64,7 +68,9 @@ class Boundary(NamedTuple):
 
     kind: ``pass`` (no interface), ``dielectric``, ``lambertian`` or ``conductor``.
     distribution / alpha: microfacet NDF and width (alpha = 0 for ``smooth``); for ``vmf`` the
-    width maps to the concentration by κ = 2/α² (fitlab/microfacet.py).
+    width maps to the concentration by κ = 2/α² (fitlab/microfacet.py); alpha_y: the width
+    along the tangent +y of an anisotropic NDF (alpha is then the width along +x), None when
+    isotropic.
     albedo (lambertian), n and k (conductor, relative to vacuum: divided by the index of the
     medium above at simulation time): per channel, 1 or 3 values."""
 
@@ -74,6 +80,7 @@ class Boundary(NamedTuple):
     albedo: tuple = ()
     n: tuple = ()
     k: tuple = ()
+    alpha_y: float | None = None
 
 
 class Detector(NamedTuple):
@@ -233,27 +240,40 @@ def _angle_list(ctx, table, field, key, lo, hi, *, hi_open=False):
 
 
 def _roughness(ctx, table, field):
-    """(distribution, alpha) of an interface or a rough substrate."""
+    """(distribution, alpha, alpha_y) of an interface or a rough substrate; alpha_y is None
+    unless the widths are given as alpha_x, alpha_y (anisotropic)."""
     dist = _choice(ctx, table, field, "distribution", INTERFACE_DISTRIBUTIONS, default="smooth")
     if dist == "smooth":
-        for key in ("alpha", "kappa"):
+        for key in ("alpha", "kappa", "alpha_x", "alpha_y"):
             if key in table:
                 ctx.fail(f"{field}.{key}", "a smooth interface has no roughness",
                          "remove it, or choose distribution = \"ggx\", \"beckmann\" or \"vmf\"")
-        return dist, 0.0
+        return dist, 0.0, None
+    if "alpha_x" in table or "alpha_y" in table:
+        if dist not in ANISOTROPIC_DISTRIBUTIONS:
+            ctx.fail(f"{field}.alpha_x", f"the {dist} distribution is isotropic",
+                     f"give one width alpha, or choose distribution = "
+                     f"{' or '.join(repr(d) for d in ANISOTROPIC_DISTRIBUTIONS)}")
+        if "alpha" in table or "kappa" in table:
+            ctx.fail(f"{field}.alpha", "give either alpha or alpha_x and alpha_y, not both",
+                     "alpha_x, alpha_y are the widths along the tangent +x and +y")
+        widths = [_number(ctx, table, field, key, lo=1e-4, hi=1.0,
+                          hint="give both widths alpha_x and alpha_y in [1e-4, 1]")
+                  for key in ("alpha_x", "alpha_y")]
+        return dist, widths[0], widths[1]
     if dist == "vmf" and "kappa" in table:
         if "alpha" in table:
             ctx.fail(f"{field}.kappa", "give either alpha or kappa, not both",
                      "kappa = 2/alpha^2 (fitlab/microfacet.py)")
         kappa = _number(ctx, table, field, "kappa", lo=2.0,
                         hint="the vMF concentration must be >= 2 (alpha <= 1)")
-        return dist, math.sqrt(2.0 / kappa)
+        return dist, math.sqrt(2.0 / kappa), None
     if "kappa" in table:
         ctx.fail(f"{field}.kappa", "only a vmf distribution has a concentration kappa",
                  "use alpha for ggx and beckmann")
     alpha = _number(ctx, table, field, "alpha", lo=1e-4, hi=1.0,
                     hint="give the microfacet width alpha in [1e-4, 1] (or distribution = \"smooth\")")
-    return dist, alpha
+    return dist, alpha, None
 
 
 def _phase(ctx, table, field):
@@ -286,7 +306,8 @@ def _phase(ctx, table, field):
     return Phase(ptype, g, rough, orient)
 
 
-_INTERFACE_KEYS = ("type", "distribution", "alpha", "kappa")
+_ROUGHNESS_KEYS = ("distribution", "alpha", "kappa", "alpha_x", "alpha_y")
+_INTERFACE_KEYS = ("type",) + _ROUGHNESS_KEYS
 _MEDIUM_KEYS = ("type", "index", "thickness", "sigma_a", "sigma_s", "phase", "g", "roughness",
                 "orientation")
 
@@ -317,8 +338,8 @@ def _substrate(ctx, table, above_index):
                               hint="the albedo is a reflectance in [0, 1] (one value or R, G, B)")
         return Boundary("lambertian", albedo=albedo), None
     if kind == "conductor":
-        _check_keys(ctx, table, field, ("type", "distribution", "alpha", "kappa", "n", "k", "preset"))
-        dist, alpha = _roughness(ctx, table, field)
+        _check_keys(ctx, table, field, ("type",) + _ROUGHNESS_KEYS + ("n", "k", "preset"))
+        dist, alpha, alpha_y = _roughness(ctx, table, field)
         if "preset" in table:
             if "n" in table or "k" in table:
                 ctx.fail("substrate.preset", "give either a preset or n and k, not both")
@@ -330,12 +351,12 @@ def _substrate(ctx, table, above_index):
             k = _per_channel(ctx, table, field, "k", lo=0.0, hint="the extinction k >= 0")
             if min(n) <= 0:
                 ctx.fail("substrate.n", "must be > 0", "give the real part of the complex index")
-        return Boundary("conductor", dist, alpha, n=tuple(n), k=tuple(k)), None
-    _check_keys(ctx, table, field, ("type", "distribution", "alpha", "kappa", "index"))
-    dist, alpha = _roughness(ctx, table, field)
+        return Boundary("conductor", dist, alpha, n=tuple(n), k=tuple(k), alpha_y=alpha_y), None
+    _check_keys(ctx, table, field, ("type",) + _ROUGHNESS_KEYS + ("index",))
+    dist, alpha, alpha_y = _roughness(ctx, table, field)
     index = _number(ctx, table, field, "index", lo=0.0, lo_open=True,
                     hint="give the refractive index of the semi-infinite dielectric below")
-    return Boundary("dielectric", dist, alpha), index
+    return Boundary("dielectric", dist, alpha, alpha_y=alpha_y), index
 
 
 def _detector(ctx, table, base_dir, illum_given):
@@ -456,8 +477,8 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
             if pending is not None:
                 ctx.fail(field, "two interfaces in a row", "put a [[stack]] type = \"medium\" "
                          "between them (an interface separates two media)")
-            dist, alpha = _roughness(ctx, item, field)
-            pending, pending_field = Boundary("dielectric", dist, alpha), field
+            dist, alpha, alpha_y = _roughness(ctx, item, field)
+            pending, pending_field = Boundary("dielectric", dist, alpha, alpha_y=alpha_y), field
         else:
             med = _medium(ctx, item, field)
             if pending is None:

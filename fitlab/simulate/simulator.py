@@ -160,6 +160,7 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
                                           jnp.asarray(m.phase.orientation)))
     Bd = len(scene.boundaries)
     alpha = np.zeros(Bd)
+    alpha_y = np.zeros(Bd)
     eta = np.ones(Bd)
     albedo = np.zeros((Bd, C))
     cn = np.ones((Bd, C))
@@ -167,16 +168,19 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
     groups = []
     for b, bd in enumerate(scene.boundaries):
         alpha[b] = bd.alpha
+        alpha_y[b] = bd.alpha if bd.alpha_y is None else bd.alpha_y
+        # an anisotropic NDF is sampled by the anisotropic models (widths alpha, alpha_y)
+        rough = bd.distribution if bd.alpha_y is None else f"{bd.distribution}:anisotropic"
         eta[b] = idx[b + 1] / idx[b]
         if bd.kind == "pass":
             groups.append("pass")
         elif bd.kind == "dielectric":
-            groups.append("smooth" if bd.distribution == "smooth" else f"rough:{bd.distribution}")
+            groups.append("smooth" if bd.distribution == "smooth" else f"rough:{rough}")
         elif bd.kind == "lambertian":
             groups.append("lambertian")
             albedo[b] = _channel_values(bd.albedo, C, channel)
         else:
-            groups.append(f"conductor:{bd.distribution}")
+            groups.append(f"conductor:{rough}")
             cn[b] = _channel_values(bd.n, C, channel) / idx[b]
             ck[b] = _channel_values(bd.k, C, channel) / idx[b]
     det = scene.detector
@@ -193,7 +197,7 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
     dt = jnp.dtype(dtype)
     f = lambda a: jnp.asarray(a, dtype=dt)  # noqa: E731
     arr = WalkArrays(f(thickness), f(sigma_a), f(sigma_s), f(sigma_s_c), f(hg_g), f(S), f(alpha),
-                     f(eta), f(albedo), f(cn), f(ck))
+                     f(alpha_y), f(eta), f(albedo), f(cn), f(ck))
     return cfg, arr
 
 

@@ -78,7 +78,8 @@ class WalkArrays(NamedTuple):
     sigma_s_c: jax.Array  # (R, C) σs per channel (extinction-only attenuation)
     hg_g: jax.Array  # (R,)
     sggx_S: jax.Array  # (R, 3, 3)
-    alpha: jax.Array  # (Bd,)
+    alpha: jax.Array  # (Bd,) width (along +x when anisotropic)
+    alpha_y: jax.Array  # (Bd,) width along +y (= alpha when isotropic)
     eta: jax.Array  # (Bd,) n_below / n_above
     albedo: jax.Array  # (Bd, C)
     cond_n: jax.Array  # (Bd, C) relative to the medium above
@@ -126,6 +127,14 @@ def _smooth_dielectric(w, eta, u):
     return jnp.where(reflect[..., None], _flip_z(w), w_t)
 
 
+def _rough(module, group, alpha, alpha_y):
+    """The microfacet model (isotropic or anisotropic) of a rough boundary group
+    ("ggx" or "ggx:anisotropic") and its width parameters."""
+    if group.endswith(":anisotropic"):
+        return module.ANISOTROPIC, {"alpha_x": alpha, "alpha_y": alpha_y}
+    return module.MODEL, {"alpha": alpha}
+
+
 def _boundary_event(cfg, arr, st, b, u):
     """New propagation direction, weight factor (B, C) and whether the event is non-specular,
     for every path meeting boundary b (B,)."""
@@ -147,8 +156,9 @@ def _boundary_event(cfg, arr, st, b, u):
             gw = _smooth_dielectric(w, arr.eta[b], u[:, 2])
             gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
         elif g.startswith("rough:"):
-            params = {"alpha": arr.alpha[b], "eta": arr.eta[b]}
-            gw, wt, _ = rough_dielectric.MODEL.sample(params, wi, u[:, 0:3], distribution=g[6:])
+            model, params = _rough(rough_dielectric, g[6:], arr.alpha[b], arr.alpha_y[b])
+            gw, wt, _ = model.sample({**params, "eta": arr.eta[b]}, wi, u[:, 0:3],
+                                     distribution=g[6:].split(":")[0])
             gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
         elif g == "lambertian":
             # cosine-weighted hemisphere (Malley), weight = albedo
@@ -162,9 +172,11 @@ def _boundary_event(cfg, arr, st, b, u):
             gf = fresnel_conductor_exact(jnp.abs(w[:, 2:3]), arr.cond_n[b], arr.cond_k[b])
             gd = jnp.zeros((B,), dtype=bool)
         elif g.startswith("conductor:"):
-            params = {"alpha": arr.alpha[b][:, None], "n": arr.cond_n[b], "k": arr.cond_k[b]}
-            wo, wt, _ = rough_conductor.MODEL.sample(params, wi[:, None, :], u[:, None, 0:3],
-                                                     distribution=g[10:])
+            model, params = _rough(rough_conductor, g[10:], arr.alpha[b][:, None],
+                                   arr.alpha_y[b][:, None])
+            wo, wt, _ = model.sample({**params, "n": arr.cond_n[b], "k": arr.cond_k[b]},
+                                     wi[:, None, :], u[:, None, 0:3],
+                                     distribution=g[10:].split(":")[0])
             gw, gf, gd = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool)
         else:  # pragma: no cover - scene.py admits no other kind
             raise ValueError(g)
