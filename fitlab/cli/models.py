@@ -25,11 +25,21 @@ def _model_record(model):
         "name": model.name,
         "summary": model.summary,
         "lobes": model.lobes,
+        "capabilities": {k: v for k, v in model.capabilities._asdict().items()},
         "parameters": [p._asdict() for p in model.parameters],
         "options": [{"name": o.name, "choices": list(o.choices), "default": o.default,
                      "description": o.description} for o in model.options],
         "reference": model.reference,
     }
+
+
+def _capabilities_text(c) -> str:
+    words = [c.lobes, "isotropic" if c.isotropic else "anisotropic"]
+    words += [w for w, on in (("reciprocal", c.reciprocal), ("lambertian", c.lambertian),
+                              ("not energy conserving", not c.energy_conserving)) if on]
+    if c.delta:
+        words.append(f"delta left out of f: {c.delta}")
+    return ", ".join(words)
 
 
 def _presets_of(model):
@@ -51,13 +61,13 @@ def run(args):
         print("Layered models take a model as argument: coated(INNER) puts any model (sums "
               "too) under a smooth dielectric coat, coated(INNER,specular=lobe) adds a narrow "
               "coat lobe; weidlich_wilkie(BASE[,layers=K]) stacks K-1 microfacet interfaces "
-              "over a lambertian, oren_nayar or rough_conductor base "
+              "over any BRDF base (lambertian, oren_nayar, rough_conductor ...) "
               "(data_formats/layered_models.md).\n")
     for m in models:
-        print(f"{m.name}: {m.summary}  [{m.lobes}]")
+        print(f"{m.name}: {m.summary}  [{_capabilities_text(m.capabilities)}]")
         for p in m.parameters:
             print(f"  --param {p.name}=VALUE   {p.description}; bounds [{p.lower:g}, {p.upper:g}], "
-                  f"unit {p.unit}, typical {p.default:g}")
+                  f"unit {p.unit}, typical {p.default:g}, role {p.role}")
         for o in m.options:
             print(f"  --option {o.name}={'|'.join(o.choices)}   {o.description} "
                   f"(default {o.default})")

@@ -52,9 +52,13 @@ def write_merl(path, model: str, params, options: dict | None = None) -> dict:
     a model that does not reflect is refused, the transmission of one that also transmits is
     left out (noted). Returns a summary (channels, bins with a value, f range, notes)."""
     m = fitlab.get_model(model)
-    if "reflection" not in m.lobes:
+    if not m.capabilities.reflection:
         raise FitlabError(f"model {m.name!r} does not reflect ({m.lobes}); a MERL file holds a "
                           "BRDF (reflection only): choose a reflecting model or write Zemax BTDF")
+    if not m.capabilities.isotropic:
+        raise FitlabError(f"model {m.name!r} is anisotropic; a MERL file holds an isotropic BRDF "
+                          "(its bins have no half-vector azimuth φh): write a Zemax file "
+                          "(.bsdf, Asymmetrical) instead")
     options = resolve_options(m, options)
     raw = tabulate_model(m.name, params, options)
     with atomic_open(path, "wb") as fh:
@@ -62,7 +66,7 @@ def write_merl(path, model: str, params, options: dict | None = None) -> dict:
     valid = raw >= 0
     f = raw * np.asarray(SCALES).reshape(3, 1, 1, 1)
     notes = []
-    if "transmission" in m.lobes:
+    if m.capabilities.transmission:
         notes.append(f"model {m.name!r} also transmits light; a MERL file holds its reflection "
                      "(BRDF) only")
     return {"path": str(path), "model": m.name, "channels": list(CHANNELS),

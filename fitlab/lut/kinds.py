@@ -222,6 +222,11 @@ def halfdiff_coordinates(wi, wo):
 def spec_model(model_name, params, options=None, size=(256, 256), mappings=("u8", "linear")):
     """``params``: {channel: {parameter: value}} of a registry model (every parameter given)."""
     model = fitlab.get_model(model_name)
+    if not model.capabilities.isotropic:
+        raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd) table holds "
+                         "isotropic BRDFs only (it has no azimuth of the half vector); tabulate "
+                         "it as a Zemax file with fitlab convert (Asymmetrical), or fit an "
+                         "isotropic model")
     opts = fitlab.api.resolve_options(model, options)
     clean = {}
     for ch, p in params.items():
@@ -241,7 +246,7 @@ def spec_model(model_name, params, options=None, size=(256, 256), mappings=("u8"
     notes = ("2D (θh, θd) tables are exact for BRDFs that depend on θh and θd only; other "
              "isotropic BRDFs (G and Oren–Nayar depend on φd) are represented at φd = 90°: "
              "accuracy.parameterization gives the error this makes over random direction pairs",)
-    if "transmission" in model.lobes:
+    if model.capabilities.transmission:
         notes += ("the model also transmits; the table holds its reflection (wo.z > 0) only",)
     return Spec("model", tuple(clean), axes, evaluate,
                 f"BRDF f(wi, wo) in 1/sr (without the cosine) of {model.name} at "
