@@ -234,7 +234,8 @@ def test_anisotropic_rough_conductor_substrate_matches_the_anisotropic_model(dis
         "stack": [], "substrate": {"type": "conductor", "distribution": distribution,
                                    "alpha_x": 0.1, "alpha_y": 0.4, "n": 0.2, "k": 3.9},
         "illumination": {"theta_i": [40.0]},
-        "detector": {"type": "hemisphere", "theta_bins": T, "phi_bins": P}})
+        "detector": {"type": "hemisphere", "theta_bins": T, "phi_bins": P,
+                     "sides": ["reflection"]}})
     r = simulate(scene, N, seed=13)
     rows = detectors.hemisphere_rows(T, P, ("reflection",))
     model = fitlab.get_model("rough_conductor_anisotropic")
