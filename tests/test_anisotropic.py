@@ -113,9 +113,13 @@ def test_fit_recovers_both_widths_from_a_tabulated_file(tmp_path, capsys):
     zemax_out.write_zemax(path, "rough_conductor_anisotropic", PARAMS, grid=grid)
     fit = tmp_path / "fit.json"
     assert main(["fit", str(path), "--model", "rough_conductor_anisotropic", "--fix", "n=0.2",
-                 "--fix", "k=3.9", "--loss", "relative", "--quiet", "--out", str(fit)]) == 0
+                 "--fix", "k=3.9", "--loss", "relative", "--quiet", "--out", str(fit),
+                 "--report", str(tmp_path / "report")]) == 0
     rec = json.loads(fit.read_text())
     p = rec["fits"][0]["parameters"]
     assert p["alpha_x"]["value"] == pytest.approx(0.08, rel=1e-3)
     assert p["alpha_y"]["value"] == pytest.approx(0.3, rel=1e-3)
     assert rec["model"]["lobes"] == "reflection"
+    # the report's hemisphere maps show the data and the anisotropic model per sample rotation
+    html = (tmp_path / "report" / "index.html").read_text()
+    assert "Hemispherical maps" in html and "φi = 90°" in html

@@ -327,7 +327,9 @@ def _maps(rep, inp, ch, preds, tag):
             x, y = geo.disc_xy(m.theta_o[r], m.phi_o[r])
             vals = m.value[rows]
             floor = MAP_FLOOR * float(np.median(vals[vals > 0])) if (vals > 0).any() else 0.0
-            rows_fig.append(MapRow(f"θi = {inc.theta_i:.4g}°, {side}", x, y, m.value[r],
+            # φi named when the data hold several (an anisotropic sample's rotations)
+            phi = f", φi = {inc.phi_i:.4g}°" if inc.phi_i else ""
+            rows_fig.append(MapRow(f"θi = {inc.theta_i:.4g}°{phi}, {side}", x, y, m.value[r],
                                    p[idx], floor))
     if not rows_fig:
         return None
@@ -355,7 +357,7 @@ def _lobes(rep, inp, ch, tag):
                      for inc in geo.incidences(m, ch.rows)})
     thetas = [t for t in thetas if t < 90.0] or [0.0]
     thetas = geo.pick_evenly(thetas, MAX_LOBES)
-    model_sides = [geo.REFLECTION] + ([geo.TRANSMISSION] if "transmission" in inp.model.lobes
+    model_sides = [geo.REFLECTION] + ([geo.TRANSMISSION] if inp.model.capabilities.transmission
                                       else [])
     sides = {}
     for side in model_sides:
