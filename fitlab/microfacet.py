@@ -390,16 +390,24 @@ def sample_m_vMF(u1, u2, alpha, alpha_y=None):
 
 
 # --------------------------------------------------------------------------------------------
-# LUT axis warps: du/dt of the warped α axis of the D table (Elek's u⁸ axis), per distribution
+# du1/dt of the sampling in the variable t with tan θm = α tan t, where u1 is the CDF of
+# D(m)|m·n| in θm: the inverse of Walter eq. 35 (GGX, tan²θm = α² u1/(1 - u1), so u1 = sin²t)
+# and of eq. 28 (Beckmann, tan²θm = -α² log(1 - u1), so u1 = 1 - exp(-tan²t)). In t the lobe
+# (θm ~ α) and the horizon (θm -> 90°) are both smooth: in u1 the horizon is a square-root
+# endpoint singularity. The albedo quadrature (fitlab.lut.albedo) integrates in t.
 # --------------------------------------------------------------------------------------------
 
 
-def _du_dt_ggx(t):
-    return 8.0 * t**7
+def du1_dt_GGX(t):
+    return jnp.sin(2.0 * t)
 
 
-def _du_dt_beckmann(t):
-    return 8.0 * t**7
+def du1_dt_Beckmann(t):
+    c = jnp.cos(t)
+    ok = c > 1e-150
+    tan_t = jnp.sin(t) / jnp.where(ok, c, 1.0)
+    x = jnp.where(ok & (tan_t < 30.0), tan_t, 30.0)  # exp(-900) = 0: the density has vanished
+    return jnp.where(ok, 2.0 * x * (1.0 + x * x) * jnp.exp(-x * x), 0.0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -425,6 +433,9 @@ class Family(NamedTuple):
     anisotropic: bool = False
     #: one of Walter 2007's distributions (shares D(n) = 1/(πα²)), offered by the microfacet models
     walter: bool = True
+    #: du1/dt of the sampling of D(m)|m·n| in t (tan θm = α tan t), for quadrature over
+    #: normals (the albedo tables); None where there is no closed form here (Phong, vMF)
+    du1_dt: Callable | None = None
 
     def __call__(self, alpha_x, alpha_y=None) -> "MicrofacetDistribution":
         if alpha_y is not None and not self.anisotropic:
@@ -507,13 +518,13 @@ REGISTRY: dict[str, Family] = {
     for f in (
         Family("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36; anisotropic: "
                "Heitz 2014 eqs 72, 85; visible normals: Heitz 2018", G_GGX, Lambda_GGX,
-               sample_visible_GGX, anisotropic=True),
+               sample_visible_GGX, anisotropic=True, du1_dt=du1_dt_GGX),
         Family("beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann,
                "Walter 2007 eqs 25, 26, 28-29; anisotropic: Heitz 2014 eqs 83, 86",
-               Lambda=Lambda_Beckmann, anisotropic=True),
+               Lambda=Lambda_Beckmann, anisotropic=True, du1_dt=du1_dt_Beckmann),
         Family("beckmann_rational", D_Beckmann, G1_Beckmann_rational, sample_m_Beckmann,
                "Walter 2007 eqs 25, 27 (rational G1), 28-29; anisotropic: Heitz 2014 eq. 86",
-               anisotropic=True),
+               anisotropic=True, du1_dt=du1_dt_Beckmann),
         Family("phong", D_Phong, G1_Beckmann_rational, sample_m_Phong,
                "Walter 2007 eqs 30-32, G1 by eq. 27 (isotropic only)"),
         Family("vmf", D_vMF, G1_vMF, sample_m_vMF,
@@ -521,10 +532,6 @@ REGISTRY: dict[str, Family] = {
                "(isotropic only)", walter=False),
     )
 }
-
-#: The LUT's warped α axis per distribution (used by the albedo quadrature's u⁸ axis).
-LUT_DU_DT = {"ggx": _du_dt_ggx, "beckmann": _du_dt_beckmann, "beckmann_rational": _du_dt_beckmann}
-
 
 def names(*, walter: bool | None = True, anisotropic: bool | None = None) -> tuple[str, ...]:
     """Registry names, filtered: ``walter=True`` the distributions of Walter 2007 that the

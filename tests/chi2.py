@@ -74,15 +74,16 @@ def _merge_edges(lo, hi, uniform, quantiles, fixed=(), min_width=1e-7):
     return np.unique(np.concatenate([keep, [hi], np.asarray(fixed, float)]))
 
 
-def grid_edges(pilot_wo, n_uniform_theta=16, n_uniform_phi=16, n_quantile=32):
-    """θ and φ edges from uniform divisions plus quantiles of a pilot batch of valid samples."""
+def grid_edges(pilot_wo, n_uniform_theta=16, n_uniform_phi=16, n_quantile=32, fixed_theta=()):
+    """θ and φ edges from uniform divisions plus quantiles of a pilot batch of valid samples;
+    θ = π/2 and ``fixed_theta`` (cones where the density is known to jump) are always edges."""
     levels = (np.arange(1, n_quantile) / n_quantile)
     if len(pilot_wo):
         theta, phi = to_spherical(pilot_wo)
         qt, qp = np.quantile(theta, levels), np.quantile(phi, levels)
     else:
         qt = qp = np.empty(0)
-    theta_edges = _merge_edges(0.0, np.pi, n_uniform_theta, qt, fixed=(0.5 * np.pi,))
+    theta_edges = _merge_edges(0.0, np.pi, n_uniform_theta, qt, fixed=(0.5 * np.pi, *fixed_theta))
     phi_edges = _merge_edges(-np.pi, np.pi, n_uniform_phi, qp)
     return theta_edges, phi_edges
 

@@ -140,17 +140,17 @@ def _eval_and_grad(name):
 
 
 @functools.lru_cache(maxsize=None)
-def _jit(name, which):
-    return jax.jit(getattr(get_model(name), which))
+def _jit(name, which, options=()):
+    return jax.jit(functools.partial(getattr(get_model(name), which), **dict(options)))
 
 
 CHUNK = 8192
 
 
-def _fn(name, which):
+def _fn(name, which, options=()):
     """``model.<which>`` over fixed-size padded chunks of float64 rows: one compilation per
-    (model, function) whatever the batch size."""
-    fn = _jit(name, which)
+    (model, function, options) whatever the batch size."""
+    fn = _jit(name, which, tuple(sorted(dict(options).items())))
 
     def call(params, a, b):
         a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -213,18 +213,36 @@ def _sample_batch(model, seed=3):
     return params, wi, u
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_sample_weight_is_f_cos_over_pdf_and_pdf_matches(name):
+def _option_variants():
+    """Default options (fast), and each other choice of each option on its own (slow)."""
+    cases = []
+    for n in NAMES:
+        cases.append(pytest.param(n, {}, id=n))
+        for o in get_model(n).options:
+            for c in o.choices:
+                if c != o.default:
+                    cases.append(pytest.param(n, {o.name: c}, id=f"{n}-{o.name}={c}",
+                                              marks=pytest.mark.slow))
+    return cases
+
+
+@pytest.mark.parametrize("name, options", _option_variants())
+def test_sample_weight_is_f_cos_over_pdf_and_pdf_matches(name, options):
     model = get_model(name)
     params, wi, u = _sample_batch(model)
-    wo, weight, pdf_s = _fn(name, "sample")(params, wi, u)
+    try:
+        sample = _fn(name, "sample", options)
+        wo, weight, pdf_s = sample(params, wi, u)
+    except ValueError as exc:  # a combination the model refuses, with a message
+        assert "option" in str(exc) or "isotropic" in str(exc), exc
+        return
     assert np.all(np.isfinite(wo)) and np.all(np.isfinite(weight)) and np.all(np.isfinite(pdf_s))
     assert np.all(weight >= 0) and np.all(pdf_s >= 0)
     valid = pdf_s > 0
     assert valid.any()
     assert np.all(weight[~valid] == 0)
-    f = _fn(name, "eval")(params, wi, wo)
-    pdf_e = _fn(name, "pdf")(params, wi, wo)
+    f = _fn(name, "eval", options)(params, wi, wo)
+    pdf_e = _fn(name, "pdf", options)(params, wi, wo)
     # narrow lobes: the recomputed half-vector moves D by (δθ/α)²; compare where pdf is moderate
     ok = valid & (pdf_s < 1e6)
     np.testing.assert_allclose(pdf_e[ok], pdf_s[ok], rtol=2e-5, atol=1e-12,

@@ -166,25 +166,6 @@ FAST_CHI2 = {
 }
 
 
-#: χ² cases whose grid has a cell straddling the edge of the transmission support: refraction
-#: through a normal m with m_z > 0 gives wo_z < -wi_z η_i/η_o, a cone of constant θo. There
-#: the visible-normal pdf jumps (GGX's D(m) stays non-zero as m reaches the horizon, so D_wi(m)
-#: does too, whereas D(m)|m·n| of the other samplings goes to 0), and the cell's adaptive
-#: quadrature misses a sliver of its mass (alpha1_45deg: 16 samples in a cell of expectation 0)
-#: or its error bound exceeds one sample. tests/chi2.py fixes a θ edge only at the horizon; with
-#: one more at that cone these cases pass (p ≥ 0.009). Strict: an XPASS means the grid was fixed.
-CHI2_GRID_STRADDLES_JUMP = {
-    "rough_dielectric-ggx-visible-inside60_tir",
-    "rough_dielectric-ggx-visible-denser_outside_grazing85",
-    "rough_dielectric-ggx-visible-eta1.05_30deg",
-    "rough_dielectric-ggx-visible-alpha1_45deg",
-    "rough_dielectric-ggx-visible-alpha1_grazing89",
-    "rough_dielectric-ggx-visible-alpha1_inside70",
-    "rough_dielectric_anisotropic-ggx-visible-0.05x0.4_45deg_phi-120",
-    "rough_dielectric_anisotropic-ggx-visible-0.1x0.6_denser_outside60_phi120",
-}
-
-
 def _choices(model_name, option):
     """The choices a model declares for one of its options."""
     return next(o.choices for o in get_model(model_name).options if o.name == option)
@@ -214,10 +195,6 @@ def _chi2_cases():
         isotropic_default = (get_model(model_name).capabilities.isotropic
                              and (opts["distribution"], opts["sampling"]) == ("ggx", "standard"))
         marks = () if isotropic_default or case_id in FAST_CHI2 else (pytest.mark.slow,)
-        if case_id in CHI2_GRID_STRADDLES_JUMP:
-            marks += (pytest.mark.xfail(strict=True, reason="χ² grid cell straddles the jump of "
-                                        "the visible-normal pdf at the transmission support's "
-                                        "edge (see CHI2_GRID_STRADDLES_JUMP)"),)
         cases.append(pytest.param(model_name, params, theta, phi, opts, id=case_id, marks=marks))
 
     for opts in _sampling_option_sets("rough_dielectric"):
@@ -237,9 +214,7 @@ def _chi2_cases():
     for name, params in DIFFUSE_CONFIGS:
         for theta in (0.0, 45.0, 85.0):
             cases.append(pytest.param(name, params, theta, 180.0, {}, id=f"{name}-{theta:g}deg"))
-    ids = {c.id for c in cases}
-    assert FAST_CHI2 <= ids and CHI2_GRID_STRADDLES_JUMP <= ids, (
-        (FAST_CHI2 | CHI2_GRID_STRADDLES_JUMP) - ids)
+    assert FAST_CHI2 <= {c.id for c in cases}, FAST_CHI2 - {c.id for c in cases}
     return cases
 
 
@@ -250,12 +225,25 @@ LEVEL = sidak_level(SIGNIFICANCE, N_CHI2_TESTS)
 Z_MASS = sidak_z(SIGNIFICANCE, N_CHI2_TESTS)
 
 
+def _transmission_edge(model_name, params, wi):
+    """θo of the edge of a rough dielectric's transmission support, as a χ² grid edge: refraction
+    through normals with m_z > 0 reaches only |wo_z| > |wi_z| η_i/η_o, and at that cone the
+    visible-normal pdf (and f_t) jumps, GGX's D(m) staying non-zero as m reaches the horizon.
+    ``eta`` = n_inside / n_outside; () where there is no such cone or no transmission."""
+    if not get_model(model_name).capabilities.transmission or "eta" not in params:
+        return ()
+    c = float(wi[2])
+    edge = abs(c) / (params["eta"] if c > 0 else 1.0 / params["eta"])  # |wi_z| η_i/η_o
+    return (float(np.arccos(-np.sign(c) * edge)),) if edge < 1.0 else ()
+
+
 @pytest.mark.parametrize("model_name, params, theta_i, phi_i, options", CHI2_CASES)
 def test_chi2_sampling_matches_pdf(model_name, params, theta_i, phi_i, options, request):
     wi = _direction(theta_i, phi_i)
     seed = zlib.crc32(request.node.callspec.id.encode())  # fixed per case, hash-seed independent
     res = chi2_test(sampler(model_name, params, wi, options),
-                    density(model_name, params, wi, options), N_SAMPLES, seed)
+                    density(model_name, params, wi, options), N_SAMPLES, seed,
+                    fixed_theta=_transmission_edge(model_name, params, wi))
     print(res.report())
     # The quadrature error bound (|4-child - parent| summed over leaf cells, a large
     # overestimate of the error of the 4-child values used) stays below one expected sample.

@@ -25,29 +25,8 @@ from fitlab.numerics import ALPHA_MIN
 from fitlab.quadrature import gauss_legendre, gauss_legendre_panels
 
 
-#: du1/dt of each distribution's sampling in the variable t with tan θm = α tan t, where u1 is
-#: the CDF of D(m)|m·n| in θm: the inverse of Walter eq. 35 (GGX, tan²θm = α² u1/(1 - u1), so
-#: u1 = sin²t) and of eq. 28 (Beckmann, tan²θm = -α² log(1 - u1), so u1 = 1 - exp(-tan²t)).
-#: In t the lobe (θm ~ α) and the horizon (θm -> 90°) are both smooth: in u1 the horizon is a
-#: square-root endpoint singularity.
-def _du_dt_ggx(t):
-    return jnp.sin(2.0 * t)
-
-
-def _du_dt_beckmann(t):
-    c = jnp.cos(t)
-    ok = c > 1e-150
-    tan_t = jnp.sin(t) / jnp.where(ok, c, 1.0)
-    x = jnp.where(ok & (tan_t < 30.0), tan_t, 30.0)  # exp(-900) = 0: the density has vanished
-    return jnp.where(ok, 2.0 * x * (1.0 + x * x) * jnp.exp(-x * x), 0.0)
-
-
-#: Per distribution of the registry (fitlab.microfacet.DISTRIBUTIONS), by its name: a property of
-#: the distribution's sampling, to move to the distribution objects. Phong has no closed-form
-#: inverse CDF in t here.
-_DU_DT = {"ggx": _du_dt_ggx, "beckmann": _du_dt_beckmann, "beckmann_rational": _du_dt_beckmann}
 #: The registry's distributions the albedo quadrature supports, in registry order.
-ALBEDO_DISTRIBUTIONS = tuple(name for name in DISTRIBUTIONS if name in _DU_DT)
+ALBEDO_DISTRIBUTIONS = tuple(name for name, d in DISTRIBUTIONS.items() if d.du1_dt is not None)
 
 #: Default quadrature orders: Gauss–Legendre nodes per θm panel (in t), per φm panel (over
 #: [0, π]) and in μ for the averages; the error estimate compares these with twice these, whose
@@ -125,7 +104,7 @@ def _albedo_point(mu, alpha, eta, *, distribution, mode, n_u, n_phi):
     φ panel. mode "conductor": [E] with F = 1; "dfg": [scale, bias]; "dielectric": [R, T] for
     incidence from the side where the relative index is η (rough_dielectric's frame flip)."""
     dist = get_distribution(distribution)
-    du_dt = _DU_DT[distribution]
+    du_dt = dist.du1_dt  # quadrature in t, tan θm = α tan t
     half_pi = 0.5 * jnp.pi
     ci = jnp.maximum(mu, MU_MIN)
     si = jnp.sqrt(jnp.maximum(1.0 - ci * ci, 0.0))

@@ -82,7 +82,7 @@ def sample_weight(dist, wi, wo, m, sampling):
     eq. 41, (i·m) G(i, o, m) / (|i·n||m·n|) (times D/D† when widened); for visible normals
     G(i, o, m)/G1(i) = G1(o, m)."""
     if sampling == "visible":
-        return dist.smith_G1(wo, m) * (dot(wi, m) > 0)
+        return jnp.where(dot(wi, m) > 0, dist.smith_G1(wo, m), 0.0)
     ci, c, mz = wi[..., 2], dot(wi, m), m[..., 2]
     G = dist.smith_G1(wi, m) * dist.smith_G1(wo, m)
     weight = safe_div(c * G, ci * mz)
