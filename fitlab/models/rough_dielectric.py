@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from fitlab.fresnel import fresnel_dielectric_Walter2007
-from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refract
+from fitlab.fresnel import fresnel_dielectric, fresnel_dielectric_Walter2007
+from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refracted
 from fitlab.models import roughness
 from fitlab.models.base import Capabilities, Model, Parameter
 from fitlab.numerics import safe_div, safe_rsqrt, sign_nonzero
@@ -106,10 +106,11 @@ def make(anisotropic: bool) -> Model:
         ci = wi[..., 2]
         m = roughness.sample_normal(dist, wi, u, sampling)
         c = dot(wi, m)
-        F = fresnel_dielectric_Walter2007(c, eta)
+        # one Fresnel evaluation gives F and the refracted cosine (c > 0 on valid samples)
+        F, cos_t, _, eta_ti = fresnel_dielectric(c, eta)
         choose_r = u[..., 2] < F
         wo_r = reflect(wi, m)  # Walter eq. 39
-        wo_t, _ = refract(wi, m, eta)  # Walter eq. 40 (TIR has F = 1, so it is never chosen)
+        wo_t = refracted(wi, m, cos_t, eta_ti)  # Walter eq. 40 (TIR: F = 1, never chosen)
         wo = jnp.where(choose_r[..., None], wo_r, wo_t)
         co = wo[..., 2]
         valid = (ci > 0) & (c > 0) & jnp.where(choose_r, co > 0, co < 0)
