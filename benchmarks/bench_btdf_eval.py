@@ -28,7 +28,7 @@ Conventions mapped before comparing the values: Mitsuba's eval includes |cos θo
 mode its transmitted value carries (η_i/η_o)² = 1/eta² relative to Walter's eq. 21, which fitlab
 evaluates; so Mitsuba ≈ fitlab · |cos θo| / eta².
 
-Usage: python benchmarks/bench_btdf_eval.py [--pairs 1000000] [--repeat 21] [--seed 0]
+Usage: python benchmarks/bench_btdf_eval.py [--pairs 1000000] [--repeat 21] [--seed 0] [--alpha-y A]
            [--block 5] [--pause 0.05] [--alpha 0.3] [--eta 1.5] [--cores K]
 Mitsuba's LLVM backend needs libLLVM (Debian: ``apt-get install libllvm19``); set
 DRJIT_LIBLLVM_PATH to use a particular one, otherwise standard library folders are searched.
@@ -112,7 +112,7 @@ def timed(fn):
 
 
 def run(pairs=1_000_000, repeat=21, seed=0, alpha=0.3, eta=1.5, block=5, pause=0.05,
-        quiet=False):
+        quiet=False, alpha_y=None):
     """Run the benchmark; returns a dict of the figures (also printed unless ``quiet``)."""
     say = (lambda *a, **k: None) if quiet else print
     libllvm = find_libllvm()
@@ -143,13 +143,20 @@ def run(pairs=1_000_000, repeat=21, seed=0, alpha=0.3, eta=1.5, block=5, pause=0
         ) from exc
 
     wi_np, wo_np = make_pairs(pairs, seed)
-    params = {"alpha": alpha, "eta": eta}
+    # isotropic: rough_dielectric (alpha); with alpha_y: rough_dielectric_anisotropic against
+    # Mitsuba's alpha_u, alpha_v
+    if alpha_y is None:
+        model, params, mi_alpha = "rough_dielectric", {"alpha": alpha, "eta": eta}, {"alpha": alpha}
+    else:
+        model = "rough_dielectric_anisotropic"
+        params = {"alpha_x": alpha, "alpha_y": alpha_y, "eta": eta}
+        mi_alpha = {"alpha_u": alpha, "alpha_v": alpha_y}
 
     # ---- fitlab: (N, 3) float32 arrays already on the device --------------------------------
     wi_j, wo_j = jax.device_put(wi_np), jax.device_put(wo_np)
 
     def fitlab_call():
-        return fitlab.eval_bsdf("rough_dielectric", params, wi_j, wo_j).block_until_ready()
+        return fitlab.eval_bsdf(model, params, wi_j, wo_j).block_until_ready()
 
     t_first_fl, f_fl = timed(fitlab_call)
     if f_fl.dtype != jnp.float32:
@@ -157,7 +164,7 @@ def run(pairs=1_000_000, repeat=21, seed=0, alpha=0.3, eta=1.5, block=5, pause=0
 
     # ---- Mitsuba: Vector3f arrays of N, evaluated before timing -------------------------------
     bsdf = mi.load_dict({
-        "type": "roughdielectric", "distribution": "ggx", "alpha": alpha,
+        "type": "roughdielectric", "distribution": "ggx", **mi_alpha,
         "int_ior": eta, "ext_ior": 1.0, "sample_visible": False,
     })
     si = dr.zeros(mi.SurfaceInteraction3f, pairs)
@@ -221,7 +228,7 @@ def run(pairs=1_000_000, repeat=21, seed=0, alpha=0.3, eta=1.5, block=5, pause=0
 
     res = {
         "pairs": pairs, "repeat": repeat, "seed": seed, "block": block, "pause_s": pause,
-        "alpha": alpha, "eta": eta,
+        "alpha": alpha, "alpha_y": alpha_y, "model": model, "eta": eta,
         "cpu": cpu_model(), "cpus": cpus,
         "python": platform.python_version(), "jax": jax.__version__,
         "mitsuba": mi.__version__, "drjit": dr.__version__, "libllvm": libllvm,
@@ -245,7 +252,8 @@ def run(pairs=1_000_000, repeat=21, seed=0, alpha=0.3, eta=1.5, block=5, pause=0
     say(f"versions: python {res['python']}, jax {res['jax']}, mitsuba {res['mitsuba']}, "
         f"drjit {res['drjit']}, libLLVM {libllvm or '(Dr.Jit default search)'}")
     say(f"pairs   : {pairs:,} float32 transmission pairs (wi z>0, wo z<0, uniform), seed {seed}; "
-        f"GGX alpha={alpha}, eta={eta}; {res['nonzero']:,} nonzero")
+        f"{model} GGX alpha={alpha}" + (f", alpha_y={alpha_y}" if alpha_y is not None else "")
+        + f", eta={eta}; {res['nonzero']:,} nonzero")
     say(f"first call (trace + compile): fitlab {t_first_fl * 1e3:.1f} ms, "
         f"Mitsuba {t_first_mi * 1e3:.1f} ms (Dr.Jit disk cache may hit)")
     say(f"time per call, median (min) over {repeat} blocks of {block} calls: interleaved = the two "
@@ -272,6 +280,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="seed of the random pairs (0)")
     ap.add_argument("--alpha", type=float, default=0.3, help="GGX width α (0.3)")
     ap.add_argument("--eta", type=float, default=1.5, help="n_inside/n_outside (1.5)")
+    ap.add_argument("--alpha-y", type=float, default=None,
+                    help="anisotropic: width along +y (rough_dielectric_anisotropic with "
+                    "alpha_x = --alpha, against Mitsuba's alpha_u, alpha_v)")
     ap.add_argument("--block", type=int, default=5,
                     help="back-to-back calls timed together in each repetition (5)")
     ap.add_argument("--pause", type=float, default=0.05,
@@ -288,7 +299,8 @@ def main(argv=None) -> int:
         if "drjit" in sys.modules or "jax" in sys.modules:
             print("warning: --cores after JAX/Dr.Jit were loaded may not resize their pools")
     try:
-        res = run(args.pairs, args.repeat, args.seed, args.alpha, args.eta, args.block, args.pause)
+        res = run(args.pairs, args.repeat, args.seed, args.alpha, args.eta, args.block, args.pause,
+                  alpha_y=args.alpha_y)
     except MitsubaUnavailable as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
