@@ -16,21 +16,10 @@ import numpy as np
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.atomic import atomic_open
+from fitlab.io.conventions import CONVENTIONS
 
 SCHEMA = "fitlab-fit"
 SCHEMA_VERSION = 1
-
-CONVENTIONS = {
-    "frame": "local shading frame, normal = +z; theta from +z, phi from +x",
-    "directions": "unit vectors pointing away from the surface; wi toward the light, wo toward the detector",
-    "value": "BSDF f in 1/sr without the cosine factor; relative data: scale * f",
-    "angles": "degrees in files, radians in code",
-    "roughness": "alpha = microfacet width (Walter alpha_b / alpha_g); Phong via alpha_p = 2/alpha^2 - 2",
-    "shadowing": "separable Smith G = G1(i) G1(o) (Walter eq. 23)",
-    "refraction": "eta = n_inside / n_outside (inside = -z side); BTDF for radiance transport (Walter eq. 21)",
-    "document": "data_formats/CONVENTIONS.md",
-}
-
 
 def software_versions() -> dict:
     out = {"python": platform.python_version(), "platform": platform.platform()}
