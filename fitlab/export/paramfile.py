@@ -21,6 +21,7 @@ from fitlab.io.conventions import CONVENTIONS
 SCHEMA = "fitlab-fit"
 SCHEMA_VERSION = 1
 
+
 def software_versions() -> dict:
     out = {"python": platform.python_version(), "platform": platform.platform()}
     for pkg in ("fitlab", "jax", "jaxlib", "jaxopt", "emcee", "nlopt", "numpy"):
