@@ -4,7 +4,6 @@ optional chain files (NPZ). Both are built in memory and written atomically."""
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import io
 import json
 import platform
@@ -17,6 +16,7 @@ import fitlab
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.atomic import atomic_open
 from fitlab.io.conventions import CONVENTIONS
+from fitlab.io.files import read_bytes, sha256_of
 
 SCHEMA = "fitlab-fit"
 SCHEMA_VERSION = 1
@@ -125,7 +125,7 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
         np.savez_compressed(buf, **chains)
         blob = buf.getvalue()
         record = {**record, "chain": {"path": str(chain_path),
-                                      "sha256": hashlib.sha256(blob).hexdigest()}}
+                                      "sha256": sha256_of(blob)}}
     text = json.dumps(record, indent=2, allow_nan=False) + "\n"
     if blob is not None:
         with atomic_open(chain_path, "wb") as fh:
@@ -143,9 +143,10 @@ def read_fit(path) -> dict:
     """Read and validate a parameter file (schema name and version)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file", hint="check the path") from None
+        data = json.loads(read_bytes(path).decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputFileError(path, "is not UTF-8 text", hint="give a fitlab parameter file "
+                             "(data_formats/fit_json.md)") from None
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"is not valid JSON ({exc.msg})", line=exc.lineno) from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:

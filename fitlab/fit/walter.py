@@ -13,6 +13,7 @@ import numpy as np
 
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize
+from fitlab.io.fitfile import fit_parameters
 
 COS_MIN = 0.5
 LOW_VALUE = 0.01
@@ -55,13 +56,14 @@ def applies_to(model) -> bool:
 def add_empirical_D(record, result, m):
     """Add the empirical D points and their agreement with the fitted D to the record."""
     model = result["model"]
+    fitted = fit_parameters(record)  # {channel: {parameter: value}}, scale included
     for fit, ch in zip(record["fits"], result["channels"]):
         if not applies_to(model):
             fit["diagnostics"] = {"empirical_D": {
                 "skipped": "only for a single rough dielectric interface (a model with a "
                            "microfacet distribution, transmission and one index parameter)"}}
             continue
-        params = {k: v["value"] for k, v in fit["parameters"].items()}
+        params = fitted[fit["channel"]]
         scale = params.get("scale", 1.0)
         rows = ch["rows"]
         eta = params[model.parameters_with_role("index")[0].name]

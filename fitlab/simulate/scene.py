@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 from fitlab import microfacet
 from fitlab.errors import InputFileError
+from fitlab.io.files import read_bytes
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
 #: Microfacet distributions an interface or substrate may use ("smooth" = a flat interface).
@@ -586,11 +587,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
 def load_scene(path) -> Scene:
     """Read and validate a scene TOML file (data_formats/scene_toml.md)."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be read ({exc.strerror})",
-                             hint="check the path") from None
+    raw = read_bytes(path, folder_hint="give a scene TOML file")
     try:
         d = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
