@@ -21,6 +21,7 @@ def _kinds_text() -> str:
 
 
 def add_parser(sub):
+    from fitlab.export.lut_files import PHI_D_CHOICES
     from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS, CONDUCTOR_PRESETS
     from fitlab.microfacet import DISTRIBUTIONS
 
@@ -38,7 +39,10 @@ def add_parser(sub):
         "glass_F.exr; fitlab lut albedo_conductor --dtype float --out E_ggx.exr; fitlab lut "
         "model --from-fit fits/walter_rough_glass.json --out glass_brdf.exr; fitlab lut model "
         "--model rough_conductor --param alpha=0.2 --param n=0.2,1.0,1.2 --param k=3.9,2.6,2.4 "
-        "--out metal.exr",
+        "--out metal.exr; fitlab lut model --from-fit "
+        "fits/brown_vinyl_weidlich_wilkie_lambert.json --phi-d auto --out vinyl.exr (a phi_d "
+        "axis if the 2D table misses the target); fitlab lut model --model oren_nayar --param "
+        "albedo=0.5 --param sigma=0.3 --size 128x128x16 --out on.exr (3D)",
     )
     p.add_argument("kind", metavar="KIND", help=f"table kind: {', '.join(lut.KINDS)}")
     p.add_argument("--from-fit", metavar="FIT.json",
@@ -55,7 +59,17 @@ def add_parser(sub):
                    f"appendix A: {', '.join(CONDUCTOR_PRESETS)}")
     p.add_argument("--size", metavar="NxN[xN]",
                    help=f"samples per axis, {lut.SIZE_MIN}..{lut.SIZE_MAX} (one number: every "
-                   "axis); default per kind")
+                   "axis); default per kind; model: a third number adds the phi_d axis "
+                   "(e.g. 256x256x16)")
+    target = lut.PHI_D_TARGET
+    p.add_argument("--phi-d", choices=PHI_D_CHOICES,
+                   help="model only: slice = the 2D table at phi_d = 90 deg (the default "
+                   "unless --size gives a third number); auto = bake the 2D table, measure its "
+                   "parameterization error at random direction pairs and, if it misses the "
+                   f"target (RMS relative <= {target['rms_rel']:g}, max <= "
+                   f"{target['max_rel']:g}), bake the 3D table too (phi_d samples: the third "
+                   f"--size number, default {lut.PHI_D_SIZE}) and keep it unless it measures "
+                   "worse; both errors and the reason go into the header")
     p.add_argument("--mapping", action="append", metavar="AXIS=MAPPING",
                    help="axis mapping: " + ", ".join(f"{m.name} ({m.formula})"
                                                      for m in lut.MAPPINGS.values())
@@ -102,8 +116,17 @@ def _print_summary(table, written):
               f"{i['max_rel']:.3g}, RMS rel {i['rms_rel']:.3g}", file=sys.stderr)
     if "parameterization" in acc:
         p = acc["parameterization"]
-        print(f"  lookup vs the model at random direction pairs (phi_d = 90 deg assumed): "
-              f"max rel {p['max_rel']:.3g}, RMS rel {p['rms_rel']:.3g}", file=sys.stderr)
+        how = ("phi_d axis" if any(a.name == "phi_d" for a in table.axes)
+               else "phi_d = 90 deg assumed")
+        miss = "" if p.get("meets_target", True) else (
+            f" (misses the target RMS <= {p['target']['rms_rel']:g}, max <= "
+            f"{p['target']['max_rel']:g}"
+            + (": --phi-d auto or a third --size number adds a phi_d axis)"
+               if len(table.axes) == 2 else ")"))
+        print(f"  lookup vs the model at random direction pairs ({how}): max rel "
+              f"{p['max_rel']:.3g}, RMS rel {p['rms_rel']:.3g}{miss}", file=sys.stderr)
+    if "auto" in acc:
+        print(f"  axes chosen by measurement: {acc['auto']['reason']}", file=sys.stderr)
 
 
 def run(args) -> int:
@@ -125,7 +148,8 @@ def run(args) -> int:
                         params=channel_params(args.param), options=options, preset=args.preset,
                         size=args.size, mapping_items=args.mapping, alpha_range=args.alpha_range,
                         eta_range=args.eta_range, dtype=args.dtype,
-                        check_points=args.check_points, progress=progress)
+                        check_points=args.check_points, progress=progress,
+                        phi_d=args.phi_d)
     written = write_outputs(table, out, shader=not args.no_shader, hlsl=args.hlsl)
     if not args.quiet:
         _print_summary(table, written)

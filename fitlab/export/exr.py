@@ -181,9 +181,21 @@ def read_exr(path) -> Table:
                              hint=f"kinds: {', '.join(KINDS)}")
     channels = _json(path, attrs, "channels", list)
     axes = _axes(path, attrs)
-    if len(axes) != KINDS[kind].n_axes:
-        raise InputFileError(path, f"a {kind} table has {KINDS[kind].n_axes} axes, the header "
+    k = KINDS[kind]
+    if len(axes) not in k.axis_counts:
+        counts = " or ".join(str(c) for c in k.axis_counts)
+        raise InputFileError(path, f"a {kind} table has {counts} axes, the header "
                              f"declares {len(axes)}", column=PREFIX + "axes")
+    names = tuple(a.name for a in axes)
+    if names != k.all_axis_names[: len(axes)]:
+        raise InputFileError(path, f"a {len(axes)}-axis {kind} table has the axes "
+                             f"{', '.join(k.all_axis_names[: len(axes)])}, the header declares "
+                             f"{', '.join(names)}", column=PREFIX + "axes")
+    for a in axes:  # the model table's φd: [0°, 90°] (reciprocity fold) or [0°, 180°]
+        if a.name == "phi_d" and (a.lo != 0.0 or a.hi not in (90.0, 180.0)):
+            raise InputFileError(path, f"axis phi_d must span [0, 90] or [0, 180] degrees, got "
+                                 f"[{a.lo}, {a.hi}]", column=PREFIX + "axes",
+                                 hint="see data_formats/lut_exr.md, the model table")
     dtype = attrs["dtype"]
     if dtype not in ("half", "float"):
         raise InputFileError(path, f"dtype must be half or float, got {dtype!r}",

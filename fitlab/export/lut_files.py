@@ -16,7 +16,8 @@ from fitlab.errors import FitlabError
 
 
 def parse_size(text: str, kind: lut.Kind) -> tuple:
-    """'512x512', '32x32x16' or one number for every axis."""
+    """'512x512', '32x32x16' or one number for every (required) axis; a kind with optional
+    axes (the model table's phi_d) takes more sizes for them: '256x256x16'."""
     parts = text.lower().split("x")
     try:
         sizes = tuple(int(p) for p in parts)
@@ -25,7 +26,14 @@ def parse_size(text: str, kind: lut.Kind) -> tuple:
                           f"{'x'.join(map(str, kind.default_size))}") from None
     if len(sizes) == 1:
         sizes = sizes * kind.n_axes
-    if len(sizes) != kind.n_axes:
+    if len(sizes) not in kind.axis_counts:
+        names = kind.all_axis_names
+        if kind.extra_axes:
+            raise FitlabError(
+                f"--size {text!r}: a {kind.name} table has {kind.n_axes} axes "
+                f"({', '.join(kind.axis_names)}) or {len(names)} ({', '.join(names)}); give "
+                f"{' or '.join(str(c) for c in kind.axis_counts)} sizes, e.g. "
+                f"{'x'.join(map(str, kind.default_size + tuple(e[1] for e in kind.extra_axes)))}")
         raise FitlabError(f"--size {text!r}: a {kind.name} table has {kind.n_axes} axes "
                           f"({', '.join(kind.axis_names)}); give {kind.n_axes} sizes")
     for s in sizes:
@@ -36,19 +44,25 @@ def parse_size(text: str, kind: lut.Kind) -> tuple:
 
 
 def parse_mappings(items, kind: lut.Kind) -> tuple:
-    mappings = list(kind.default_mappings)
+    """The mapping of every axis, optional ones included (AXIS=MAPPING items over defaults)."""
+    names = kind.all_axis_names
+    mappings = list(kind.all_default_mappings)
     for item in items or []:
         name, sep, value = item.partition("=")
         if not sep:
             raise FitlabError(f"--mapping {item!r} must look like AXIS=MAPPING, e.g. "
                               f"{kind.axis_names[0]}=linear")
-        if name not in kind.axis_names:
+        if name not in names:
             raise FitlabError(f"--mapping {item!r}: a {kind.name} table has the axes "
-                              f"{', '.join(kind.axis_names)}")
+                              f"{', '.join(names)}")
         if value not in lut.MAPPINGS:
             raise FitlabError(f"--mapping {item!r}: mappings are {', '.join(lut.MAPPINGS)}")
-        mappings[kind.axis_names.index(name)] = value
+        mappings[names.index(name)] = value
     return tuple(mappings)
+
+
+#: --phi-d choices: the model table's φd axis (see build_table).
+PHI_D_CHOICES = ("slice", "auto")
 
 
 def parse_range(text, what):
@@ -78,18 +92,47 @@ def from_fit(path, channel=None):
 
 def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, options=None,
                 preset=None, size=None, mapping_items=None, alpha_range=None, eta_range=None,
-                dtype="half", check_points=None, progress=None):
+                dtype="half", check_points=None, progress=None, phi_d=None):
     """Validate the inputs of `fitlab lut` and bake the table (nothing written). ``model`` is a
     registry name, ``params`` {channel: {name: value}} and ``options`` the model's options
-    (the command line parses them: fitlab.cli.common); ``fit`` a parameter file instead."""
+    (the command line parses them: fitlab.cli.common); ``fit`` a parameter file instead.
+
+    ``phi_d`` (model tables, the kind's optional axis): None or ``"slice"``: the axes the sizes
+    give (two: the φd = 90° slice; three: with the φd axis); ``"auto"``: bake the 2D table and,
+    if its measured parameterization error misses fitlab.lut.PHI_D_TARGET, the 3D one too (φd
+    samples: the third size, or the kind's default) and keep the better (fitlab.lut.bake_auto).
+    """
     try:
         kind = lut.get_kind(kind_name)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     if fit and (model or params or preset):
         raise FitlabError("give either --from-fit or --model/--param/--preset, not both")
+    optional = [e[0] for e in kind.extra_axes]
+    if phi_d is not None:
+        if phi_d not in PHI_D_CHOICES:
+            raise FitlabError(f"--phi-d {phi_d!r}: choose {' or '.join(PHI_D_CHOICES)}")
+        if "phi_d" not in optional:
+            with_phi = [k.name for k in lut.KINDS.values()
+                        if "phi_d" in (e[0] for e in k.extra_axes)]
+            raise FitlabError(f"--phi-d applies to {' and '.join(with_phi)} tables only")
     sizes = parse_size(size, kind) if size else None
+    if phi_d == "slice" and sizes and len(sizes) > kind.n_axes:
+        raise FitlabError(f"--phi-d slice asks for the 2D φd = 90° table, but --size {size!r} "
+                          "gives a φd size; drop one of them")
     mappings = parse_mappings(mapping_items, kind)
+    n_axes = len(sizes) if sizes else kind.n_axes
+    if phi_d != "auto":
+        given = {item.partition("=")[0] for item in mapping_items or []}
+        unused = [a for a in kind.all_axis_names[n_axes:] if a in given]
+        if unused:
+            raise FitlabError(f"--mapping {unused[0]}=...: this {kind.name} table has no "
+                              f"{unused[0]} axis; give its size (--size "
+                              f"{'x'.join(map(str, kind.default_size))}x16) or --phi-d auto")
+        mappings = mappings[:n_axes]
+    if check_points == 0 and phi_d == "auto":
+        raise FitlabError("--phi-d auto chooses by the measured error: it needs the accuracy "
+                          "check (--check-points > 0)")
     if fit:
         model, options, params = from_fit(fit, channel)
     else:
@@ -104,12 +147,17 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
             params = kind.preset(preset)
         # what the kind needs from the model's or fit's parameters and options
         options, params = kind.prepare(model, options, params)
-        spec = lut.make_spec(kind.name, size=sizes, mappings=mappings, model=model, params=params,
-                             options=options,
-                             alpha_range=parse_range(alpha_range, "alpha"),
-                             eta_range=parse_range(eta_range, "eta"))
-        return lut.bake(spec, dtype, check_points=check_points,
-                        source_fit=str(fit) if fit else None, progress=progress)
+        spec_args = dict(model=model, params=params, options=options,
+                         alpha_range=parse_range(alpha_range, "alpha"),
+                         eta_range=parse_range(eta_range, "eta"))
+        source = str(fit) if fit else None
+        if phi_d == "auto":
+            return lut.bake_auto(kind.name, size=sizes, mappings=mappings, dtype=dtype,
+                                 check_points=check_points, source_fit=source,
+                                 progress=progress, **spec_args)
+        spec = lut.make_spec(kind.name, size=sizes, mappings=mappings, **spec_args)
+        return lut.bake(spec, dtype, check_points=check_points, source_fit=source,
+                        progress=progress)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
 
@@ -141,4 +189,4 @@ def write_outputs(table, out, *, shader=True, hlsl=False):
 
 
 __all__ = ["build_table", "write_outputs", "parse_size", "parse_mappings", "parse_range",
-           "from_fit"]
+           "from_fit", "PHI_D_CHOICES"]

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import re
 
-from fitlab.lut import MAPPINGS, Table
+from fitlab.lut import MAPPINGS, Table, get_kind
 
 
 def _f(x: float) -> str:
@@ -46,17 +46,17 @@ def _mapping_expr(axis, var: str) -> str:
     return f"clamp({t}, 0.0, 1.0)"
 
 
-_ARGS = {
-    "D": ("cos_theta_h", "alpha"),
-    "fresnel": ("cos_theta",),
-    "albedo_conductor": ("mu", "alpha"),
-    "dfg": ("mu", "alpha"),
-    "albedo_dielectric": ("mu", "alpha", "eta"),
-    "model": ("cos_theta_h", "cos_theta_d"),
-}
+def _arg_names(table: Table) -> tuple:
+    """The reader's argument names: the kind's axis names (optional ones included) from the
+    registry, never the file's strings (they become identifiers in the code)."""
+    return get_kind(table.kind).all_axis_names[: len(table.axes)]
 
+
+# GLSL's two-argument atan(y, x) is HLSL's atan2(y, x) (the generated code has no one-argument
+# atan)
 _HLSL = [(r"\bvec2\b", "float2"), (r"\bvec3\b", "float3"), (r"\bvec4\b", "float4"),
-         (r"\bivec2\b", "int2"), (r"\bmix\b", "lerp"), (r"\bfract\b", "frac")]
+         (r"\bivec2\b", "int2"), (r"\bmix\b", "lerp"), (r"\bfract\b", "frac"),
+         (r"\batan\(", "atan2(")]
 
 
 def texture_groups(table: Table):
@@ -81,7 +81,7 @@ def _generate(table: Table, p: str, source: str, lang: str) -> str:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", p):
         raise ValueError(f"shader prefix {p!r} must be an identifier")
     ax = table.axes
-    args = _ARGS[table.kind][: len(ax)]
+    args = _arg_names(table)
     W = ax[0].size
     N1 = ax[1].size if len(ax) > 1 else 1
     H = table.values.shape[0]
@@ -171,6 +171,34 @@ def _convenience(table, p, tex_arg, tex_pass, coord_args, args):
             f"    return {p}_tex0({tex_pass}, cos_theta_h, a).r / (3.14159265358979 * a * a);",
             "}",
         ]
+    if k == "model" and len(table.axes) == 3:
+        phi = table.axes[2]
+        fold = phi.hi <= 90.0  # fitlab.lut.kinds.phi_d_folds_by_reciprocity
+        L = [
+            "// (cos theta_h, cos theta_d, phi_d) of unit directions in the local frame (normal = +z),",
+            "// phi_d in degrees: Rusinkiewicz's difference azimuth, the azimuth of wi about h from",
+            "// t = R_z(phi_h) R_y(theta_h) x; scaled by sin theta_h: dx = s (wi.t), dy = s (wi.b).",
+            "// |phi_d| (mirror symmetry of an isotropic BRDF)"
+            + (", then min(phi_d, 180 - phi_d) (reciprocity)." if fold else "."),
+            "// At h = n phi_d is undefined and an isotropic f does not depend on it: 90.",
+            f"vec3 {p}_halfdiff(vec3 wi, vec3 wo) {{",
+            "    vec3 h = normalize(wi + wo);",
+            "    float dx = h.z * (wi.x * h.x + wi.y * h.y) - (h.x * h.x + h.y * h.y) * wi.z;",
+            "    float dy = h.x * wi.y - h.y * wi.x;",
+            "    float phi_d = (abs(dx) + abs(dy) > 0.0) ? degrees(atan(abs(dy), dx)) : 90.0;",
+        ]
+        if fold:
+            L.append("    phi_d = min(phi_d, 180.0 - phi_d);")
+        return L + [
+            "    return vec3(clamp(h.z, 0.0, 1.0), clamp(dot(wi, h), 0.0, 1.0), phi_d);",
+            "}",
+            "// BRDF f(wi, wo) in 1/sr (no cosine) of the first <= 4 channels, 0 below the horizon.",
+            f"vec4 {p}({tex_arg}, vec3 wi, vec3 wo) {{",
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec4(0.0, 0.0, 0.0, 0.0);  // HLSL: no scalar splat",
+            f"    vec3 c = {p}_halfdiff(wi, wo);",
+            f"    return {p}_tex0({tex_pass}, c.x, c.y, c.z);",
+            "}",
+        ]
     if k == "model":
         return [
             "// (cos theta_h, cos theta_d) of unit directions in the local frame (normal = +z).",
@@ -180,7 +208,7 @@ def _convenience(table, p, tex_arg, tex_pass, coord_args, args):
             "}",
             "// BRDF f(wi, wo) in 1/sr (no cosine) of the first <= 4 channels, 0 below the horizon.",
             f"vec4 {p}({tex_arg}, vec3 wi, vec3 wo) {{",
-            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec4(0.0);",
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec4(0.0, 0.0, 0.0, 0.0);  // HLSL: no scalar splat",
             f"    vec2 c = {p}_halfdiff(wi, wo);",
             f"    return {p}_tex0({tex_pass}, c.x, c.y);",
             "}",

@@ -23,7 +23,10 @@ Table kinds (:data:`KINDS`):
 ``dfg``               the split-sum DFG table (Karis 2013): scale and bias with
                       ∫ f cos θo dωo = F0 · scale + bias under Schlick's Fresnel.
 ``model``             a registry model's (or a fit's) own BRDF f(wi, wo) over (cos θh, cos θd)
-                      in Rusinkiewicz's half/difference parameterization at φd = 90°.
+                      in Rusinkiewicz's half/difference parameterization at φd = 90°, or, with a
+                      third size, over (cos θh, cos θd, φd) (φd folded into [0°, 90°] for a
+                      reciprocal model). :func:`bake_auto` lets the measured parameterization
+                      error choose (``fitlab lut model --phi-d auto``).
 
 Grid and texel convention (every axis): an axis with N samples stores the value at the axis
 coordinate x_i = map(t_i) with t_i = i / (N - 1), i = 0 .. N-1: the first and last texel centres
@@ -42,8 +45,8 @@ fresh quadrature there) is measured for every table and stored in it (:func:`mea
 Modules: :mod:`~fitlab.lut.axes` (mappings, axes, :class:`Table`, :func:`lookup`, the grid and
 :class:`Spec`), :mod:`~fitlab.lut.albedo` (albedo quadrature), :mod:`~fitlab.lut.baking`
 (:func:`bake`, :func:`measure_accuracy`, :func:`round_to`) and :mod:`~fitlab.lut.kinds` (the
-evaluators, the :data:`KINDS` registry whose entries carry their table maker and what they need
-from a model or fit, :func:`make_spec`). To add a kind: write its ``spec_*`` evaluator and its
+evaluators, the :data:`KINDS` registry whose entries carry their table maker, what they need
+from a model or fit and their optional axes, :func:`make_spec`, :func:`bake_auto`). To add a kind: write its ``spec_*`` evaluator and its
 ``make`` / ``prepare`` in kinds.py and register a :class:`Kind`.
 """
 
@@ -54,7 +57,8 @@ from fitlab.lut.axes import (
 )
 from fitlab.lut.baking import HALF_MAX, REL_FLOOR, TEXELS_MAX, bake, measure_accuracy, round_to
 from fitlab.lut.kinds import (
-    KINDS, Kind, conductor_preset, get_kind, halfdiff_coordinates, halfdiff_directions, make_spec,
+    KINDS, PHI_D_SIZE, PHI_D_TARGET, Kind, bake_auto, conductor_preset, get_kind,
+    halfdiff_coordinates, halfdiff_directions, make_spec, model_coordinates, phi_d_of,
     spec_albedo_conductor, spec_albedo_dielectric, spec_D, spec_dfg, spec_fresnel, spec_model,
     spec_of_table,
 )
@@ -63,7 +67,8 @@ from fitlab.numerics import ALPHA_MIN
 __all__ = [
     "Axis", "Table", "Spec", "Kind", "KINDS", "MAPPINGS", "bake", "lookup", "make_spec",
     "spec_of_table", "measure_accuracy", "albedo_integrals", "conductor_preset",
-    "halfdiff_directions", "halfdiff_coordinates", "grid_coords", "round_to",
+    "halfdiff_directions", "halfdiff_coordinates", "phi_d_of", "model_coordinates", "bake_auto",
+    "PHI_D_TARGET", "PHI_D_SIZE", "grid_coords", "round_to",
     # imported by fitlab.export, the tests and the benchmarks
     "get_kind", "Mapping", "SCHEMA", "SCHEMA_VERSION", "SIZE_MIN", "SIZE_MAX", "TEXEL_CONVENTION",
     "TEXELS_MAX", "HALF_MAX", "REL_FLOOR", "MU_MIN", "ALPHA_MIN", "QUAD_ORDERS",

@@ -7,6 +7,7 @@ through it; nothing here compares a kind's name.
 from __future__ import annotations
 
 import functools
+import time
 from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
@@ -17,8 +18,10 @@ from fitlab.fresnel import (
     CONDUCTOR_FRESNEL_METHODS, CONDUCTOR_PRESETS, fresnel_dielectric_Walter2007,
 )
 from fitlab.lut.albedo import ALBEDO_DISTRIBUTIONS, QUAD_ORDERS, albedo_with_error, average_over_mu
-from fitlab.lut.axes import MU_MIN, Spec, Table, alpha_axis, lookup, make_axis, mu_axis
-from fitlab.lut.baking import error_stats, relative_error
+from fitlab.lut.axes import (
+    MU_MIN, Axis, Spec, Table, alpha_axis, lookup, make_axis, mu_axis,
+)
+from fitlab.lut.baking import REL_FLOOR, bake, error_stats, relative_error
 from fitlab.microfacet import DISTRIBUTIONS, get_distribution
 from fitlab.numerics import ALPHA_MIN
 
@@ -199,16 +202,49 @@ def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
         "rough_dielectric", distribution, orders, n_check=48)
 
 
-def halfdiff_directions(cos_theta_h, cos_theta_d):
-    """Directions of Rusinkiewicz's (θh, θd) at φh = 0, φd = 90°:
-    wi = (sin θh cos θd, sin θd, cos θh cos θd), wo = (sin θh cos θd, -sin θd, cos θh cos θd).
+#: What ``--phi-d auto`` asks of a model table's parameterization error (lookup at the
+#: coordinates of random direction pairs vs the model there): RMS relative error at most
+#: ``rms_rel`` and max relative error at most ``max_rel``. A 2D (θh, θd) table that misses
+#: either is replaced by the table with a φd axis (unless that one measures worse).
+PHI_D_TARGET = {"rms_rel": 0.01, "max_rel": 0.05}
+#: φd samples of the 3D candidate when the size gives none.
+PHI_D_SIZE = 16
+#: Largest number of direction pairs one model evaluation is given (memory of a 3D bake).
+MODEL_CHUNK = 1 << 16
+
+
+def _cos_sin_phi_d(phi_d):
+    """cos φd, sin φd of φd in degrees, exact at φd = 90° (cos 0, sin 1)."""
+    r = np.radians(90.0 - np.asarray(phi_d, float))
+    return np.sin(r), np.cos(r)
+
+
+def halfdiff_directions(cos_theta_h, cos_theta_d, phi_d=90.0):
+    """Directions of Rusinkiewicz's (θh, θd, φd) at φh = 0 (φd in degrees):
+    h = (sin θh, 0, cos θh); the difference vector d = (sin θd cos φd, sin θd sin φd, cos θd) in
+    h's frame (x axis R_y(θh) x, y axis y); wi = R_y(θh) d, wo = reflect(wi, h) = 2 (wi·h) h - wi:
+
+        wi = (sin θh cos θd + cos θh sin θd cos φd, sin θd sin φd, cos θh cos θd - sin θh sin θd cos φd)
+        wo = (sin θh cos θd - cos θh sin θd cos φd, -sin θd sin φd, cos θh cos θd + sin θh sin θd cos φd)
+
+    At φd = 90° (the default, the 2D table's slice) wi = (sin θh cos θd, sin θd, cos θh cos θd).
     Cosines are clamped to [MU_MIN, 1]: at 0 both directions lie in the horizon, where a model
-    returns 0 although its limit (the table's first texel) is finite."""
+    returns 0 although its limit (the table's first texel) is finite. Likewise |cos φd| is
+    clamped to where both directions keep z >= MU_MIN: a (θh, θd, φd) whose wi or wo would lie
+    below the horizon holds the value at the horizon (the same φd side), so interpolation next to
+    the horizon stays continuous; no direction pair of the upper hemisphere maps there."""
     ch = np.clip(np.asarray(cos_theta_h, float), MU_MIN, 1.0)
     cd = np.clip(np.asarray(cos_theta_d, float), MU_MIN, 1.0)
     sh, sd = np.sqrt((1 - ch) * (1 + ch)), np.sqrt((1 - cd) * (1 + cd))
-    wi = np.stack([sh * cd, sd, ch * cd], axis=-1)
-    wo = np.stack([sh * cd, -sd, ch * cd], axis=-1)
+    cp, sp = _cos_sin_phi_d(phi_d)
+    # both z = cos θh cos θd ∓ sin θh sin θd cos φd >= MU_MIN
+    ss = sh * sd
+    bound = np.clip((ch * cd - MU_MIN) / np.where(ss > 0, ss, 1.0), 0.0, 1.0)
+    clamped = (ss > 0) & (np.abs(cp) > bound)
+    cp = np.where(clamped, np.copysign(bound, cp), cp)
+    sp = np.where(clamped, np.sqrt((1 - bound) * (1 + bound)), sp)  # φd in [0°, 180°]: sin >= 0
+    wi = np.stack([sh * cd + ch * sd * cp, sd * sp, ch * cd - sh * sd * cp], axis=-1)
+    wo = np.stack([sh * cd - ch * sd * cp, -sd * sp, ch * cd + sh * sd * cp], axis=-1)
     return wi, wo
 
 
@@ -219,62 +255,151 @@ def halfdiff_coordinates(wi, wo):
     return np.clip(h[..., 2], 0.0, 1.0), np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
 
 
-def spec_model(model_name, params, options=None, size=(256, 256), mappings=("u8", "linear")):
-    """``params``: {channel: {parameter: value}} of a registry model (every parameter given)."""
+def phi_d_of(wi, wo, reciprocal=True):
+    """Rusinkiewicz's φd (degrees) of direction pairs, folded as a model table reads it: the
+    azimuth of wi about h = normalize(wi + wo), from t = R_z(φh) R_y(θh) x, is taken as |φd|
+    (f(φd) = f(-φd): mirror symmetry of an isotropic BRDF) in [0°, 180°] and, if ``reciprocal``,
+    as min(φd, 180° - φd) in [0°, 90°] (f(φd) = f(φd + 180°): swapping wi and wo). With
+    s = sin θh: s·(wi·t) = h.z (wi.x h.x + wi.y h.y) - s² wi.z and s·(wi·b) = h.x wi.y - h.y wi.x
+    (b = R_z(φh) y); at h = n (s = 0) φd is undefined and an isotropic f does not depend on it:
+    90°."""
+    wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    s2 = h[..., 0] ** 2 + h[..., 1] ** 2
+    dx = h[..., 2] * (wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1]) - s2 * wi[..., 2]
+    dy = h[..., 0] * wi[..., 1] - h[..., 1] * wi[..., 0]
+    both = (np.abs(dx) + np.abs(dy)) > 0
+    phi = np.where(both, np.degrees(np.arctan2(np.abs(dy), dx)), 90.0)
+    return np.minimum(phi, 180.0 - phi) if reciprocal else phi
+
+
+def phi_d_folds_by_reciprocity(axis: Axis) -> bool:
+    """A φd axis over [0°, 90°] is read with the reciprocity fold, one over [0°, 180°] without."""
+    return axis.hi <= 90.0
+
+
+def model_coordinates(axes, wi, wo) -> np.ndarray:
+    """Axis coordinates (P, 2 or 3) of direction pairs in a model table with ``axes``, exactly
+    as the generated shader computes them: (cos θh, cos θd) and, with a third axis, folded φd."""
+    ch, cd = halfdiff_coordinates(wi, wo)
+    cols = [ch, cd]
+    if len(axes) == 3:
+        cols.append(phi_d_of(wi, wo, phi_d_folds_by_reciprocity(axes[2])))
+    return np.stack(cols, axis=-1)
+
+
+def _eval_in_chunks(name, p, wi, wo, opts):
+    """The model at many direction pairs, MODEL_CHUNK at a time (the last chunk padded, so one
+    compiled shape serves a whole bake)."""
+    n = len(wi)
+    if n <= MODEL_CHUNK:
+        return np.asarray(fitlab.eval_bsdf(name, p, wi, wo, opts))
+    pad = -n % MODEL_CHUNK
+    wi = np.concatenate([wi, np.repeat(wi[:1], pad, axis=0)])
+    wo = np.concatenate([wo, np.repeat(wo[:1], pad, axis=0)])
+    out = [np.asarray(fitlab.eval_bsdf(name, p, wi[i:i + MODEL_CHUNK], wo[i:i + MODEL_CHUNK],
+                                       opts)) for i in range(0, len(wi), MODEL_CHUNK)]
+    return np.concatenate(out)[:n]
+
+
+def spec_model(model_name, params, options=None, size=(256, 256),
+               mappings=("u8", "linear", "linear")):
+    """``params``: {channel: {parameter: value}} of a registry model (every parameter given).
+    Two sizes: the (cos θh, cos θd) table at φd = 90°; three: with a φd axis over [0°, 90°]
+    (reciprocal model) or [0°, 180°] (otherwise)."""
     model = fitlab.get_model(model_name)
     if not model.capabilities.isotropic:
-        raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd) table holds "
-                         "isotropic BRDFs only (it has no azimuth of the half vector); tabulate "
-                         "it as a Zemax file with fitlab convert (Asymmetrical), or fit an "
-                         "isotropic model")
+        raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd[, φd]) table "
+                         "holds isotropic BRDFs only (it has no azimuth of the half vector); "
+                         "tabulate it as a Zemax file with fitlab convert (Asymmetrical), or "
+                         "fit an isotropic model")
+    if len(size) not in (2, 3):
+        raise ValueError(f"a model table has 2 axes (cos_theta_h, cos_theta_d) or 3 (with "
+                         f"phi_d); got {len(size)} sizes")
     opts = fitlab.api.resolve_options(model, options)
     clean = {}
     for ch, p in params.items():
         p = {k: float(v) for k, v in p.items() if k in model.parameter_names}
         fitlab.api.check_params(model, p)
         clean[ch] = p
+    three = len(size) == 3
+    reciprocal = model.capabilities.reciprocal
     axes = (make_axis("cos_theta_h", 0.0, 1.0, size[0], mappings[0],
-                  "cos θh = n·h, h = normalize(wi + wo)"),
+                      "cos θh = n·h, h = normalize(wi + wo)"),
             make_axis("cos_theta_d", 0.0, 1.0, size[1], mappings[1],
-                  "cos θd = wi·h (Rusinkiewicz's difference angle), at φd = 90°"))
+                      "cos θd = wi·h (Rusinkiewicz's difference angle)"
+                      + ("" if three else ", at φd = 90°")))
+    if three:
+        hi = 90.0 if reciprocal else 180.0
+        axes += (make_axis(
+            "phi_d", 0.0, hi, size[2], mappings[2],
+            "φd in degrees, Rusinkiewicz's difference azimuth: the azimuth of wi about h from "
+            "t = R_z(φh) R_y(θh) x, read as |φd| (mirror symmetry of an isotropic BRDF)"
+            + (" and folded into [0°, 90°] by min(φd, 180° - φd) (reciprocity: f(φd) = "
+               "f(φd + 180°))" if reciprocal else " in [0°, 180°] (the model does not declare "
+               "reciprocity)")),)
 
     def evaluate(coords):
-        wi, wo = halfdiff_directions(coords[:, 0], coords[:, 1])
-        cols = [np.asarray(fitlab.eval_bsdf(model.name, p, wi, wo, opts)) for p in clean.values()]
+        phi = coords[:, 2] if three else 90.0
+        wi, wo = halfdiff_directions(coords[:, 0], coords[:, 1], phi)
+        cols = [_eval_in_chunks(model.name, p, wi, wo, opts) for p in clean.values()]
         return np.stack(cols, axis=-1), None
 
-    notes = ("2D (θh, θd) tables are exact for BRDFs that depend on θh and θd only; other "
-             "isotropic BRDFs (G and Oren–Nayar depend on φd) are represented at φd = 90°: "
-             "accuracy.parameterization gives the error this makes over random direction pairs",)
+    if three:
+        notes = ("3D (θh, θd, φd) table: exact for every isotropic BRDF up to interpolation; "
+                 "φd of a direction pair is folded as the phi_d axis describes; "
+                 "accuracy.parameterization gives the error over random direction pairs",)
+    else:
+        notes = ("2D (θh, θd) tables are exact for BRDFs that depend on θh and θd only; other "
+                 "isotropic BRDFs (G and Oren–Nayar depend on φd) are represented at φd = 90°: "
+                 "accuracy.parameterization gives the error this makes over random direction "
+                 "pairs",)
     if model.capabilities.transmission:
         notes += ("the model also transmits; the table holds its reflection (wo.z > 0) only",)
+    where = "(cos θh, cos θd, φd)" if three else "(cos θh, cos θd, φd = 90°)"
     return Spec("model", tuple(clean), axes, evaluate,
-                f"BRDF f(wi, wo) in 1/sr (without the cosine) of {model.name} at "
-                "(cos θh, cos θd, φd = 90°)", {"name": model.name, "options": opts}, clean,
+                f"BRDF f(wi, wo) in 1/sr (without the cosine) of {model.name} at {where}",
+                {"name": model.name, "options": opts}, clean,
                 "exact evaluation at the sample points (float64)", notes,
                 checks=(("parameterization", parameterization_error),))
 
 
+def _hemisphere(u):
+    z = u[:, 0]
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]), z], -1)
+
+
 def parameterization_error(table, spec, n, seed=1):
-    """Table lookup at (cos θh, cos θd) of random upper-hemisphere direction pairs vs the model
-    at those pairs (includes the φd = 90° assumption)."""
+    """Table lookup at the coordinates of random upper-hemisphere direction pairs ((cos θh,
+    cos θd) and, for a 3D table, folded φd: :func:`model_coordinates`) vs the model at those
+    pairs (a 2D table includes the φd = 90° assumption), and whether it meets
+    :data:`PHI_D_TARGET`.
+
+    The relative-error floor is REL_FLOOR × the largest |f| over these pairs, not over the
+    table: models that grow at grazing (Oren–Nayar's tan β, a microfacet lobe's 1/(4 cos θi
+    cos θo) at θh = 0, θd → 90°) hold values up to 10⁷ at horizon texels no direction pair
+    reaches, and a floor from those would hide every error."""
     rng = np.random.default_rng(seed)
-
-    def hemi(u):
-        z = u[:, 0]
-        r = np.sqrt(1 - z * z)
-        return np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]), z], -1)
-
-    wi, wo = hemi(rng.random((n, 2))), hemi(rng.random((n, 2)))
-    ch, cd = halfdiff_coordinates(wi, wo)
-    approx = lookup(table, np.stack([ch, cd], -1))
+    wi, wo = _hemisphere(rng.random((n, 2))), _hemisphere(rng.random((n, 2)))
+    approx = lookup(table, model_coordinates(table.axes, wi, wo))
     name = spec.model["name"]
-    ref = np.stack([np.asarray(fitlab.eval_bsdf(name, p, wi, wo, spec.model["options"]))
+    ref = np.stack([_eval_in_chunks(name, p, wi, wo, spec.model["options"])
                     for p in spec.params.values()], -1)
-    scale = np.abs(table.values).reshape(-1, len(table.channels)).max(axis=0)
-    return {"points": n, "reference": "the model at random direction pairs of the upper "
-            "hemisphere (uniform in solid angle)",
-            **error_stats(relative_error(approx, ref, scale))}
+    scale = np.abs(ref).max(axis=0)
+    err = relative_error(approx, ref, scale)
+    stats = error_stats(err)
+    return {"points": n, "seed": seed, "reference": "the model at random direction pairs of the "
+            "upper hemisphere (uniform in solid angle)",
+            "floor": f"{REL_FLOOR:g} x the largest |f| over these pairs", **stats,
+            "per_channel": {ch: error_stats(err[:, k]) for k, ch in enumerate(table.channels)},
+            "target": dict(PHI_D_TARGET), "meets_target": meets_phi_d_target(stats)}
+
+
+def meets_phi_d_target(stats) -> bool:
+    return bool(stats["rms_rel"] <= PHI_D_TARGET["rms_rel"]
+                and stats["max_rel"] <= PHI_D_TARGET["max_rel"])
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,6 +529,25 @@ class Kind(NamedTuple):
     distributions: tuple = ()
     #: preset(name) -> {channel: params}: named materials (``--preset``); None if the kind has none
     preset: Callable | None = None
+    #: optional trailing axes, each (name, default size, default mapping): a table has n_axes
+    #: to n_axes + len(extra_axes) axes (more sizes, e.g. --size 256x256x16)
+    extra_axes: tuple = ()
+    #: the accuracy entry (a Spec check returning rms_rel, max_rel, meets_target) by which
+    #: :func:`bake_auto` decides whether a table needs its extra axes; None: no auto choice
+    auto_check: str | None = None
+
+    @property
+    def all_axis_names(self) -> tuple:
+        return tuple(self.axis_names) + tuple(e[0] for e in self.extra_axes)
+
+    @property
+    def axis_counts(self) -> tuple:
+        """The numbers of axes a table of this kind may have."""
+        return tuple(range(self.n_axes, self.n_axes + len(self.extra_axes) + 1))
+
+    @property
+    def all_default_mappings(self) -> tuple:
+        return tuple(self.default_mappings) + tuple(e[2] for e in self.extra_axes)
 
 
 #: Distributions of the D table: every one of the registry.
@@ -433,9 +577,11 @@ KINDS = {k.name: k for k in (
                        _make_albedo_dielectric, ALBEDO_DISTRIBUTIONS),
     _distribution_kind("dfg", "split-sum DFG scale and bias over (μ, α)", 2, (64, 64),
                        ("linear", "linear"), ("mu", "alpha"), _make_dfg, ALBEDO_DISTRIBUTIONS),
-    Kind("model", "a model's or fit's BRDF over (cos θh, cos θd) at φd = 90°", 2, (256, 256),
-         ("u8", "linear"), "every parameter of the model", ("cos_theta_h", "cos_theta_d"),
-         _make_model, _prepare_model),
+    Kind("model", "a model's or fit's BRDF over (cos θh, cos θd) at φd = 90°, or with a third "
+         "size over (cos θh, cos θd, φd)", 2, (256, 256), ("u8", "linear"),
+         "every parameter of the model", ("cos_theta_h", "cos_theta_d"), _make_model,
+         _prepare_model, extra_axes=(("phi_d", PHI_D_SIZE, "linear"),),
+         auto_check="parameterization"),
 )}
 
 
@@ -454,15 +600,25 @@ def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, o
     what it needs from these."""
     k = get_kind(kind)
     size = tuple(int(s) for s in (size or k.default_size))
-    if len(size) != k.n_axes:
-        raise ValueError(f"table {kind} has {k.n_axes} axes; give {k.n_axes} sizes "
-                         f"({'x'.join(map(str, k.default_size))} by default), got {len(size)}")
-    mappings = tuple(mappings or k.default_mappings)
-    if len(mappings) != k.n_axes:
-        raise ValueError(f"table {kind} has {k.n_axes} axes, got {len(mappings)} mappings")
+    if len(size) not in k.axis_counts:
+        raise ValueError(f"table {kind} has {_axes_text(k)}; give {_one_of(k.axis_counts)} "
+                         f"sizes ({'x'.join(map(str, k.default_size))} by default), got "
+                         f"{len(size)}")
+    mappings = tuple(mappings or k.all_default_mappings)
+    if len(mappings) not in (len(size), len(k.all_axis_names)):
+        raise ValueError(f"table {kind} with {len(size)} axes needs {len(size)} mappings, got "
+                         f"{len(mappings)}")
+    mappings = mappings[:len(size)]
     return k.make(size, mappings, model=model, params=params or {}, options=dict(options or {}),
                   alpha_range=tuple(alpha_range or (ALPHA_MIN, 1.0)),
                   eta_range=tuple(eta_range or ETA_RANGE), orders=orders)
+
+
+def _axes_text(k: Kind) -> str:
+    text = f"{k.n_axes} axes ({', '.join(k.axis_names)})"
+    if k.extra_axes:
+        text += f" or {len(k.all_axis_names)} (with {', '.join(e[0] for e in k.extra_axes)})"
+    return text
 
 
 def spec_of_table(table: Table) -> Spec:
@@ -476,3 +632,80 @@ def spec_of_table(table: Table) -> Spec:
                      alpha_range=(by["alpha"].lo, by["alpha"].hi) if "alpha" in by else None,
                      eta_range=(by["eta"].lo, by["eta"].hi) if "eta" in by else None,
                      orders=orders)
+
+
+# --------------------------------------------------------------------------------------------
+# Let the measured error choose the axes (fitlab lut model --phi-d auto)
+# --------------------------------------------------------------------------------------------
+
+
+def _size_text(axes) -> str:
+    return "x".join(str(a.size) for a in axes)
+
+
+def bake_auto(kind: str, *, size=None, mappings=None, dtype="float", check_points=None,
+              source_fit=None, progress=None, **spec_args) -> Table:
+    """Bake a table of ``kind`` with its required axes; if that table misses the target of the
+    kind's accuracy check (``Kind.auto_check``, e.g. the model table's parameterization error
+    against :data:`PHI_D_TARGET`), bake it with its extra axes (e.g. φd) too, measured at the
+    same points, and keep that one unless it measures a larger RMS error. ``size`` and
+    ``mappings`` may give every axis (the extra ones are the candidate's; default
+    ``Kind.extra_axes``) or the required ones only. The table's ``accuracy["auto"]`` holds both
+    measurements, the rule and the reason; a note says the same in words."""
+    k = get_kind(kind)
+    if k.auto_check is None:
+        raise ValueError(f"{kind} tables have no optional axis to choose by measurement")
+    if check_points is not None and check_points <= 0:
+        raise ValueError("choosing the axes by measurement needs the accuracy check "
+                         "(check points > 0)")
+    n, full = k.n_axes, len(k.all_axis_names)
+    size = tuple(int(s) for s in (size or k.default_size))
+    if len(size) == n:
+        size += tuple(e[1] for e in k.extra_axes)
+    if len(size) != full:
+        raise ValueError(f"table {kind}: give {n} or {full} sizes, got {len(size)}")
+    mappings = tuple(mappings or k.all_default_mappings)
+    if len(mappings) == n:
+        mappings += tuple(e[2] for e in k.extra_axes)
+    if len(mappings) != full:
+        raise ValueError(f"table {kind}: give {n} or {full} mappings, got {len(mappings)}")
+
+    def one(sz, mp):
+        t0 = time.perf_counter()
+        spec = make_spec(kind, size=sz, mappings=mp, **spec_args)
+        if progress:
+            progress(f"auto: baking the {len(sz)}-axis candidate {'x'.join(map(str, sz))}")
+        table = bake(spec, dtype, check_points=check_points, source_fit=source_fit,
+                     progress=progress)
+        acc = table.accuracy[k.auto_check]
+        return table, {"size": _size_text(table.axes), "axes": [a.name for a in table.axes],
+                       "rms_rel": acc["rms_rel"], "max_rel": acc["max_rel"],
+                       "meets_target": acc["meets_target"],
+                       "bake_s": round(time.perf_counter() - t0, 3)}
+
+    small, m_small = one(size[:n], mappings[:n])
+    target = small.accuracy[k.auto_check]["target"]
+    extra = ", ".join(e[0] for e in k.extra_axes)
+    rule = (f"bake the {n}-axis table; if its {k.auto_check} error misses the target (RMS "
+            f"relative <= {target['rms_rel']:g} and max relative <= {target['max_rel']:g}), "
+            f"bake the table with {extra} too and keep it unless its RMS error is larger")
+    record = {"rule": rule, "check": k.auto_check, "target": target, "candidates": [m_small]}
+    if m_small["meets_target"]:
+        chosen, reason = small, (f"the {n}-axis table meets the target (RMS "
+                                 f"{m_small['rms_rel']:.2g}, max {m_small['max_rel']:.2g})")
+    else:
+        big, m_big = one(size, mappings)
+        record["candidates"].append(m_big)
+        better = m_big["rms_rel"] <= m_small["rms_rel"]
+        chosen = big if better else small
+        reason = (f"the {n}-axis table misses the target (RMS {m_small['rms_rel']:.2g}, max "
+                  f"{m_small['max_rel']:.2g}); with {extra} ({m_big['size']}) RMS "
+                  f"{m_big['rms_rel']:.2g}, max {m_big['max_rel']:.2g}: "
+                  + ("kept" if better else f"larger, the {n}-axis table kept")
+                  + ("" if m_big["meets_target"] else
+                     f"; the {len(size)}-axis table misses the target too (raise its sizes)"))
+    record["chosen"] = _size_text(chosen.axes)
+    record["reason"] = reason
+    accuracy = {**chosen.accuracy, "auto": record}
+    note = f"axes chosen by measurement (auto): {reason}"
+    return chosen._replace(accuracy=accuracy, notes=tuple(chosen.notes) + (note,))
