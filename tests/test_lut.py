@@ -4,6 +4,8 @@ stored accuracy, and bad input. Small sizes and orders keep this file fast."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -231,6 +233,168 @@ def test_model_table_matches_the_model_at_its_samples():
 
 
 # --------------------------------------------------------------------------------------------
+# the model table's φd axis (Rusinkiewicz's difference azimuth) and --phi-d auto
+# --------------------------------------------------------------------------------------------
+
+VINYL_WW = Path(__file__).resolve().parents[1] / "fits" / "brown_vinyl_weidlich_wilkie_lambert.json"
+
+
+def _vinyl():
+    from fitlab.export.lut_files import from_fit
+
+    model, options, params = from_fit(VINYL_WW)
+    return dict(model=model, options=options, params=params)
+
+
+def test_phi_d_directions_at_90_degrees_are_the_2d_slice():
+    rng = np.random.default_rng(4)
+    ch, cd = rng.random(500), rng.random(500)
+    ch[:3], cd[:3] = (0.0, 1.0, 1e-9), (1.0, 0.0, 0.5)
+    # the 2D table's directions as written before the φd axis existed (lut_exr.md)
+    c, d = np.clip(ch, lut.MU_MIN, 1), np.clip(cd, lut.MU_MIN, 1)
+    sh, sd = np.sqrt(1 - c * c), np.sqrt(1 - d * d)
+    wi2 = np.stack([sh * d, sd, c * d], -1)
+    wo2 = np.stack([sh * d, -sd, c * d], -1)
+    for wi, wo in (lut.halfdiff_directions(ch, cd), lut.halfdiff_directions(ch, cd, 90.0)):
+        np.testing.assert_allclose(wi, wi2, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(wo, wo2, rtol=0, atol=1e-15)
+    wi, wo = lut.halfdiff_directions(ch, cd)
+    assert np.array_equal(wi, lut.halfdiff_directions(ch, cd, 90.0)[0])
+
+
+def test_phi_d_directions_round_trip_and_fold():
+    rng = np.random.default_rng(5)
+    ch, cd, phi = rng.random(4000), rng.random(4000), 180.0 * rng.random(4000)
+    wi, wo = lut.halfdiff_directions(ch, cd, phi)
+    assert np.allclose(np.linalg.norm(wi, axis=-1), 1) and np.allclose(np.linalg.norm(wo, axis=-1), 1)
+    assert np.all(wi[:, 2] >= lut.MU_MIN * 0.999) and np.all(wo[:, 2] >= lut.MU_MIN * 0.999)
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+    assert np.allclose(np.einsum("ij,ij->i", wo, h), np.einsum("ij,ij->i", wi, h))  # wo = reflect
+    # where both directions are above the horizon the shader's coordinates give back the inputs
+    up = (ch * cd - np.sqrt(1 - ch**2) * np.sqrt(1 - cd**2) * np.abs(np.cos(np.radians(phi)))) > 1e-6
+    assert 0.3 < up.mean() < 0.45  # most of the (cos θh, cos θd, φd) box lies beyond the horizon
+    got = lut.model_coordinates((None, None, lut.Axis("phi_d", 0, 180, 2, "linear", "")), wi, wo)
+    np.testing.assert_allclose(got[up], np.stack([ch, cd, phi], -1)[up], atol=1e-9)
+    # the folds: φd and -φd (mirror) are one coordinate; swapping wi and wo gives 180° - φd,
+    # which a reciprocal table folds back; a whole rotation about the normal changes nothing
+    f180 = lut.phi_d_of(wi, wo, reciprocal=False)
+    assert np.allclose(lut.phi_d_of(wi * [1, -1, 1], wo * [1, -1, 1], reciprocal=False), f180)
+    assert np.allclose(lut.phi_d_of(wo, wi, reciprocal=False)[up], 180 - f180[up], atol=1e-9)
+    assert np.allclose(lut.phi_d_of(wo, wi)[up], lut.phi_d_of(wi, wo)[up], atol=1e-9)
+    a = 1.234
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    assert np.allclose(lut.phi_d_of(wi @ rot.T, wo @ rot.T), lut.phi_d_of(wi, wo), atol=1e-8)
+    # beyond the horizon a (θh, θd, φd) holds the value at the horizon on the same side
+    i = np.flatnonzero(~up)[0]
+    w_edge = lut.halfdiff_directions(ch[i], cd[i], phi[i])[0]
+    assert min(w_edge[2], lut.halfdiff_directions(ch[i], cd[i], phi[i])[1][2]) < 1e-6
+
+
+def test_the_3d_table_is_the_model_at_its_samples_and_folds_by_reciprocity():
+    p = {"Y": {"albedo": 0.5, "sigma": 0.4}}
+    t = lut.bake(lut.make_spec("model", model="oren_nayar", params=p, size=(8, 6, 5)), "float",
+                 check_points=64)
+    assert t.values.shape == (6 * 5, 8, 1) and [a.name for a in t.axes][2] == "phi_d"
+    assert (t.axes[2].lo, t.axes[2].hi, t.axes[2].mapping) == (0.0, 90.0, "linear")
+    coords = lut.grid_coords(t.axes)
+    wi, wo = lut.halfdiff_directions(*coords.T)
+    f = np.asarray(fitlab.eval_bsdf("oren_nayar", p["Y"], wi, wo))
+    assert np.allclose(t.values.reshape(-1), f, rtol=1e-6)
+    # the φd = 90° slice (the last one) is the 2D table
+    t2 = lut.bake(lut.make_spec("model", model="oren_nayar", params=p, size=(8, 6)), "float",
+                  check_points=0)
+    assert np.array_equal(t.values[-6:], t2.values)
+    # f(φd) = f(180° - φd) for the reciprocal model: what the [0°, 90°] range relies on
+    wi2, wo2 = lut.halfdiff_directions(*coords[:, :2].T, 180.0 - coords[:, 2])
+    assert np.allclose(np.asarray(fitlab.eval_bsdf("oren_nayar", p["Y"], wi2, wo2)), f, rtol=1e-9)
+    assert any("3D" in n for n in t.notes)
+
+
+def test_a_model_without_declared_reciprocity_gets_phi_d_up_to_180_degrees():
+    base = fitlab.get_model("oren_nayar")
+    m = base._replace(name="oren_nayar_unreciprocal_lut_test",
+                      capabilities=base.capabilities._replace(reciprocal=False))
+    fitlab.models.register_model(m, replace=True)
+    t = lut.bake(lut.make_spec("model", model=m.name, params={"Y": {"albedo": 0.5, "sigma": 0.4}},
+                               size=(8, 6, 9)), "float", check_points=256)
+    assert t.axes[2].hi == 180.0 and "[0°, 180°]" in t.axes[2].description
+    rng = np.random.default_rng(0)
+    wi, wo = (fitlab.lut.kinds._hemisphere(rng.random((200, 2))) for _ in range(2))
+    c = lut.model_coordinates(t.axes, wi, wo)
+    assert c[:, 2].max() > 90 and np.allclose(c[:, 2], lut.phi_d_of(wi, wo, reciprocal=False))
+
+
+def test_the_3d_table_of_a_layered_fit_is_more_accurate_than_the_2d_slice():
+    """Brown vinyl, Weidlich–Wilkie over Lambert (fits/): the 2D table is the model at
+    φd = 90° only; the φd axis removes that error (measured at the same random pairs)."""
+    v = _vinyl()
+    t2 = lut.bake(lut.make_spec("model", size=(64, 64), **v), "float", check_points=512)
+    t3 = lut.bake(lut.make_spec("model", size=(64, 64, 8), **v), "float", check_points=512)
+    p2, p3 = t2.accuracy["parameterization"], t3.accuracy["parameterization"]
+    print(f"\nbrown vinyl WW: 2D 64x64 RMS {p2['rms_rel']:.3g} max {p2['max_rel']:.3g}; "
+          f"3D 64x64x8 RMS {p3['rms_rel']:.3g} max {p3['max_rel']:.3g}")
+    assert p2["rms_rel"] > 0.04 and p2["max_rel"] > 0.15 and not p2["meets_target"]
+    assert p3["rms_rel"] < p2["rms_rel"] / 8 and p3["max_rel"] < p2["max_rel"] / 5
+    assert p3["meets_target"]
+
+
+def test_auto_adds_phi_d_for_the_layered_fit_and_states_both_errors():
+    v = _vinyl()
+    t = lut.bake_auto("model", size=(48, 48, 8), dtype="half", check_points=512, **v)
+    a = t.accuracy["auto"]
+    assert len(t.axes) == 3 and a["chosen"] == "48x48x8" and a["check"] == "parameterization"
+    (c2, c3) = a["candidates"]
+    assert c2["size"] == "48x48" and not c2["meets_target"] and c3["meets_target"]
+    assert c3["rms_rel"] == t.accuracy["parameterization"]["rms_rel"] < c2["rms_rel"]
+    assert a["target"] == lut.PHI_D_TARGET and "misses the target" in a["reason"]
+    assert any("chosen by measurement" in n for n in t.notes)
+
+
+def test_auto_keeps_2d_when_f_depends_on_theta_h_and_theta_d_only():
+    """A Lambertian f is exact in 2D: auto keeps the 2D table and says why. (A Walter
+    microfacet conductor is not such a model: at fixed (θh, θd) its 1/(4 cos θi cos θo) and G
+    depend on φd, cos θi cos θo = cos²θh cos²θd - sin²θh sin²θd cos²φd; its 2D table misses
+    the target by far at α = 0.3, below.)"""
+    t = lut.bake_auto("model", model="lambertian", params={"Y": {"albedo": 0.5}}, size=(8, 8),
+                      check_points=256)
+    a = t.accuracy["auto"]
+    assert len(t.axes) == 2 and len(a["candidates"]) == 1 and a["chosen"] == "8x8"
+    assert "meets the target" in a["reason"]
+    c = lut.bake_auto("model", model="rough_conductor",
+                      params={"Y": {"alpha": 0.3, "n": 0.2, "k": 3.9}}, size=(64, 64, 8),
+                      check_points=256)
+    c2, c3 = c.accuracy["auto"]["candidates"]
+    assert c2["rms_rel"] > 0.05 and c3["rms_rel"] < c2["rms_rel"] / 5 and len(c.axes) == 3
+
+
+def test_auto_says_when_the_3d_table_misses_too_and_keeps_2d_when_3d_measures_worse(
+        monkeypatch):
+    v = _vinyl()
+    # two φd samples (0° and 90°) interpolate linearly across the whole range: better than
+    # the slice, still short of the target
+    t = lut.bake_auto("model", size=(32, 32, 2), check_points=256, **v)
+    assert len(t.axes) == 3 and "misses the target too" in t.accuracy["auto"]["reason"]
+    # a 3D candidate that measured worse than the slice would not be kept
+    real = lut.kinds.parameterization_error
+
+    def worse_in_3d(table, spec, n, seed=1):
+        r = real(table, spec, n, seed)
+        return {**r, "rms_rel": r["rms_rel"] * (1e3 if len(table.axes) == 3 else 1)}
+
+    monkeypatch.setattr(lut.kinds, "parameterization_error", worse_in_3d)
+    t = lut.bake_auto("model", size=(32, 32, 4), check_points=128, **v)
+    assert len(t.axes) == 2 and "the 2-axis table kept" in t.accuracy["auto"]["reason"]
+    assert len(t.accuracy["auto"]["candidates"]) == 2
+
+
+def test_spec_of_a_3d_model_table_rebuilds_it():
+    t = lut.bake(lut.make_spec("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                               size=(4, 3, 2)), "float", check_points=4)
+    spec = lut.spec_of_table(t)
+    assert spec.axes == t.axes and len(spec.axes) == 3
+
+
+# --------------------------------------------------------------------------------------------
 # bad input
 # --------------------------------------------------------------------------------------------
 
@@ -240,6 +404,19 @@ def test_model_table_matches_the_model_at_its_samples():
     (lambda: lut.make_spec("D", size=(1, 4)), r"size must be an integer in \[2, 4096\]"),
     (lambda: lut.make_spec("D", size=(5000, 4)), "size must be"),
     (lambda: lut.make_spec("D", size=(4,)), "has 2 axes"),
+    (lambda: lut.make_spec("D", size=(4, 4, 4)), "has 2 axes"),
+    (lambda: lut.make_spec("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                           size=(4, 4, 4, 4)), r"2 axes \(cos_theta_h, cos_theta_d\) or 3 \(with phi_d\)"),
+    (lambda: lut.make_spec("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                           size=(4, 4, 1)), r"axis phi_d: size must be an integer in \[2, 4096\]"),
+    (lambda: lut.make_spec("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                           size=(4, 4, 4), mappings=("u8", "linear")), "needs 3 mappings"),
+    (lambda: lut.make_spec("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                           size=(4, 4, 4), mappings=("u8", "linear", "log")),
+     "log mapping needs lo > 0"),
+    (lambda: lut.bake_auto("model", model="lambertian", params={"Y": {"albedo": 0.5}},
+                           size=(4, 4), check_points=0), "needs the accuracy check"),
+    (lambda: lut.bake_auto("D"), "no optional axis"),
     (lambda: lut.make_spec("D", mappings=("cubic", "linear")), "unknown mapping"),
     (lambda: lut.make_spec("D", mappings=("log", "linear")), "log mapping needs lo > 0"),
     (lambda: lut.make_spec("D", alpha_range=(0.0, 1.0)), "alpha: the range must lie"),
@@ -283,6 +460,8 @@ def test_every_kind_makes_its_own_spec_through_the_registry():
     for name, kind in lut.KINDS.items():
         assert kind.name == name and len(kind.axis_names) == kind.n_axes
         assert len(kind.default_size) == len(kind.default_mappings) == kind.n_axes
+        assert kind.axis_counts == tuple(range(kind.n_axes, len(kind.all_axis_names) + 1))
+        assert (kind.auto_check is None) == (not kind.extra_axes)
         assert set(kind.distributions) <= set(DISTRIBUTIONS)  # names from the registry
         sizes = (3,) * kind.n_axes
         options, p = kind.prepare("rough_conductor", {}, params.get(name, {}))
@@ -293,6 +472,12 @@ def test_every_kind_makes_its_own_spec_through_the_registry():
         assert tuple(a.name for a in spec.axes) == kind.axis_names
         assert lut.make_spec(name, size=sizes, model="rough_conductor", params=p,
                              options=options, orders=SMALL).kind == name
+        if kind.extra_axes:  # the optional axes: more sizes, their names from the registry
+            full = lut.make_spec(name, size=(3,) * len(kind.all_axis_names),
+                                 model="rough_conductor", params=p, options=options)
+            assert tuple(a.name for a in full.axes) == kind.all_axis_names
+            assert tuple(a.mapping for a in full.axes) == kind.all_default_mappings
+    assert lut.KINDS["model"].extra_axes == (("phi_d", lut.PHI_D_SIZE, "linear"),)
 
 
 def test_distribution_kinds_take_their_distributions_from_the_registry():

@@ -51,6 +51,27 @@ def test_round_trip_keeps_values_and_metadata(tmp_path, dtype):
     assert np.allclose(lut.round_to(vals.reshape(back.values.shape), dtype), back.values)
 
 
+def test_model_table_with_phi_d_round_trip(tmp_path):
+    t = lut.bake_auto("model", model="rough_conductor", size=(32, 16, 4), dtype="half",
+                      check_points=64, params={"Y": {"alpha": 0.3, "n": 0.2, "k": 3.9}})
+    assert len(t.axes) == 3  # the 2D slice misses the target (measured)
+    exr.write_exr(tmp_path / "m.exr", t)
+    back = exr.read_exr(tmp_path / "m.exr")
+    assert back.values.shape == (16 * 4, 32, 1) and np.array_equal(back.values, t.values)
+    assert back.axes == t.axes and back.axes[2].name == "phi_d" and back.notes == t.notes
+    assert back.accuracy == json.loads(json.dumps(t.accuracy))
+    assert back.accuracy["auto"]["chosen"] == "32x16x4"
+    spec = lut.spec_of_table(back)
+    vals, _ = spec.evaluate(lut.grid_coords(back.axes))
+    assert np.allclose(lut.round_to(vals.reshape(back.values.shape), "half"), back.values)
+    # a φd axis the readers would fold wrongly, and axis names not the kind's, are refused
+    for axes, match in [((*t.axes[:2], t.axes[2]._replace(hi=45.0)), "must span"),
+                        ((*t.axes[:2], t.axes[2]._replace(name="eta")), "has the axes")]:
+        exr.write_exr(tmp_path / "bad.exr", t._replace(axes=axes))
+        with pytest.raises(InputFileError, match=match):
+            exr.read_exr(tmp_path / "bad.exr")
+
+
 def test_three_axis_table_round_trip(tmp_path):
     t = lut.bake(lut.make_spec("albedo_dielectric", size=(3, 2, 2),
                                orders={"n_u": 4, "n_phi": 2, "n_mu": 4}), "float", check_points=0)
@@ -180,8 +201,50 @@ def test_cli_lut_from_fit_writes_exr_glsl_and_info_shows_it(tmp_path, capsys):
     assert "texel_convention" in capsys.readouterr().out
 
 
+VINYL_WW = ROOT / "fits" / "brown_vinyl_weidlich_wilkie_lambert.json"
+
+
+def test_cli_lut_model_phi_d_auto_from_fit_and_info(tmp_path, capsys):
+    out = tmp_path / "vinyl.exr"
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--phi-d", "auto", "--size",
+                 "32x32x8", "--check-points", "256", "--hlsl", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "axes chosen by measurement: the 2-axis table misses the target" in err
+    assert "(phi_d axis)" in err
+    t = exr.read_exr(out)
+    assert [a.name for a in t.axes] == ["cos_theta_h", "cos_theta_d", "phi_d"]
+    assert t.source_fit == str(VINYL_WW) and t.model["name"] == "weidlich_wilkie(lambertian)"
+    glsl = out.with_suffix(".glsl").read_text()
+    assert "vec3 fitlab_model_halfdiff(vec3 wi, vec3 wo)" in glsl
+    assert "phi_d = min(phi_d, 180.0 - phi_d);" in glsl
+    assert "degrees(atan2(abs(dy), dx))" in out.with_suffix(".hlsl").read_text()
+    assert main(["info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["axes"]["axis2"]["name"] == "phi_d" and info["axes"]["axis2"]["hi"] == 90.0
+    auto = info["accuracy"]["auto"]
+    assert [c["size"] for c in auto["candidates"]] == ["32x32", "32x32x8"]
+    assert auto["candidates"][0]["rms_rel"] > 0.04 > auto["candidates"][1]["rms_rel"]
+    assert any("chosen by measurement" in n for n in info["notes"])
+
+
+def test_cli_lut_model_2d_stays_the_default_and_says_it_misses(tmp_path, capsys):
+    out = tmp_path / "vinyl2d.exr"
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "32x32",
+                 "--check-points", "256", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "phi_d = 90 deg assumed" in err and "--phi-d auto or a third --size number" in err
+    t = exr.read_exr(out)
+    assert len(t.axes) == 2 and "auto" not in t.accuracy
+    assert t.accuracy["parameterization"]["meets_target"] is False
+    assert "vec2 fitlab_model_halfdiff" in out.with_suffix(".glsl").read_text()
+
+
 @pytest.mark.parametrize("argv", [
     ["fresnel", "--preset", "copper", "--size", "64"],
+    ["model", "--model", "oren_nayar", "--param", "albedo=0.5", "--param", "sigma=0.3",
+     "--size", "8x8x4", "--mapping", "phi_d=sqrt", "--dtype", "float"],
+    ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size", "8",
+     "--phi-d", "auto", "--check-points", "64"],
     ["fresnel", "--param", "eta=1.33"],
     ["fresnel", "--param", "n=0.2,1.0,1.2", "--param", "k=3.9,2.6,2.4",
      "--option", "fresnel=lazanyi"],
@@ -210,6 +273,17 @@ def _fit_with(tmp_path, **changes):
     (lambda d: ["brdf", "--out", f"{d}/x.exr"], "unknown table kind 'brdf'"),
     (lambda d: ["D", "--size", "1x512", "--out", f"{d}/x.exr"], "2 to 4096 samples"),
     (lambda d: ["D", "--size", "512x512x4", "--out", f"{d}/x.exr"], "has 2 axes"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size",
+                "64x64x16x2", "--out", f"{d}/x.exr"], "give 2 or 3 sizes, e.g. 256x256x16"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size", "64x64x1",
+                "--out", f"{d}/x.exr"], "2 to 4096 samples"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size", "8x8x4",
+                "--phi-d", "slice", "--out", f"{d}/x.exr"], "drop one of them"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--mapping",
+                "phi_d=sqrt", "--out", f"{d}/x.exr"], "has no phi_d axis"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--phi-d", "auto",
+                "--check-points", "0", "--out", f"{d}/x.exr"], "needs the accuracy check"),
+    (lambda d: ["D", "--phi-d", "auto", "--out", f"{d}/x.exr"], "model tables only"),
     (lambda d: ["D", "--size", "big", "--out", f"{d}/x.exr"], "give integers"),
     (lambda d: ["D", "--mapping", "theta=u8", "--out", f"{d}/x.exr"], "has the axes"),
     (lambda d: ["D", "--out", f"{d}/x.png"], "must end in .exr"),

@@ -601,7 +601,7 @@ def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, o
     k = get_kind(kind)
     size = tuple(int(s) for s in (size or k.default_size))
     if len(size) not in k.axis_counts:
-        raise ValueError(f"table {kind} has {_axes_text(k)}; give {_one_of(k.axis_counts)} "
+        raise ValueError(f"table {kind} has {_axes_text(k)}; give {_one_of(map(str, k.axis_counts))} "
                          f"sizes ({'x'.join(map(str, k.default_size))} by default), got "
                          f"{len(size)}")
     mappings = tuple(mappings or k.all_default_mappings)
