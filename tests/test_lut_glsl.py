@@ -9,6 +9,8 @@ libegl-mesa0 libgl1-mesa-dri libgbm1) and moderngl (test extra)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import skip_or_fail
@@ -17,6 +19,7 @@ from fitlab import lut
 from fitlab.export import exr, shader
 
 N_SIDE = 64  # 64 x 64 = 4096 random points per table
+VINYL_WW = Path(__file__).resolve().parents[1] / "fits" / "brown_vinyl_weidlich_wilkie_lambert.json"
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +129,16 @@ TABLES = {
         "model", model="lambertian+rough_conductor", size=(128, 64),
         params={"R": {"albedo": 0.2, "alpha": 0.3, "n": 0.2, "k": 3.9},
                 "G": {"albedo": 0.4, "alpha": 0.3, "n": 1.0, "k": 2.6}}),
+    # the brown vinyl Weidlich–Wilkie fit with the φd axis (slices stacked along the height)
+    "model_phi_d": lambda: lut.make_spec("model", size=(64, 32, 8), **_vinyl()),
 }
+
+
+def _vinyl():
+    from fitlab.export.lut_files import from_fit
+
+    model, options, params = from_fit(VINYL_WW)
+    return dict(model=model, options=options, params=params)
 
 #: Direct evaluation of the quadrature tables (a fresh quadrature per point, E_avg included)
 #: at 4096 points would dominate the test time: they are compared at the first points only.
@@ -199,3 +211,117 @@ def test_hlsl_is_generated_from_the_same_mapping():
     # the same constants (texel-centre offsets and scales) in both
     nums = lambda s: sorted(set(__import__("re").findall(r"\d+\.\d+(?:e-?\d+)?", s)))  # noqa: E731
     assert nums(g) == nums(h)
+
+
+# --------------------------------------------------------------------------------------------
+# the model table's own reader: fitlab_model(tex, wi, wo) computes (cos θh, cos θd[, φd]) itself
+# --------------------------------------------------------------------------------------------
+
+
+def _frag_directions(code, texelfetch):
+    return (f"#version 330\n{'#define FITLAB_LUT_TEXELFETCH' if texelfetch else ''}\n"
+            "uniform sampler2D lut0;\nuniform sampler2D dir_i;\nuniform sampler2D dir_o;\n"
+            f"layout(location = 0) out vec4 out0;\n{code}\nvoid main() {{\n"
+            "    vec3 wi = texelFetch(dir_i, ivec2(gl_FragCoord.xy), 0).xyz;\n"
+            "    vec3 wo = texelFetch(dir_o, ivec2(gl_FragCoord.xy), 0).xyz;\n"
+            "    out0 = fitlab_model(lut0, wi, wo);\n}\n")
+
+
+def run_directions_on_gpu(ctx, table, wi, wo, texelfetch=False):
+    """fitlab_model(lut0, wi, wo) of the generated GLSL at N_SIDE² direction pairs → (P, C)."""
+    prog = ctx.program(vertex_shader=VERT,
+                       fragment_shader=_frag_directions(shader.glsl(table), texelfetch))
+    data = np.ascontiguousarray(table.values.astype(np.float32))
+    h, w, c = data.shape
+    lut_tex = ctx.texture((w, h), c, data.tobytes(), dtype="f4")
+    lut_tex.filter = (ctx.LINEAR, ctx.LINEAR)
+    lut_tex.repeat_x = lut_tex.repeat_y = False
+    lut_tex.use(location=0)
+    prog["lut0"] = 0
+    objs = [lut_tex]
+    for loc, (name, d) in enumerate((("dir_i", wi), ("dir_o", wo)), start=1):
+        px = np.zeros((N_SIDE * N_SIDE, 4), np.float32)
+        px[:, :3] = d
+        t = ctx.texture((N_SIDE, N_SIDE), 4, px.tobytes(), dtype="f4")
+        t.filter = (ctx.NEAREST, ctx.NEAREST)
+        t.use(location=loc)
+        prog[name] = loc
+        objs.append(t)
+    target = ctx.texture((N_SIDE, N_SIDE), 4, dtype="f4")
+    fbo = ctx.framebuffer(color_attachments=[target])
+    vbo = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], np.float32).tobytes())
+    vao = ctx.vertex_array(prog, [(vbo, "2f", "pos")])
+    fbo.use()
+    ctx.viewport = (0, 0, N_SIDE, N_SIDE)
+    vao.render(mode=ctx.TRIANGLES)
+    out = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(-1, 4)
+    for obj in objs + [target, fbo, vbo, vao, prog]:
+        obj.release()
+    return out[:, : len(table.channels)].astype(np.float64)
+
+
+def _unreciprocal_conductor():
+    import fitlab
+
+    base = fitlab.get_model("rough_conductor")
+    m = base._replace(name="rough_conductor_unreciprocal_glsl_test",
+                      capabilities=base.capabilities._replace(reciprocal=False))
+    fitlab.models.register_model(m, replace=True)
+    return m.name
+
+
+DIRECTION_TABLES = {
+    "vinyl_2d": lambda: lut.make_spec("model", size=(64, 32), **_vinyl()),
+    "vinyl_phi_d": lambda: lut.make_spec("model", size=(64, 32, 8), **_vinyl()),
+    # no declared reciprocity: φd over [0°, 180°], folded by the mirror only
+    "unreciprocal_phi_d_180": lambda: lut.make_spec(
+        "model", model=_unreciprocal_conductor(), size=(64, 32, 9),
+        params={"Y": {"alpha": 0.3, "n": 0.2, "k": 3.9}}),
+}
+
+
+@pytest.mark.parametrize("texelfetch", [False, True], ids=["hw_bilinear", "texelfetch"])
+@pytest.mark.parametrize("name", list(DIRECTION_TABLES))
+def test_glsl_model_reader_computes_and_folds_the_coordinates(gl, tmp_path, name, texelfetch):
+    """fitlab_model(tex, wi, wo) at random direction pairs of the upper hemisphere (and a few
+    below it) equals the float64 lookup at fitlab.lut.model_coordinates of the same float32
+    directions: the shader's h, cos θh, cos θd and φd (atan, |φd|, the reciprocity fold)
+    are the documented ones; against the model itself it has the table's parameterization
+    error."""
+    import fitlab
+
+    spec = DIRECTION_TABLES[name]()
+    baked = lut.bake(spec, "float", check_points=0)
+    exr.write_exr(tmp_path / "m.exr", baked)
+    table = exr.read_exr(tmp_path / "m.exr")
+    rng = np.random.default_rng(7)
+    n = N_SIDE * N_SIDE
+
+    def hemi(u):
+        r = np.sqrt(1 - u[:, 0] ** 2)
+        return np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]),
+                         u[:, 0]], -1)
+
+    wi, wo = hemi(rng.random((n, 2))), hemi(rng.random((n, 2)))
+    wo[:16, 2] *= -1  # below the horizon: 0
+    wi, wo = (w.astype(np.float32).astype(np.float64) for w in (wi, wo))
+    gpu = run_directions_on_gpu(gl, table, wi, wo, texelfetch)
+    assert np.all(np.isfinite(gpu)) and np.all(gpu[:16] == 0)
+    emulated = lut.lookup(table, lut.model_coordinates(table.axes, wi, wo))
+    scale = np.abs(table.values).reshape(-1, len(table.channels)).max(axis=0)
+    err = _rel(gpu[16:], emulated[16:], scale)
+    # the same bound as for the axis coordinates: the shader's float32 h, cos θd and φd
+    # (measured: below 5e-6 on llvmpipe) do not add a lookup error of their own
+    assert err.max() < 2e-4, f"{name}: GLSL vs emulated lookup at direction pairs: max {err.max():.3g}"
+    model = table.model
+    ref = np.stack([np.asarray(fitlab.eval_bsdf(model["name"], p, wi[16:], wo[16:],
+                                                model["options"]))
+                    for p in table.params.values()], -1)
+    e_gpu = _rel(gpu[16:], ref, np.abs(ref).max(axis=0))
+    e_emu = _rel(emulated[16:], ref, np.abs(ref).max(axis=0))
+    print(f"\n{name} [{'texelFetch' if texelfetch else 'hardware bilinear'}] GLSL vs emulated "
+          f"lookup: max {err.max():.3g}, 99th percentile {np.percentile(err, 99):.3g}; "
+          f"fitlab_model vs the model at {n - 16} direction pairs: max {e_gpu.max():.3g}, RMS "
+          f"{np.sqrt(np.mean(e_gpu ** 2)):.3g} (emulated lookup: RMS "
+          f"{np.sqrt(np.mean(e_emu ** 2)):.3g})")
+    assert np.sqrt(np.mean(e_gpu ** 2)) <= np.sqrt(np.mean(e_emu ** 2)) * 1.01 + 1e-4
