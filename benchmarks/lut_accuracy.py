@@ -13,7 +13,14 @@ Writes the table between the markers of data_formats/lut_exr.md (section "What a
 costs"), the rows as reports/lut_accuracy/lut_accuracy.json and the figure
 reports/lut_accuracy/lut_accuracy.png (fitlab.report.lut_figures).
 
-Usage: python benchmarks/lut_accuracy.py [--quick] [--no-write]
+The φd study (``--phi-d``, or ``--phi-d-only`` to run it alone): the model table of reference
+fits in 2D (the φd = 90° slice) and with a φd axis of 8, 16 and 32 samples: the
+parameterization error (lookup at the coordinates of random direction pairs vs the model at those
+pairs, the measure ``--phi-d auto`` decides by), the interpolation error, file size and the
+warm evaluation time of every sample. Written between the lut_phi_d markers of
+data_formats/lut_exr.md and as reports/lut_accuracy/phi_d.json.
+
+Usage: python benchmarks/lut_accuracy.py [--quick] [--no-write] [--phi-d | --phi-d-only]
 """
 
 from __future__ import annotations
@@ -38,7 +45,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "data_formats" / "lut_exr.md"
 OUT = ROOT / "reports" / "lut_accuracy"
 BEGIN, END = "<!-- lut_accuracy:begin -->", "<!-- lut_accuracy:end -->"
+PHI_BEGIN, PHI_END = "<!-- lut_phi_d:begin -->", "<!-- lut_phi_d:end -->"
 FIT = ROOT / "fits" / "walter_rough_glass.json"
+#: Direction pairs of the φd study's parameterization error (the same pairs for every table).
+PHI_D_PAIRS = 16384
 
 
 def configs(quick: bool):
@@ -179,13 +189,119 @@ def markdown(rows, machine):
     return "\n".join(out)
 
 
+def phi_d_configs(quick: bool):
+    """(label, make_spec kwargs) of the φd study: reference fits and a conductor."""
+    from fitlab.export.lut_files import from_fit
+
+    def fit(name):
+        model, options, params = from_fit(ROOT / "fits" / name)
+        return dict(model=model, options=options, params=params)
+
+    tables = [("brown vinyl, Weidlich–Wilkie (Lambert) fit",
+               fit("brown_vinyl_weidlich_wilkie_lambert.json")),
+              ("brown vinyl, Lambert + GGX conductor fit",
+               fit("brown_vinyl_lambert_ggx_conductor.json")),
+              ("Walter rough glass fit (reflection)", fit("walter_rough_glass.json")),
+              ("rough conductor α = 0.3", dict(model="rough_conductor",
+                                               params={"Y": {"alpha": 0.3, "n": 0.2, "k": 3.9}}))]
+    sizes = [(256, 256), (256, 256, 8), (256, 256, 16), (256, 256, 32)]
+    if quick:
+        tables, sizes = tables[:1], [(64, 64), (64, 64, 8)]
+    for label, kw in tables:
+        for size in sizes:
+            yield label, dict(kw, size=size)
+
+
+def phi_d_study(quick: bool, progress=lambda s: print(s, file=sys.stderr)):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, kw in phi_d_configs(quick):
+            spec = lut.make_spec("model", **kw)
+            coords = lut.grid_coords(spec.axes)
+            spec.evaluate(coords)  # compiles (not timed)
+            times = []
+            for _ in range(2):
+                t = time.perf_counter()
+                spec.evaluate(coords)
+                times.append(time.perf_counter() - t)
+            lut.bake(spec, "half", check_points=4096)  # compiles the checks (not timed)
+            t = time.perf_counter()
+            table = lut.bake(spec, "half", check_points=4096)
+            bake_total = time.perf_counter() - t
+            par = lut.kinds.parameterization_error(table, spec, PHI_D_PAIRS)
+            path = Path(tmp) / "t.exr"
+            exr.write_exr(path, table)
+            size = "x".join(str(a.size) for a in table.axes)
+            row = {"table": label, "size": size, "dtype": "half",
+                   "texels": int(np.prod(table.values.shape[:2])),
+                   "param_rms_rel": par["rms_rel"], "param_max_rel": par["max_rel"],
+                   "pairs": par["points"], "meets_target": par["meets_target"],
+                   "interp_rms_rel": table.accuracy["interpolation"]["rms_rel"],
+                   "interp_max_rel": table.accuracy["interpolation"]["max_rel"],
+                   "size_bytes": os.path.getsize(path), "eval_s": float(np.median(times)),
+                   "bake_s": bake_total}
+            rows.append(row)
+            progress(f"{label:45s} {size:>11s}: param RMS {row['param_rms_rel']:.2e} max "
+                     f"{row['param_max_rel']:.2e} | interp RMS {row['interp_rms_rel']:.2e} | "
+                     f"{row['size_bytes']:9d} B | eval {row['eval_s']:.2f} s, bake "
+                     f"{row['bake_s']:.2f} s")
+    return rows
+
+
+def phi_d_markdown(rows, machine):
+    t = lut.PHI_D_TARGET
+    out = [f"Measured {_dt.date.today().isoformat()} on {machine} by `python "
+           "benchmarks/lut_accuracy.py --phi-d-only` (fitlab " + fitlab.__version__ + "), half "
+           f"tables. Parameterization error: lookup at the coordinates of {PHI_D_PAIRS} random "
+           "direction pairs of the upper hemisphere (uniform in solid angle, the same pairs for "
+           "every table) vs the model at those pairs, relative, floor 1e-3 of the largest f "
+           f"over the pairs; `auto` target: RMS ≤ {t['rms_rel']:g} and max ≤ {t['max_rel']:g}. "
+           "Interpolation error: lookup vs the model at 4096 random points uniform in texture "
+           "coordinates (floor 1e-3 of the table's largest value; for a 3D table most of these "
+           "points lie beyond the horizon, where the table holds the horizon value). `eval`: "
+           "warm evaluation of every sample (median of two); `bake`: `fitlab.lut.bake` with its "
+           "accuracy checks, warm (storage rounding and the checks at 4096 points included); "
+           "times are indicative on a shared 2-core machine.", "",
+           "| table | size | texels | param. RMS rel | param. max rel | meets target | "
+           "interp. RMS rel | bytes | eval (ms) | bake (s) |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['table']} | {r['size']} | {r['texels']} | {r['param_rms_rel']:.2e} | "
+                   f"{r['param_max_rel']:.2e} | {'yes' if r['meets_target'] else 'no'} | "
+                   f"{r['interp_rms_rel']:.2e} | {r['size_bytes']} | {r['eval_s'] * 1e3:.0f} | "
+                   f"{r['bake_s']:.2f} |")
+    return "\n".join(out)
+
+
+def _replace_between(begin, end, text):
+    doc = DOC.read_text()
+    i, j = doc.index(begin) + len(begin), doc.index(end)
+    DOC.write_text(doc[:i] + "\n" + text + "\n" + doc[j:])
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer sizes (a smoke run)")
     ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--phi-d", action="store_true", help="also run the model table's φd study")
+    ap.add_argument("--phi-d-only", action="store_true", help="run the φd study only")
     a = ap.parse_args(argv)
     machine = (f"{os.cpu_count()} CPUs ({platform.machine()}), {platform.system()}, "
                f"Python {platform.python_version()}")
+    if a.phi_d or a.phi_d_only:
+        t0 = time.perf_counter()
+        rows = phi_d_study(a.quick)
+        print(f"phi_d study took {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        text = phi_d_markdown(rows, machine)
+        print(text)
+        if not a.no_write:
+            OUT.mkdir(parents=True, exist_ok=True)
+            (OUT / "phi_d.json").write_text(json.dumps({"machine": machine, "rows": rows},
+                                                       indent=1, ensure_ascii=False) + "\n")
+            _replace_between(PHI_BEGIN, PHI_END, text)
+            print(f"wrote {OUT / 'phi_d.json'} and the φd table in {DOC}", file=sys.stderr)
+        if a.phi_d_only:
+            return 0
     t0 = time.perf_counter()
     rows = study(a.quick)
     print(f"study took {time.perf_counter() - t0:.0f} s", file=sys.stderr)
@@ -199,9 +315,7 @@ def main(argv=None):
     from fitlab.report.lut_figures import lut_accuracy_figure
 
     lut_accuracy_figure([r for r in rows if "error" not in r], OUT / "lut_accuracy.png")
-    doc = DOC.read_text()
-    i, j = doc.index(BEGIN) + len(BEGIN), doc.index(END)
-    DOC.write_text(doc[:i] + "\n" + text + "\n" + doc[j:])
+    _replace_between(BEGIN, END, text)
     print(f"wrote {OUT / 'lut_accuracy.png'}, {OUT / 'lut_accuracy.json'} and the table in {DOC}",
           file=sys.stderr)
     return 0
