@@ -310,10 +310,10 @@ def spec_model(model_name, params, options=None, size=(256, 256),
     (reciprocal model) or [0°, 180°] (otherwise)."""
     model = fitlab.get_model(model_name)
     if not model.capabilities.isotropic:
-        raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd[, φd]) table "
-                         "holds isotropic BRDFs only (it has no azimuth of the half vector); "
-                         "tabulate it as a Zemax file with fitlab convert (Asymmetrical), or "
-                         "fit an isotropic model")
+        raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd) table "
+                         "holds isotropic BRDFs only (it has no azimuth of the half vector, with "
+                         "or without the φd axis); tabulate it as a Zemax file with fitlab "
+                         "convert (Asymmetrical), or fit an isotropic model")
     if len(size) not in (2, 3):
         raise ValueError(f"a model table has 2 axes (cos_theta_h, cos_theta_d) or 3 (with "
                          f"phi_d); got {len(size)} sizes")
