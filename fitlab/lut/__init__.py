@@ -46,8 +46,9 @@ Modules: :mod:`~fitlab.lut.axes` (mappings, axes, :class:`Table`, :func:`lookup`
 :class:`Spec`), :mod:`~fitlab.lut.albedo` (albedo quadrature), :mod:`~fitlab.lut.baking`
 (:func:`bake`, :func:`measure_accuracy`, :func:`round_to`) and :mod:`~fitlab.lut.kinds` (the
 evaluators, the :data:`KINDS` registry whose entries carry their table maker, what they need
-from a model or fit and their optional axes, :func:`make_spec`, :func:`bake_auto`). To add a kind: write its ``spec_*`` evaluator and its
-``make`` / ``prepare`` in kinds.py and register a :class:`Kind`.
+from a model or fit and their optional axes, :func:`make_spec`, :func:`bake_auto`). To add a
+kind: write its ``spec_*`` evaluator and its ``make`` / ``prepare`` in kinds.py and register a
+:class:`Kind`.
 """
 
 from fitlab.lut.albedo import ALBEDO_DISTRIBUTIONS, QUAD_ORDERS, albedo_integrals

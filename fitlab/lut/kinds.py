@@ -224,8 +224,10 @@ def halfdiff_directions(cos_theta_h, cos_theta_d, phi_d=90.0):
     h = (sin θh, 0, cos θh); the difference vector d = (sin θd cos φd, sin θd sin φd, cos θd) in
     h's frame (x axis R_y(θh) x, y axis y); wi = R_y(θh) d, wo = reflect(wi, h) = 2 (wi·h) h - wi:
 
-        wi = (sin θh cos θd + cos θh sin θd cos φd, sin θd sin φd, cos θh cos θd - sin θh sin θd cos φd)
-        wo = (sin θh cos θd - cos θh sin θd cos φd, -sin θd sin φd, cos θh cos θd + sin θh sin θd cos φd)
+        wi = (sin θh cos θd + cos θh sin θd cos φd,  sin θd sin φd,
+              cos θh cos θd - sin θh sin θd cos φd)
+        wo = (sin θh cos θd - cos θh sin θd cos φd, -sin θd sin φd,
+              cos θh cos θd + sin θh sin θd cos φd)
 
     At φd = 90° (the default, the 2D table's slice) wi = (sin θh cos θd, sin θd, cos θh cos θd).
     Cosines are clamped to [MU_MIN, 1]: at 0 both directions lie in the horizon, where a model
@@ -601,9 +603,9 @@ def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, o
     k = get_kind(kind)
     size = tuple(int(s) for s in (size or k.default_size))
     if len(size) not in k.axis_counts:
-        raise ValueError(f"table {kind} has {_axes_text(k)}; give {_one_of(map(str, k.axis_counts))} "
-                         f"sizes ({'x'.join(map(str, k.default_size))} by default), got "
-                         f"{len(size)}")
+        counts = _one_of(map(str, k.axis_counts))
+        raise ValueError(f"table {kind} has {_axes_text(k)}; give {counts} sizes "
+                         f"({'x'.join(map(str, k.default_size))} by default), got {len(size)}")
     mappings = tuple(mappings or k.all_default_mappings)
     if len(mappings) not in (len(size), len(k.all_axis_names)):
         raise ValueError(f"table {kind} with {len(size)} axes needs {len(size)} mappings, got "
