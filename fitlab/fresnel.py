@@ -12,6 +12,19 @@ import jax.numpy as jnp
 from fitlab.numerics import safe_div, safe_sqrt
 
 
+def _walter_F_g(c, eta_it):
+    """Walter eq. 22 for c = |cos θi| and the relative index η_t/η_i of the crossing: (F, g),
+    g = η_t/η_i · |cos θt| = sqrt(η_t²/η_i² - 1 + c²) (0 under total internal reflection)."""
+    g2 = eta_it**2 - 1.0 + c**2
+    tir = g2 <= 0
+    # double where (finite gradient under total internal reflection); a NaN stays NaN
+    g = jnp.where(tir, 0.0, jnp.sqrt(jnp.where(tir, 1.0, g2)))
+    # Walter eq. 22: F = 1/2 (g-c)²/(g+c)² (1 + (c(g+c)-1)² / (c(g-c)+1)²)
+    a = safe_div(g - c, g + c)
+    b = safe_div(c * (g + c) - 1.0, c * (g - c) + 1.0)
+    return jnp.where(tir, 1.0, jnp.clip(0.5 * a**2 * (1.0 + b**2), 0.0, 1.0)), g
+
+
 def fresnel_dielectric(cos_theta_i, eta):
     """Fresnel reflectance of a smooth dielectric interface and what a refraction through it
     needs, computed once (Mitsuba 3's ``fresnel(cos_theta_i, eta)``).
@@ -33,15 +46,7 @@ def fresnel_dielectric(cos_theta_i, eta):
     inv_eta = safe_div(1.0, eta)
     eta_it = jnp.where(outside, eta, inv_eta)
     eta_ti = jnp.where(outside, inv_eta, eta)
-    c = jnp.abs(cos_theta_i)
-    g2 = eta_it**2 - 1.0 + c**2
-    tir = g2 <= 0
-    # double where (finite gradient under total internal reflection); a NaN stays NaN
-    g = jnp.where(tir, 0.0, jnp.sqrt(jnp.where(tir, 1.0, g2)))
-    # Walter eq. 22: F = 1/2 (g-c)²/(g+c)² (1 + (c(g+c)-1)² / (c(g-c)+1)²)
-    a = safe_div(g - c, g + c)
-    b = safe_div(c * (g + c) - 1.0, c * (g - c) + 1.0)
-    F = jnp.where(tir, 1.0, jnp.clip(0.5 * a**2 * (1.0 + b**2), 0.0, 1.0))
+    F, g = _walter_F_g(jnp.abs(cos_theta_i), eta_it)
     # |cos θt| = g η_i/η_t (0 under total internal reflection, g = 0); the product can round
     # above 1 near normal incidence, where sqrt(1 - cos²θt) of a caller would be NaN
     cos_t = jnp.minimum(g * eta_ti, 1.0)
@@ -55,7 +60,7 @@ def fresnel_dielectric_Walter2007(cos_i, eta):
     ``eta`` = η_t / η_i (transmitted over incident index); ``cos_i`` enters as |cos_i|. Total
     internal reflection (g² < 0) gives 1.
     """
-    return fresnel_dielectric(jnp.abs(cos_i), eta)[0]
+    return _walter_F_g(jnp.abs(cos_i), eta)[0]  # no side selection: cos_i is the incident side
 
 
 def cos_theta_critical(eta):

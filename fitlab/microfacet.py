@@ -63,16 +63,16 @@ def _widths(alpha_x, alpha_y):
     return ax, clamp_alpha(alpha_y) / ax
 
 
-def _stretched_tangential(m, k):
+def _stretched_tangential(m, k, s2):
     """m_x² + m_y²/k² = α_x² s(m): the tangential length in the stretched slope space, in units
-    of α_x (the isotropic m_x² + m_y² when k = 1)."""
-    return _sin2_cos2(m)[0] if k is None else m[..., 0] ** 2 + m[..., 1] ** 2 / (k * k)
+    of α_x; ``s2`` = m_x² + m_y² (isotropic)."""
+    return s2 if k is None else m[..., 0] ** 2 + m[..., 1] ** 2 / (k * k)
 
 
-def _projected_tangential(v, k):
+def _projected_tangential(v, k, s2):
     """v_x² + k² v_y² = α(v)² (v_x² + v_y²)/α_x²: the tangential length weighted by the
-    projected width (Heitz 2014 eq. 80), in units of α_x."""
-    return _sin2_cos2(v)[0] if k is None else v[..., 0] ** 2 + (k * k) * v[..., 1] ** 2
+    projected width (Heitz 2014 eq. 80), in units of α_x; ``s2`` = v_x² + v_y² (isotropic)."""
+    return s2 if k is None else v[..., 0] ** 2 + (k * k) * v[..., 1] ** 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -103,7 +103,7 @@ def D_Beckmann(m, alpha, alpha_y=None):
     ax, k = _widths(alpha, alpha_y)
     s2, c2 = _sin2_cos2(m)
     a2 = ax * ax
-    st = _stretched_tangential(m, k)
+    st = _stretched_tangential(m, k, s2)
     # 1/cos⁴θm = (1 + tan²θm)² (no |m|⁴ that under/overflows in float32); D = 0 beyond
     # s(m)/m_z² = _X_MAX (tested without a division) so the tan² gradient stays finite there.
     ok = (m[..., 2] > 0) & (st < _X_MAX * a2 * c2)
@@ -153,8 +153,8 @@ def G1_GGX(v, alpha, alpha_y=None):
     2|v_z| / (|v_z| + sqrt(v_z² + α²(v_x² + v_y²))) so it is finite at the horizon and normal;
     anisotropic: α²(v_x² + v_y²) → α_x² v_x² + α_y² v_y² (projected width)."""
     ax, k = _widths(alpha, alpha_y)
-    _, c2 = _sin2_cos2(v)
-    p = _projected_tangential(v, k)
+    s2, c2 = _sin2_cos2(v)
+    p = _projected_tangential(v, k, s2)
     cz = jnp.abs(v[..., 2])  # not sqrt(c2): its gradient is NaN at the horizon
     return safe_div(2.0 * cz, cz + jnp.sqrt(c2 + ax * ax * p))
 
@@ -163,8 +163,8 @@ def Lambda_GGX(v, alpha, alpha_y=None):
     """GGX Smith Λ(v) = (sqrt(1 + α(v)² tan²θv) - 1)/2 (Heitz 2014 eq. 72), infinite at the
     horizon (returned as a large finite number there)."""
     ax, k = _widths(alpha, alpha_y)
-    _, c2 = _sin2_cos2(v)
-    p = ax * ax * _projected_tangential(v, k)
+    s2, c2 = _sin2_cos2(v)
+    p = ax * ax * _projected_tangential(v, k, s2)
     cz = jnp.abs(v[..., 2])
     # (sqrt(c2 + p) - |v_z|) / (2|v_z|) = p / (2|v_z| (sqrt(c2 + p) + |v_z|)): no cancellation
     return safe_div(p, 2.0 * cz * (jnp.sqrt(c2 + p) + cz), 1e30)
@@ -177,9 +177,9 @@ def G_GGX(wi, wo, alpha, alpha_y=None):
     Equal to ``G1_GGX(wi, alpha) * G1_GGX(wo, alpha)`` up to float rounding."""
     ax, k = _widths(alpha, alpha_y)
     a2 = ax * ax
-    _, ci2 = _sin2_cos2(wi)
-    _, co2 = _sin2_cos2(wo)
-    pi, po = _projected_tangential(wi, k), _projected_tangential(wo, k)
+    si2, ci2 = _sin2_cos2(wi)
+    so2, co2 = _sin2_cos2(wo)
+    pi, po = _projected_tangential(wi, k, si2), _projected_tangential(wo, k, so2)
     ci, co = jnp.abs(wi[..., 2]), jnp.abs(wo[..., 2])
     return safe_div(4.0 * ci * co, (ci + jnp.sqrt(ci2 + a2 * pi)) * (co + jnp.sqrt(co2 + a2 * po)))
 
@@ -191,8 +191,8 @@ def _beckmann_a(v, alpha, alpha_y=None):
     The cap is decided without a division (a < _A_MAX <=> v_z² < _A_MAX² α² sin²): computing a
     first and clamping it leaves NaN gradients near the normal, and sqrt(v_z²) at the horizon."""
     ax, k = _widths(alpha, alpha_y)
-    _, c2 = _sin2_cos2(v)
-    p = _projected_tangential(v, k)
+    s2, c2 = _sin2_cos2(v)
+    p = _projected_tangential(v, k, s2)
     ok = c2 < (_A_MAX * ax) ** 2 * p
     s = jnp.sqrt(jnp.where(ok, p, 1.0))
     return jnp.where(ok, jnp.abs(v[..., 2]) / (ax * s), _A_MAX)
