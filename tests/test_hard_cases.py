@@ -111,6 +111,9 @@ def _report(bad, names, P, A):
     return [(dict(zip(names, P[i])), tuple(np.round(A[i] / DEG, 6))) for i in idx]
 
 
+#: Slow tier: tests/test_model_contract.py checks the same property for every registry model
+#: (layered ones included) in the quick loop; these per-option grids run in the full suite.
+@pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS, ids=_config_id)
 def test_eval_pdf_and_gradients_finite_on_hard_grid(config, dtype):
     """eval and pdf finite and >= 0, and d/d(parameters, θi, φi, θo, φo) finite, on the whole
@@ -148,6 +151,9 @@ def test_index_matched_interface_eta_exactly_one(dtype):
 HARD_U = (0.0, 1e-7, 0.5, 0.9999, 1.0 - 1e-7)
 
 
+#: Slow tier: tests/test_model_contract.py checks the same property for every registry model
+#: (layered ones included) in the quick loop; these per-option grids run in the full suite.
+@pytest.mark.slow
 @pytest.mark.parametrize("config", CONFIGS, ids=_config_id)
 def test_sample_finite_on_hard_inputs(config, dtype):
     """sample(): wo, weight and pdf finite for every hard incident direction and uniforms at the

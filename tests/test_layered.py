@@ -407,6 +407,9 @@ def _dirs(theta, phi):
     return jnp.stack([s * jnp.cos(phi), s * jnp.sin(phi), jnp.cos(theta)], -1)
 
 
+#: Slow tier: tests/test_model_contract.py checks the same property for every registry model
+#: (layered ones included) in the quick loop; these per-option grids run in the full suite.
+@pytest.mark.slow
 @pytest.mark.parametrize("name, opts, grid", HARD_CONFIGS, ids=[c[0] for c in HARD_CONFIGS])
 def test_values_and_gradients_finite_on_hard_cases(name, opts, grid, dtype):
     model = get_model(name)
@@ -454,6 +457,9 @@ def test_jitted_gradient_finite(name, grid):
             assert np.isfinite(np.asarray(g)).all()
 
 
+#: Slow tier: tests/test_model_contract.py checks the same property for every registry model
+#: (layered ones included) in the quick loop; these per-option grids run in the full suite.
+@pytest.mark.slow
 @pytest.mark.parametrize("name, opts, grid", HARD_CONFIGS, ids=[c[0] for c in HARD_CONFIGS])
 def test_sample_finite_on_hard_cases(name, opts, grid, dtype):
     model = get_model(name)

@@ -116,7 +116,7 @@ def _print_summary(table, written):
               f"{i['max_rel']:.3g}, RMS rel {i['rms_rel']:.3g}", file=sys.stderr)
     if "parameterization" in acc:
         p = acc["parameterization"]
-        how = ("phi_d axis" if any(a.name == "phi_d" for a in table.axes)
+        how = ("phi_d axis" if any(a.name == lut.PHI_D for a in table.axes)
                else "phi_d = 90 deg assumed")
         miss = "" if p.get("meets_target", True) else (
             f" (misses the target RMS <= {p['target']['rms_rel']:g}, max <= "

@@ -27,7 +27,8 @@ import fitlab
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import read_bytes, sha256_of
-from fitlab.lut import KINDS, MAPPINGS, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN, TEXEL_CONVENTION, Axis, Table
+from fitlab.lut import (KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN,
+                        TEXEL_CONVENTION, Axis, Table)
 
 #: First four bytes of every OpenEXR file.
 MAGIC = b"\x76\x2f\x31\x01"
@@ -192,7 +193,7 @@ def read_exr(path) -> Table:
                              f"{', '.join(k.all_axis_names[: len(axes)])}, the header declares "
                              f"{', '.join(names)}", column=PREFIX + "axes")
     for a in axes:  # the model table's φd: [0°, 90°] (reciprocity fold) or [0°, 180°]
-        if a.name == "phi_d" and (a.lo != 0.0 or a.hi not in (90.0, 180.0)):
+        if a.name == PHI_D and (a.lo != 0.0 or a.hi not in (90.0, 180.0)):
             raise InputFileError(path, f"axis phi_d must span [0, 90] or [0, 180] degrees, got "
                                  f"[{a.lo}, {a.hi}]", column=PREFIX + "axes",
                                  hint="see data_formats/lut_exr.md, the model table")

@@ -112,9 +112,9 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
     if phi_d is not None:
         if phi_d not in PHI_D_CHOICES:
             raise FitlabError(f"--phi-d {phi_d!r}: choose {' or '.join(PHI_D_CHOICES)}")
-        if "phi_d" not in optional:
+        if lut.PHI_D not in optional:
             with_phi = [k.name for k in lut.KINDS.values()
-                        if "phi_d" in (e[0] for e in k.extra_axes)]
+                        if lut.PHI_D in (e[0] for e in k.extra_axes)]
             raise FitlabError(f"--phi-d applies to {' and '.join(with_phi)} tables only")
     sizes = parse_size(size, kind) if size else None
     if phi_d == "slice" and sizes and len(sizes) > kind.n_axes:

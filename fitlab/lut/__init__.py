@@ -58,7 +58,7 @@ from fitlab.lut.axes import (
 )
 from fitlab.lut.baking import HALF_MAX, REL_FLOOR, TEXELS_MAX, bake, measure_accuracy, round_to
 from fitlab.lut.kinds import (
-    KINDS, PHI_D_SIZE, PHI_D_TARGET, Kind, bake_auto, conductor_preset, get_kind,
+    KINDS, PHI_D, PHI_D_SIZE, PHI_D_TARGET, Kind, bake_auto, conductor_preset, get_kind,
     halfdiff_coordinates, halfdiff_directions, make_spec, model_coordinates, phi_d_of,
     spec_albedo_conductor, spec_albedo_dielectric, spec_D, spec_dfg, spec_fresnel, spec_model,
     spec_of_table,
@@ -69,7 +69,7 @@ __all__ = [
     "Axis", "Table", "Spec", "Kind", "KINDS", "MAPPINGS", "bake", "lookup", "make_spec",
     "spec_of_table", "measure_accuracy", "albedo_integrals", "conductor_preset",
     "halfdiff_directions", "halfdiff_coordinates", "phi_d_of", "model_coordinates", "bake_auto",
-    "PHI_D_TARGET", "PHI_D_SIZE", "grid_coords", "round_to",
+    "PHI_D", "PHI_D_TARGET", "PHI_D_SIZE", "grid_coords", "round_to",
     # imported by fitlab.export, the tests and the benchmarks
     "get_kind", "Mapping", "SCHEMA", "SCHEMA_VERSION", "SIZE_MIN", "SIZE_MAX", "TEXEL_CONVENTION",
     "TEXELS_MAX", "HALF_MAX", "REL_FLOOR", "MU_MIN", "ALPHA_MIN", "QUAD_ORDERS",

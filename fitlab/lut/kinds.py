@@ -209,6 +209,8 @@ def spec_albedo_dielectric(distribution="ggx", size=(32, 32, 16),
 PHI_D_TARGET = {"rms_rel": 0.01, "max_rel": 0.05}
 #: φd samples of the 3D candidate when the size gives none.
 PHI_D_SIZE = 16
+#: Name of the model table's optional third axis (Rusinkiewicz's difference azimuth).
+PHI_D = "phi_d"
 #: Largest number of direction pairs one model evaluation is given (memory of a 3D bake).
 MODEL_CHUNK = 1 << 16
 
@@ -335,7 +337,7 @@ def spec_model(model_name, params, options=None, size=(256, 256),
     if three:
         hi = 90.0 if reciprocal else 180.0
         axes += (make_axis(
-            "phi_d", 0.0, hi, size[2], mappings[2],
+            PHI_D, 0.0, hi, size[2], mappings[2],
             "φd in degrees, Rusinkiewicz's difference azimuth: the azimuth of wi about h from "
             "t = R_z(φh) R_y(θh) x, read as |φd| (mirror symmetry of an isotropic BRDF)"
             + (" and folded into [0°, 90°] by min(φd, 180° - φd) (reciprocity: f(φd) = "
@@ -582,7 +584,7 @@ KINDS = {k.name: k for k in (
     Kind("model", "a model's or fit's BRDF over (cos θh, cos θd) at φd = 90°, or with a third "
          "size over (cos θh, cos θd, φd)", 2, (256, 256), ("u8", "linear"),
          "every parameter of the model", ("cos_theta_h", "cos_theta_d"), _make_model,
-         _prepare_model, extra_axes=(("phi_d", PHI_D_SIZE, "linear"),),
+         _prepare_model, extra_axes=((PHI_D, PHI_D_SIZE, "linear"),),
          auto_check="parameterization"),
 )}
 
