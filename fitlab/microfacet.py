@@ -144,7 +144,7 @@ def _isotropic_only(name, alpha_y):
 
 # --------------------------------------------------------------------------------------------
 # Smith Λ(v) and G1(v) = 1/(1 + Λ(v)): the monodirectional shadowing of eq. 23, without the
-# sidedness factor χ⁺((v·m)/(v·n)), which smith_G1 applies.
+# sidedness factor χ⁺((v·m)/(v·n)), which MicrofacetDistribution.smith_G1 applies.
 # --------------------------------------------------------------------------------------------
 
 
@@ -545,9 +545,6 @@ def names(*, walter: bool | None = True, anisotropic: bool | None = None) -> tup
 #: Walter 2007's distributions (the microfacet models' choices), by name: a view of REGISTRY.
 DISTRIBUTIONS: dict[str, Family] = {n: REGISTRY[n] for n in names()}
 
-# Kept for callers that asked for distributions outside Walter's family by this name.
-Distribution = Family
-
 
 def get_distribution(name: str) -> Family:
     try:
@@ -556,17 +553,6 @@ def get_distribution(name: str) -> Family:
         raise ValueError(
             f"unknown microfacet distribution {name!r}; choose one of {', '.join(REGISTRY)}"
         ) from None
-
-
-def smith_G1(dist: Family, v, m, alpha, alpha_y=None):
-    """Smith G1(v, m) with the sidedness factor χ⁺((v·m)/(v·n)) of eqs 26, 27, 34."""
-    return dist(alpha, alpha_y).smith_G1(v, m)
-
-
-def smith_G(dist: Family, wi, wo, side_i, side_o, alpha, alpha_y=None):
-    """Separable Smith G(i, o, m) = G1(i, m) G1(o, m) (Walter eq. 23), given the sidedness masks
-    side_v = (v·m)(v·n) > 0 computed by the caller."""
-    return dist(alpha, alpha_y).smith_G(wi, wo, side_i, side_o)
 
 
 def widened_alpha(alpha, cos_i):
@@ -578,8 +564,3 @@ def widened_alpha(alpha, cos_i):
 def widening_factor(cos_i):
     """1.2 - 0.2 sqrt|i·n| (Walter section 5.3)."""
     return 1.2 - 0.2 * jnp.sqrt(jnp.abs(cos_i))
-
-
-def pdf_m(dist: Family, m, alpha, alpha_y=None):
-    """Density of sampled normals, p_m(m) = D(m)|m·n| (Walter eq. 24), for unit m."""
-    return dist(alpha, alpha_y).pdf_m(m)
