@@ -33,8 +33,9 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
-from jax.scipy.special import erfc
+from jax.scipy.special import erf, erfc, erfinv
 
 from fitlab.frame import dot
 from fitlab.numerics import clamp_alpha, safe_div, safe_rsqrt, safe_sqrt
@@ -316,6 +317,68 @@ def sample_visible_GGX(w, u1, u2, alpha, alpha_y=None):
     return jnp.stack([mx * r, my * r, mz * r], axis=-1)
 
 
+def _beckmann_visible_slopes(cos_theta, u1, u2):
+    """Slopes (x along the projection of w, y across it) of the visible normals of the unit-width
+    Beckmann distribution seen from a direction at cos θ (Heitz & d'Eon 2014, "Importance
+    sampling microfacet-based BSDFs using the distribution of visible normals", section 4 and
+    appendix: the x slope has CDF (1 + erf(x) + tan θ exp(-x²)/√π) / (1 + erf(cot θ) + tan θ
+    exp(-cot²θ)/√π) on (-∞, cot θ], inverted here in the erf domain b = erf(x) by a safeguarded
+    Newton iteration from pbrt-v3's fitted guess; the y slope is an independent Gaussian)."""
+    eps = 4.0 * jnp.finfo(jnp.result_type(cos_theta)).eps
+    c_t = jnp.clip(cos_theta, 0.0, 1.0)
+    sin_t = jnp.sqrt(jnp.maximum(1.0 - c_t * c_t, 0.0))
+    normal = c_t > 0.9999
+    tan_t = jnp.where(normal, 0.0, sin_t / jnp.where(normal, 1.0, c_t))
+    cot_t = jnp.where(normal, 1e30, c_t / jnp.where(normal, 1.0, sin_t))
+    x = jnp.clip(u1, 1e-6, 1.0 - 1e-6)
+    lo = jnp.full_like(c_t, -1.0)
+    hi = erf(jnp.minimum(cot_t, 30.0))
+    theta = jnp.arccos(c_t)
+    fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta))
+    b = hi - (1.0 + hi) * jnp.power(1.0 - x, fit)
+    norm = 1.0 / (1.0 + hi + _INV_SQRT_PI * tan_t * jnp.exp(-jnp.minimum(cot_t, 30.0) ** 2))
+    for _ in range(16):
+        b = jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi))  # bisection safeguard
+        s = erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
+        value = norm * (1.0 + b + _INV_SQRT_PI * tan_t * jnp.exp(-s * s)) - x
+        derivative = norm * (1.0 - s * tan_t)
+        lo = jnp.where(value > 0, lo, b)
+        hi = jnp.where(value > 0, b, hi)
+        b = b - value / jnp.where(derivative != 0, derivative, 1.0)
+    b = jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi))
+    slope_x = erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
+    slope_y = erfinv(jnp.clip(2.0 * jnp.clip(u2, 1e-6, 1.0 - 1e-6) - 1.0, -1.0 + eps, 1.0 - eps))
+    # normal incidence: the visible normals are the normals (Walter eq. 28 in slope form)
+    r = jnp.sqrt(-jnp.log1p(-jnp.clip(u1, 0.0, 1.0 - 1e-16)))
+    phi = 2.0 * jnp.pi * u2
+    return (jnp.where(normal, r * jnp.cos(phi), slope_x),
+            jnp.where(normal, r * jnp.sin(phi), slope_y))
+
+
+def sample_visible_Beckmann(w, u1, u2, alpha, alpha_y=None):
+    """Visible normals of the (exact-G1) Beckmann distribution, density D_w(m) =
+    G1(w) max(0, w·m) D(m) / w_z for w.z > 0: stretch w to unit width, sample the slopes of
+    :func:`_beckmann_visible_slopes`, rotate them to w's azimuth, unstretch (Heitz & d'Eon 2014
+    section 4; pbrt-v3's ``BeckmannSample``)."""
+    ax, k = _widths(alpha, alpha_y)
+    ay = ax if k is None else ax * k
+    vx, vy, vz = ax * w[..., 0], ay * w[..., 1], jnp.abs(w[..., 2])
+    r = safe_rsqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx * r, vy * r, vz * r
+    t = vx * vx + vy * vy
+    it = safe_rsqrt(t)
+    cos_phi = jnp.where(t > 0, vx * it, 1.0)
+    sin_phi = jnp.where(t > 0, vy * it, 0.0)
+    sx, sy = _beckmann_visible_slopes(vz, u1, u2)
+    sx, sy = cos_phi * sx - sin_phi * sy, sin_phi * sx + cos_phi * sy
+    mx, my = -ax * sx, -ay * sy
+    r = safe_rsqrt(mx * mx + my * my + 1.0)
+    # computed once: XLA would otherwise recompute the iteration inside every consumer's
+    # fusion, where a different contraction of its floating-point ops can end on another
+    # iterate, so that m·wi and the refracted direction would disagree
+    return jax.lax.optimization_barrier(jnp.stack([mx * r, my * r, r], axis=-1))
+
+
 # --------------------------------------------------------------------------------------------
 # von Mises-Fisher NDF (extended-NDF paper, "Extended NDFs for thin layers", eqs 5-8), on the
 # shared α axis through κ = 2/α²: vMF e^{κ(cosθ-1)} ≈ e^{-κθ²/2} matches Beckmann's e^{-θ²/α²}
@@ -505,7 +568,8 @@ class MicrofacetDistribution:
         upper side (w.z > 0)."""
         if self.family.sample_visible is None:
             raise ValueError(f"the {self.family.name} distribution has no visible-normal "
-                             "sampling here; use sampling=standard or distribution=ggx")
+                             "sampling here; use sampling=standard, or distribution=ggx or "
+                             "beckmann")
         return self.family.sample_visible(w, u[..., 0], u[..., 1], self.alpha_x, self.alpha_y)
 
     def pdf_visible(self, w, m):
@@ -520,8 +584,10 @@ REGISTRY: dict[str, Family] = {
                "Heitz 2014 eqs 72, 85; visible normals: Heitz 2018", G_GGX, Lambda_GGX,
                sample_visible_GGX, anisotropic=True, du1_dt=du1_dt_GGX),
         Family("beckmann", D_Beckmann, G1_Beckmann, sample_m_Beckmann,
-               "Walter 2007 eqs 25, 26, 28-29; anisotropic: Heitz 2014 eqs 83, 86",
-               Lambda=Lambda_Beckmann, anisotropic=True, du1_dt=du1_dt_Beckmann),
+               "Walter 2007 eqs 25, 26, 28-29; anisotropic: Heitz 2014 eqs 83, 86; visible "
+               "normals: Heitz & d'Eon 2014",
+               Lambda=Lambda_Beckmann, sample_visible=sample_visible_Beckmann,
+               anisotropic=True, du1_dt=du1_dt_Beckmann),
         Family("beckmann_rational", D_Beckmann, G1_Beckmann_rational, sample_m_Beckmann,
                "Walter 2007 eqs 25, 27 (rational G1), 28-29; anisotropic: Heitz 2014 eq. 86",
                anisotropic=True, du1_dt=du1_dt_Beckmann),

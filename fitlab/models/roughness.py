@@ -26,7 +26,8 @@ ALPHA_Y = Parameter("alpha_y", 1e-4, 1.0, 0.1, "1",
 SAMPLING = Option(
     "sampling", ("standard", "widened", "visible"), "standard",
     "sample D(m)|m·n| with α (standard), with Walter's widened α(1.2 - 0.2 sqrt|i·n|) "
-    "(widened), or the visible normals D_wi(m) (visible: Heitz 2018, ggx only)")
+    "(widened), or the visible normals D_wi(m) (visible: ggx by Heitz 2018, beckmann by Heitz & "
+    "d'Eon 2014; not beckmann_rational, whose approximate G1 is not the visible density's)")
 
 
 def parameters(anisotropic: bool) -> tuple[Parameter, ...]:
@@ -51,7 +52,8 @@ def ndf(params, distribution: str, anisotropic: bool) -> microfacet.MicrofacetDi
 def check_sampling(dist: microfacet.MicrofacetDistribution, sampling: str) -> None:
     if sampling == "visible" and not dist.has_visible_sampling:
         raise ValueError(f"option sampling=visible needs a distribution with visible-normal "
-                         f"sampling (ggx); {dist.family.name} has none: use sampling=standard")
+                         f"sampling (ggx or beckmann); {dist.family.name} has none: use "
+                         "sampling=standard")
 
 
 def sampling_ndf(dist, cos_i, sampling):
