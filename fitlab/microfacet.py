@@ -283,6 +283,22 @@ def sample_m_Phong(u1, u2, alpha, alpha_y=None):
     return _normal_from_cos2(jnp.where(ok, jnp.exp(x), 0.0), jnp.where(ok, -jnp.expm1(x), 1.0), u2)
 
 
+def _unit_width_view(w, ax, ay):
+    """The view direction w (upper side) in the configuration stretched to unit width
+    (Heitz 2018 section 3.2; Heitz & d'Eon 2014 section 4): normalize(α_x w_x, α_y w_y, |w_z|)."""
+    vx, vy, vz = ax * w[..., 0], ay * w[..., 1], jnp.abs(w[..., 2])
+    r = safe_rsqrt(vx * vx + vy * vy + vz * vz)
+    return vx * r, vy * r, vz * r
+
+
+def _unstretched_normal(nx, ny, nz, ax, ay):
+    """A unit-width configuration's normal (nx, ny, nz) back in the distribution's: the unit
+    normalize(α_x n_x, α_y n_y, n_z) (Heitz 2018 section 3.4)."""
+    mx, my = ax * nx, ay * ny
+    r = safe_rsqrt(mx * mx + my * my + nz * nz)
+    return jnp.stack([mx * r, my * r, nz * r], axis=-1)
+
+
 def sample_visible_GGX(w, u1, u2, alpha, alpha_y=None):
     """Heitz 2018, "Sampling the GGX distribution of visible normals" (listing 1): a microfacet
     normal with density D_w(m) = G1(w) max(0, w·m) D(m) / w_z for w.z > 0 (the caller turns w to
@@ -291,9 +307,7 @@ def sample_visible_GGX(w, u1, u2, alpha, alpha_y=None):
     ax, k = _widths(alpha, alpha_y)
     ay = ax if k is None else ax * k
     # Section 3.2: the view direction in the hemisphere (unit-width) configuration
-    vx, vy, vz = ax * w[..., 0], ay * w[..., 1], jnp.abs(w[..., 2])
-    r = safe_rsqrt(vx * vx + vy * vy + vz * vz)
-    vx, vy, vz = vx * r, vy * r, vz * r
+    vx, vy, vz = _unit_width_view(w, ax, ay)
     # Section 4.1: orthonormal basis (with the special case at normal incidence)
     lensq = vx * vx + vy * vy
     il = safe_rsqrt(lensq)
@@ -312,9 +326,7 @@ def sample_visible_GGX(w, u1, u2, alpha, alpha_y=None):
     ny = p1 * t1y + p2 * t2y + p3 * vy
     nz = p2 * t2z + p3 * vz
     # Section 3.4: back to the ellipsoid configuration
-    mx, my, mz = ax * nx, ay * ny, jnp.maximum(nz, 0.0)
-    r = safe_rsqrt(mx * mx + my * my + mz * mz)
-    return jnp.stack([mx * r, my * r, mz * r], axis=-1)
+    return _unstretched_normal(nx, ny, jnp.maximum(nz, 0.0), ax, ay)
 
 
 def _beckmann_visible_slopes(cos_theta, u1, u2):
@@ -362,21 +374,17 @@ def sample_visible_Beckmann(w, u1, u2, alpha, alpha_y=None):
     section 4; pbrt-v3's ``BeckmannSample``)."""
     ax, k = _widths(alpha, alpha_y)
     ay = ax if k is None else ax * k
-    vx, vy, vz = ax * w[..., 0], ay * w[..., 1], jnp.abs(w[..., 2])
-    r = safe_rsqrt(vx * vx + vy * vy + vz * vz)
-    vx, vy, vz = vx * r, vy * r, vz * r
+    vx, vy, vz = _unit_width_view(w, ax, ay)
     t = vx * vx + vy * vy
     it = safe_rsqrt(t)
     cos_phi = jnp.where(t > 0, vx * it, 1.0)
     sin_phi = jnp.where(t > 0, vy * it, 0.0)
     sx, sy = _beckmann_visible_slopes(vz, u1, u2)
     sx, sy = cos_phi * sx - sin_phi * sy, sin_phi * sx + cos_phi * sy
-    mx, my = -ax * sx, -ay * sy
-    r = safe_rsqrt(mx * mx + my * my + 1.0)
-    # computed once: XLA would otherwise recompute the iteration inside every consumer's
+    # the normal of slopes (sx, sy) is normalize(-sx, -sy, 1); computed once: XLA would otherwise recompute the iteration inside every consumer's
     # fusion, where a different contraction of its floating-point ops can end on another
     # iterate, so that m·wi and the refracted direction would disagree
-    return jax.lax.optimization_barrier(jnp.stack([mx * r, my * r, r], axis=-1))
+    return jax.lax.optimization_barrier(_unstretched_normal(-sx, -sy, jnp.ones_like(sx), ax, ay))
 
 
 # --------------------------------------------------------------------------------------------
