@@ -510,3 +510,18 @@ def test_lookup_tables_of_the_fit_are_previewed(made, tmp_path, capsys):
                  str(tmp_path / "rep3"), "--quiet"]) == 2
     assert "was baked from the fit" in capsys.readouterr().err
     assert not (tmp_path / "rep3").exists()
+
+
+def test_accuracy_rows_show_every_auto_candidate():
+    """A table whose axes were chosen by measurement (fitlab lut --phi-d auto) lists each
+    candidate's figures and marks the one kept."""
+    from fitlab.report.luts import accuracy_rows
+
+    acc = {"auto": {"check": "parameterization", "chosen": "8x8x4", "reason": "2-axis misses",
+                    "candidates": [{"size": "8x8", "max_rel": 0.3, "rms_rel": 0.07},
+                                   {"size": "8x8x4", "max_rel": 0.01, "rms_rel": 0.001}]},
+           "storage": {"max_rel": 1e-4, "rms_rel": 1e-5, "dtype": "half"}}
+    rows = accuracy_rows(acc)
+    assert rows[0] == ["auto: parameterization of the 8x8 candidate", 0.3, 0.07, "2-axis misses"]
+    assert rows[1][0].endswith("8x8x4 candidate (chosen)") and rows[1][1:3] == [0.01, 0.001]
+    assert rows[2][0] == "storage"

@@ -135,6 +135,13 @@ def accuracy_rows(accuracy: dict) -> list:
     rows = []
     for key in sorted(k for k, v in accuracy.items() if isinstance(v, dict)):
         rec = accuracy[key]
+        if "candidates" in rec:  # axes chosen by measurement: one row per candidate table
+            for c in rec["candidates"]:
+                chosen = " (chosen)" if c.get("size") == rec.get("chosen") else ""
+                rows.append([f"{key}: {rec.get('check', '')} of the {c.get('size')} "
+                             f"candidate{chosen}", c.get("max_rel"), c.get("rms_rel"),
+                             rec.get("reason", "")])
+            continue
         what = rec.get("reference") or rec.get("dtype") or rec.get("method") or ""
         if "points" in rec:
             what = f"{what} ({rec['points']} points)".strip()
