@@ -18,13 +18,13 @@ import contextlib
 import datetime as _dt
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.atomic import temporary_beside
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.lut import (KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN,
@@ -82,11 +82,8 @@ def write_exr(path, table: Table) -> None:
                 for k, name in enumerate(table.channels)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
               **header_attributes(table)}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.exr", dir=path.parent)
+    fd, tmp = temporary_beside(path, suffix=".tmp.exr")  # mode from the umask
     os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would make the table private
     try:
         with OpenEXR.File(header, channels) as f:
             f.write(tmp)

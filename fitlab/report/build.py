@@ -5,7 +5,6 @@ sorted iteration, deterministic figure bytes)."""
 
 from __future__ import annotations
 
-import os
 import re
 import sys
 from pathlib import Path
@@ -15,7 +14,6 @@ import numpy as np
 import fitlab
 from fitlab.errors import FitlabError
 from fitlab.fit.driver import REL_ERR_FLOOR, relative_errors
-from fitlab.fit.space import SCALE
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
 from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,
@@ -477,12 +475,6 @@ def _walter(rep, inp, ch, tag):
 # --------------------------------------------------------------------------------------------
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _previous_files(index: Path) -> set:
     """Figure files an earlier report in this folder listed in its index.html (so that a
     rebuild removes figures that no longer exist, and nothing else)."""
@@ -608,11 +600,9 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         raise FitlabError(f"--out {out}: is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)
     previous = _previous_files(out / "index.html")
-    mode = 0o666 & ~_umask()
     for name in sorted(files, key=lambda n: (n == "index.html", n)):  # index.html last
-        with atomic_open(out / name, "wb") as fh:
+        with atomic_open(out / name, "wb") as fh:  # mode from the umask
             fh.write(files[name])
-        os.chmod(out / name, mode)  # readable like any other file (mkstemp makes it 0600)
     for name in sorted(previous - set(files)):  # figures of an earlier report of this folder
         (out / name).unlink(missing_ok=True)
     say(f"report: wrote {out / 'index.html'} and {len(rep.figures)} figures (PNG + SVG)")

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 import fitlab
-from fitlab.errors import FitlabError, InputFileError
+from fitlab.errors import InputFileError
 from fitlab.fit.space import SCALE, FitSpace, FreeParameter, StaticSpace
 
 #: Posterior samples used for predictive bands (evenly spaced through the stored samples).
