@@ -237,3 +237,22 @@ def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
     for w in fit["warnings"]:
         assert f"warning: channel R: {w}\n" in err
     assert "non-finite cost" in err
+
+
+def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
+    """Beckmann data (issue 13: simulated Beckmann interfaces crashed the fit-file writer):
+    starts at α ≲ 1e-3 see a model that is exactly 0 at every measured direction (Beckmann's D
+    underflows), so every Jacobian entry is 0 and jaxopt's first LM step is 0/0. Those starts
+    end where they began, marked non_finite, the fit comes from the others, a warning says
+    so, and the parameter file is valid JSON."""
+    m = synthetic("rough_dielectric", {"alpha": 0.3, "eta": 1.5}, thetas_i=(0.0, 30.0),
+                  thetas_o=tuple(range(7, 180, 10)), options={"distribution": "beckmann"})
+    res = fit_measurement(m, "rough_dielectric", options={"distribution": "beckmann"},
+                          fixed={"eta": 1.5}, quiet=True, warn=False)
+    ls = res["channels"][0]["ls"]
+    lost = [s for s in ls.starts if s["lm_stopped"] == "non_finite"]
+    assert lost and all(s["end"] is None and s["cost"] is None for s in lost)
+    assert ls.native[0] == pytest.approx(0.3, rel=0.02)
+    assert any("ended at NaN or inf" in w for w in res["channels"][0]["warnings"])
+    rec = build_record(res, m)
+    json.loads(json.dumps(rec, allow_nan=False))  # writable: no NaN anywhere

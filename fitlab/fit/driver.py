@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 from fitlab.api import check_params, resolve_options
+from fitlab.errors import FitlabError
 from fitlab.fit.least_squares import LM_MAXITER, FitData, fit_least_squares
 from fitlab.fit.losses import loss_weights
 from fitlab.fit.space import SCALE, make_space, model_values
@@ -50,6 +51,11 @@ def least_squares_warnings(ls) -> list[str]:
                    "start: the model or the loss is not finite for these data; check the data "
                    "(zero or negative values with the log loss, zero sigma) and the fixed "
                    "parameters")
+    lost = sum(st["lm_stopped"] == "non_finite" for st in ls.starts)
+    if lost and sol["stopped"] != "non_finite":
+        out.append(f"{lost} of {len(ls.starts)} Levenberg-Marquardt starts ended at NaN or inf "
+                   "(e.g. where the model is exactly 0 at every measured direction, so the cost "
+                   "is flat) and were left out; the fit comes from the others")
     g = ls.global_search
     if g.get("non_finite"):
         out.append(f"the global search met a non-finite cost (NaN or inf) at {g['non_finite']} "
@@ -213,6 +219,12 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
                                seed=seed, lm_maxiter=lm_maxiter)
         t_ls = time.perf_counter() - t0
+        if ls.solver["stopped"] == "non_finite":
+            raise FitlabError(
+                f"channel {name}: the fit did not reach finite values from any of its "
+                f"{len(ls.starts)} starts (every Levenberg-Marquardt run ended at NaN or inf); "
+                "nothing was written. Check the data (zero or negative values with the log "
+                "loss, zero sigma), the fixed parameters and the model's options")
         channel_warnings = least_squares_warnings(ls)
         _log(quiet, "  least squares: " + ", ".join(
             f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in zip(space.names, ls.native, ls.stderr))

@@ -137,10 +137,16 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
         # jaxopt's own stopping test (its loop's condition): still true after the loop means
         # the step limit, not the Madsen–Nielsen rule, ended the run.
         rule_unmet = solver._cond_fun(((sol.params, sol.state), ((problem,), {})))
-        theta = to_native(static, unit_from_z(sol.params), problem["lo"], problem["hi"])
+        # A flat cost (every residual's Jacobian exactly 0, e.g. a lobe so narrow that the
+        # model is 0 at every measured direction: Beckmann's D underflows to 0 there) makes
+        # jaxopt's damping μ = τ max diag(JᵀJ) zero and its first step 0/0 = NaN. Such a run
+        # ends where it started, marked by end_finite = False (lm_stopped "non_finite").
+        end_finite = jnp.all(jnp.isfinite(sol.params))
+        z = jnp.where(end_finite, sol.params, z0)
+        theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
         r, J = r_and_jac_native(theta, problem)
-        return {"z": sol.params, "iters": sol.state.iter_num, "rule_unmet": rule_unmet,
-                "u": unit_from_z(sol.params),
+        return {"z": z, "iters": sol.state.iter_num, "rule_unmet": rule_unmet,
+                "end_finite": end_finite, "u": unit_from_z(z),
                 "native": theta, "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
                 "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
 
@@ -272,10 +278,12 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
     loc = local_fits(k, problem, starts_u)
     runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
-             "cost": float(loc["cost"][i]) if np.isfinite(loc["cost"][i]) else np.inf,
+             "cost": (float(loc["cost"][i]) if np.isfinite(loc["cost"][i])
+                      and loc["end_finite"][i] else np.inf),
              "iters": int(loc["iters"][i]),
-             "stopped": lm_stop_reason(float(loc["cost"][i]), int(loc["iters"][i]),
-                                       bool(loc["rule_unmet"][i]), int(lm_maxiter)),
+             "stopped": lm_stop_reason(float(loc["cost"][i]) if loc["end_finite"][i] else np.nan,
+                                       int(loc["iters"][i]), bool(loc["rule_unmet"][i]),
+                                       int(lm_maxiter)),
              "index": i} for i, u0 in enumerate(starts_u)]
     best = min(runs, key=lambda r: r["cost"])
     ib = best["index"]
@@ -293,7 +301,8 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
         return {n: float(v) for n, v in zip(space.names, native)}
 
     starts = [{"start": named(loc["start_native"][rr["index"]]),
-               "end": named(loc["native"][rr["index"]]), "cost": rr["cost"],
+               "end": named(loc["native"][rr["index"]]) if np.isfinite(rr["cost"]) else None,
+               "cost": rr["cost"] if np.isfinite(rr["cost"]) else None,
                "lm_iterations": rr["iters"], "lm_stopped": rr["stopped"]} for rr in runs]
     equal = [rr for rr in runs if rr["cost"] <= best["cost"] * (1 + EQUAL_COST_RTOL) + 1e-300]
     distinct = [rr for rr in equal if np.max(np.abs(rr["u"] - best["u"])) > DISTINCT_UNIT]
