@@ -531,3 +531,24 @@ def test_fit_reads_zemax_through_the_registry(tmp_path):
     assert "tis_check" in rec["data"]["metadata"]
     # diffuse level ≈ 0.064 1/sr → albedo ≈ π · 0.064
     assert rec["fits"][0]["parameters"]["albedo"]["value"] == pytest.approx(0.20, abs=0.01)
+
+
+@pytest.mark.parametrize("key, value", [("eta_inside", "-1.5"), ("eta_inside", "glass"),
+                                        ("eta_outside", "0"), ("eta_inside", "nan"),
+                                        ("eta_outside", "inf"), ("eta_inside", "x" * 300)])
+@pytest.mark.parametrize("command", ["info", "convert", "fit"])
+def test_bad_refractive_index_comments_are_refused(tmp_path, capsys, key, value, command):
+    """Issue 13: a bad '# eta_inside/outside:' comment in a Zemax file was used (NaN and
+    negative angles written by convert, a ZeroDivisionError or ValueError traceback in info,
+    convert and fit). Now: exit 2, the file and line named, a short message, nothing written."""
+    src = tmp_path / "bad.bsdf"
+    src.write_text(f"# {key}: {value}\n" + VINYL.read_text(encoding="latin-1"), encoding="latin-1")
+    before = src.read_bytes()
+    out = tmp_path / ("out.csv" if command == "convert" else "fit.json")
+    args = {"info": [str(src)], "convert": [str(src), str(out)],
+            "fit": [str(src), "--model", "lambertian", "--out", str(out)]}[command]
+    assert main([command, *args]) == 2
+    err = capsys.readouterr().err
+    assert f"{src}:1: '# {key}: " in err and "must be a positive number" in err
+    assert len(err) < 400 and "Traceback" not in err
+    assert not out.exists() and src.read_bytes() == before

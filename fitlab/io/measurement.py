@@ -85,17 +85,26 @@ def _meta_choice(table, key, choices, default=None, hint=""):
     return value
 
 
-def _meta_positive(table, key):
-    path, metadata = table.path, table.metadata
-    if key not in metadata:
-        return
-    try:
-        v = float(metadata[key])
-    except ValueError:
-        v = float("nan")
-    if not (np.isfinite(v) and v > 0):
-        raise InputFileError(path, f"'# {key}: {metadata[key]}' must be a positive number",
-                             line=table.metadata_lines.get(key), hint="give the refractive index of that medium, e.g. 1.0 for air")
+#: Comment keys that give the refractive indices on the two sides (every reader checks them).
+INDEX_KEYS = ("eta_outside", "eta_inside")
+
+
+def check_indices(path, metadata: dict, lines: dict | None = None) -> None:
+    """'# eta_outside:' and '# eta_inside:' comments, where present, are finite positive
+    numbers (InputFileError naming the file and line otherwise)."""
+    for key in INDEX_KEYS:
+        if key not in metadata:
+            continue
+        text = str(metadata[key])
+        try:
+            v = float(text)
+        except ValueError:
+            v = float("nan")
+        if not (np.isfinite(v) and v > 0):
+            shown = text if len(text) <= 40 else text[:40] + "..."
+            raise InputFileError(path, f"'# {key}: {shown}' must be a positive number",
+                                 line=(lines or {}).get(key),
+                                 hint="give the refractive index of that medium, e.g. 1.0 for air")
 
 
 def _melt_channels(table):
@@ -149,8 +158,7 @@ def read_measurement(path) -> Measurement:
                             "cosine), 'bsdf_cos' (f·|cos θo|) or 'relative' (f up to a scale)")
     relative_to = _meta_choice(table, "relative_to", RELATIVE_TO, default="bsdf")
     scatter = _meta_choice(table, "scatter", SCATTER, default="bsdf")
-    for key in ("eta_outside", "eta_inside"):
-        _meta_positive(table, key)
+    check_indices(table.path, table.metadata, table.metadata_lines)
 
     if wide:
         long, channel_names, lines = _melt_channels(table)

@@ -28,7 +28,7 @@ from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
-from fitlab.io.measurement import Measurement, describe_loaded
+from fitlab.io.measurement import Measurement, check_indices, describe_loaded
 
 SPEC = "data_formats/zemax_bsdf.md"
 LIST_KEYWORDS = ("SampleRotation", "AngleOfIncidence", "ScatterAzimuth", "ScatterRadial")
@@ -84,16 +84,17 @@ def _read_text(path: Path) -> str:
 
 def _lines(text):
     """(line number, tokens) of every non-blank, non-comment line, plus the comment lines."""
-    content, comments, metadata = [], [], {}
+    content, comments, metadata, meta_lines = [], [], {}, {}
     for lineno, s, meta in text_lines(text):
         if s.startswith("#"):
             if meta:
                 metadata[meta[0]] = meta[1]
+                meta_lines[meta[0]] = lineno
             else:
                 comments.append(s.lstrip("#").strip())
             continue
         content.append((lineno, s.split()))
-    return content, tuple(c for c in comments if c), metadata
+    return content, tuple(c for c in comments if c), metadata, meta_lines
 
 
 def _is_number(token) -> bool:
@@ -373,7 +374,8 @@ def _row(path, line, header):
 def parse_zemax(path) -> ZemaxFile:
     """Read and validate a Zemax tabular BSDF file; errors name the file, line and value."""
     path = Path(path)
-    content, comments, metadata = _lines(_read_text(path))
+    content, comments, metadata, meta_lines = _lines(_read_text(path))
+    check_indices(path, metadata, meta_lines)  # '# eta_inside/outside:' before they are used
     if not content:
         raise InputFileError(path, "is empty (only comments or blank lines)",
                              hint=f"a Zemax BSDF file has a header and a data section ({SPEC})")
