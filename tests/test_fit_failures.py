@@ -256,3 +256,38 @@ def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
     assert any("ended at NaN or inf" in w for w in res["channels"][0]["warnings"])
     rec = build_record(res, m)
     json.loads(json.dumps(rec, allow_nan=False))  # writable: no NaN anywhere
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda v: np.where(np.arange(v.size) == 5, 1e308, v), "did not reach finite values"),
+    (lambda v: np.zeros_like(v), "is 0: there is nothing to fit"),
+])
+def test_fits_that_cannot_be_finite_write_nothing(tmp_path, capsys, edit, fragment):
+    """Issue 13: one value of 1e308, or all values 0 without sigma, crashed while writing the
+    JSON ('Out of range float values'). Now: exit 2, the file named, nothing written."""
+    from fitlab.cli import main
+    from fitlab.io.measurement import read_measurement
+
+    src = Path(__file__).resolve().parents[1] / "data_formats" / "examples" / "walter_rough_glass.csv"
+    m = read_measurement(src)
+    lines = src.read_text().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = ["theta_i,phi_i,theta_o,phi_o,value"] + [
+        f"{a:.17g},{b:.17g},{c:.17g},{d:.17g},{v:.17g}" for a, b, c, d, v in
+        zip(m.theta_i, m.phi_i, m.theta_o, m.phi_o, edit(m.value))]
+    data = tmp_path / "data.csv"
+    data.write_text("\n".join(head + body) + "\n")
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(data), "--model", "rough_dielectric", "--quiet", "--out",
+                 str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(data) in err and fragment in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_first_non_finite_names_the_field():
+    from fitlab.export.paramfile import first_non_finite
+
+    assert first_non_finite({"a": [1.0, {"b": 2.0}], "c": "x"}) is None
+    assert first_non_finite({"fits": [{"statistics": {"chi2": float("nan")}}]}) == \
+        "fits[0].statistics.chi2"

@@ -126,6 +126,11 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
         blob = buf.getvalue()
         record = {**record, "chain": {"path": str(chain_path),
                                       "sha256": sha256_of(blob)}}
+    bad = first_non_finite(record)
+    if bad is not None:
+        raise FitlabError(f"{path}: the fit produced a non-finite number at {bad}; nothing was "
+                          "written. Check the data (values all 0 or huge, zero sigma) and the "
+                          "model's options")
     text = json.dumps(record, indent=2, allow_nan=False) + "\n"
     if blob is not None:
         with atomic_open(chain_path, "wb") as fh:
@@ -137,6 +142,24 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
         if blob is not None:
             Path(chain_path).unlink(missing_ok=True)
         raise
+
+
+def first_non_finite(obj, where: str = "") -> str | None:
+    """The JSON path of the first NaN or infinite float in a record (None if there is none)."""
+    if isinstance(obj, float):
+        return None if np.isfinite(obj) else (where or "the top level")
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, (list, tuple)):
+        items = ((f"[{i}]", v) for i, v in enumerate(obj))
+    else:
+        return None
+    for k, v in items:
+        key = k if str(k).startswith("[") else (f".{k}" if where else str(k))
+        hit = first_non_finite(v, f"{where}{key}")
+        if hit is not None:
+            return hit
+    return None
 
 
 def read_fit(path) -> dict:

@@ -211,6 +211,10 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         rows = in_chan & rows_fit
         if rows.sum() == 0:
             continue
+        if not np.any(m.value[rows] != 0):
+            raise FitlabError(f"{m.path}: every value of channel {name} that would be fitted is "
+                              "0: there is nothing to fit; check the value column (and "
+                              "--fit-subset)")
         t0 = time.perf_counter()
         space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
                                                     name, in_chan)
@@ -221,7 +225,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == "non_finite":
             raise FitlabError(
-                f"channel {name}: the fit did not reach finite values from any of its "
+                f"{m.path}: channel {name}: the fit did not reach finite values from any of its "
                 f"{len(ls.starts)} starts (every Levenberg-Marquardt run ended at NaN or inf); "
                 "nothing was written. Check the data (zero or negative values with the log "
                 "loss, zero sigma), the fixed parameters and the model's options")
