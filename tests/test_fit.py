@@ -242,7 +242,9 @@ def test_reference_fit_is_reproduced():
 
     root = Path(__file__).resolve().parent.parent
     ref = read_fit(root / "fits" / "walter_rough_glass.json")
-    m = read_measurement(root / ref["data"]["path"])
+    from fitlab.report.inputs import load_data  # resolves data.path as fitlab report does
+
+    m, _ = load_data(ref, root / "fits" / "walter_rough_glass.json")
     assert m.sha256 == ref["data"]["sha256"]
     res = fit_measurement(m, ref["model"]["name"], options=ref["model"]["options"],
                           subset=subset_mask(ref["data"]["fit_subset"], m), quiet=True,

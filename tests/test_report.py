@@ -6,6 +6,7 @@ deterministic; bad inputs fail cleanly; figure functions return Figures without 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import sys
@@ -204,7 +205,9 @@ def test_chain_found_through_the_fit_file(made, tmp_path, capsys):
     refuses a chain whose hash differs."""
     fit, chain = made["fits"]["walter"]
     rec = json.loads(fit.read_text())
-    assert rec["chain"]["path"] == str(chain) and len(rec["chain"]["sha256"]) == 64
+    # stored relative to the fit file's folder (no absolute path of this machine)
+    assert rec["chain"]["path"] == os.path.relpath(chain, fit.parent)
+    assert not os.path.isabs(rec["data"]["path"]) and len(rec["chain"]["sha256"]) == 64
     out = tmp_path / "r"
     assert main(["report", str(fit), "--out", str(out), "--quiet"]) == 0
     assert (out / "corner_Y.png").exists()
@@ -220,8 +223,12 @@ def test_chain_found_through_the_fit_file(made, tmp_path, capsys):
 def _bad_fit_copy(tmp_path, made, edit, which="walter"):
     fit, _ = made["fits"][which]
     rec = json.loads(fit.read_text())
-    edit(rec)
     p = tmp_path / "edited.json"
+    # the recorded paths are relative to the fit's folder: keep them pointing at the same files
+    for key in ("data", "chain"):
+        if (rec.get(key) or {}).get("path"):
+            rec[key]["path"] = os.path.relpath(fit.parent / rec[key]["path"], p.parent)
+    edit(rec)
     p.write_text(json.dumps(rec))
     return p
 

@@ -16,7 +16,7 @@ import fitlab
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.atomic import atomic_open
 from fitlab.io.conventions import CONVENTIONS
-from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.files import path_for_record, read_bytes, sha256_of
 
 SCHEMA = "fitlab-fit"
 SCHEMA_VERSION = 1
@@ -124,8 +124,11 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
         buf = io.BytesIO()
         np.savez_compressed(buf, **chains)
         blob = buf.getvalue()
-        record = {**record, "chain": {"path": str(chain_path),
+        record = {**record, "chain": {"path": path_for_record(chain_path, path),
                                       "sha256": sha256_of(blob)}}
+    if (record.get("data") or {}).get("path"):  # no absolute path of this machine
+        record = {**record, "data": {**record["data"],
+                                     "path": path_for_record(record["data"]["path"], path)}}
     bad = first_non_finite(record)
     if bad is not None:
         raise FitlabError(f"{path}: the fit produced a non-finite number at {bad}; nothing was "

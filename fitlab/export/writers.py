@@ -10,6 +10,7 @@ from typing import Callable, NamedTuple
 
 from fitlab.export import merl, zemax
 from fitlab.io.atomic import atomic_write_text
+from fitlab.io.files import path_for_record
 from fitlab.io.measurement import format_measurement_csv
 
 
@@ -32,7 +33,8 @@ class Writer(NamedTuple):
 
 
 def _write_csv(path, m, source) -> dict:
-    text = format_measurement_csv(m, {"converted_from": f"{source} ({m.file_quantity})"})
+    text = format_measurement_csv(
+        m, {"converted_from": f"{path_for_record(source, path)} ({m.file_quantity})"})
     atomic_write_text(path, text)
     return {"path": str(path), "rows": m.n, "channels": list(m.channel_names)}
 

@@ -43,4 +43,19 @@ def sha256_of(source) -> str:
     return h.hexdigest()
 
 
-__all__ = ["read_bytes", "sha256_of"]
+def path_for_record(path, output) -> str:
+    """How an output file names another file (its data, its chain, its source): relative to the
+    output's folder, with '/' separators, so that no absolute path of the machine that made it
+    is stored and the pair can be moved together; the base name where no relative path exists
+    (another drive)."""
+    import os
+
+    target = os.path.abspath(os.fspath(path))
+    base = os.path.dirname(os.path.abspath(os.fspath(output)))
+    try:
+        return Path(os.path.relpath(target, base)).as_posix()
+    except ValueError:
+        return Path(target).name
+
+
+__all__ = ["read_bytes", "sha256_of", "path_for_record"]
