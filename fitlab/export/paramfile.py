@@ -175,6 +175,9 @@ def read_fit(path) -> dict:
                              "(data_formats/fit_json.md)") from None
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"is not valid JSON ({exc.msg})", line=exc.lineno) from None
+    except RecursionError:
+        raise InputFileError(path, "nests too deeply to be a fitlab parameter file",
+                             hint="give a file `fitlab fit` wrote (data_formats/fit_json.md)") from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise InputFileError(path, f"is not a fitlab parameter file (schema is not {SCHEMA!r})",
                              column="schema")

@@ -592,6 +592,9 @@ def load_scene(path) -> Scene:
         d = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
         raise InputFileError(path, "is not UTF-8 text", hint="save the scene as UTF-8") from None
+    except RecursionError:
+        raise InputFileError(path, "nests too deeply to be a scene",
+                             hint="see data_formats/scene_toml.md for the scene's shape") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputFileError(path, f"is not valid TOML ({exc})",
                              hint="fix the syntax at that line (see data_formats/scene_toml.md)") from None
