@@ -47,6 +47,10 @@ BLOCK_GROUPS = {
     "transmission": ("Transmission Front", "Transmission Back"),
     "reflection": ("Reflection Front", "Reflection Back"),
 }
+#: Most patches one ring of a basis may declare (the Klems bases have at most 24): a bound on
+#: what a header can make fitlab allocate.
+NPHIS_MAX = 4096
+
 #: Radiance's built-in Klems bases (src/common/bsdf_m.c): ring lower bounds (deg) and nPhis;
 #: used only when a file names one of them without defining it.
 BUILTIN_BASES = {
@@ -207,9 +211,11 @@ def parse_angle_basis(path, el, lines) -> AngleBasis:
                                  "ring (Klems Full/Half/Quarter)")
         theta.append(_number(path, _child(blk, "Theta"), lines, "Theta"))
         n = _number(path, _child(blk, "nPhis"), lines, "nPhis")
-        if n < 1 or n != int(n):
-            raise InputFileError(path, f"basis {name!r}: nPhis {n:g} is not a positive integer",
-                                 line=lines.get(_child(blk, "nPhis")))
+        if not (1 <= n <= NPHIS_MAX) or n != int(n):
+            raise InputFileError(path, f"basis {name!r}: nPhis {n:g} is not a whole number of "
+                                 f"patches in [1, {NPHIS_MAX}]",
+                                 line=lines.get(_child(blk, "nPhis")),
+                                 hint="Klems bases have 1 to 24 patches per ring")
         nphis.append(int(n))
         bounds = _child(blk, "ThetaBounds")
         if bounds is not None:
