@@ -552,3 +552,26 @@ def test_bad_refractive_index_comments_are_refused(tmp_path, capsys, key, value,
     assert f"{src}:1: '# {key}: " in err and "must be a positive number" in err
     assert len(err) < 400 and "Traceback" not in err
     assert not out.exists() and src.read_bytes() == before
+
+
+def test_header_counts_cannot_size_a_huge_allocation(tmp_path, capsys):
+    """Issue 13: a 7 kB header declaring 721 × 90 × 721 × 181 values made the reader allocate
+    189 GiB before reading any data. The counts are checked against the numbers present first."""
+    lines = VINYL.read_text(encoding="latin-1").splitlines()
+    out, i = [], 0
+    sizes = {"SampleRotation": 721, "AngleOfIncidence": 90, "ScatterAzimuth": 721,
+             "ScatterRadial": 181}
+    while i < len(lines):
+        key = lines[i].split()[0] if lines[i].split() else ""
+        if key in sizes:
+            n = sizes[key]
+            out += [f"{key}  {n}", "\t".join(f"{x * 0.1:.1f}" for x in range(n))]
+            i += 2
+            continue
+        out.append(lines[i])
+        i += 1
+    src = tmp_path / "huge.bsdf"
+    src.write_text("\n".join(out) + "\n", encoding="latin-1")
+    assert main(["info", str(src)]) == 2
+    err = capsys.readouterr().err
+    assert "8,468,209,890 values, but the file holds" in err and "Traceback" not in err

@@ -238,12 +238,28 @@ def _first_duplicate(a):
     return None
 
 
+#: Above this many declared values the header's counts are checked against the numbers present
+#: before the arrays are allocated.
+ALLOCATION_CHECK_VALUES = 1 << 20
+
+
 def _parse_data(path, content, i, header):
     """The data section(s): indicator lines, DataBegin, blocks ('TIS v' + azimuth rows), DataEnd."""
     channels = CHANNELS[header["SpectralContent"]]
     n_rot, n_aoi = len(header["SampleRotation"]), len(header["AngleOfIncidence"])
     n_az, n_rad = len(header["ScatterAzimuth"]), len(header["ScatterRadial"])
     n_blocks = n_rot * n_aoi
+    # the header's counts size the arrays: check them against the values actually present
+    # before allocating anything (a few kB of header must not make fitlab allocate GiB)
+    # (small files go on to the block-by-block checks, which name the line where data end)
+    needed = len(channels) * n_blocks * n_az * n_rad
+    present = sum(len(tokens) for _, tokens in content[i:])
+    if needed > present and needed > ALLOCATION_CHECK_VALUES:
+        raise InputFileError(
+            path, f"its header declares {len(channels)} channel(s) × {n_rot} SampleRotation × "
+            f"{n_aoi} AngleOfIncidence × {n_az} ScatterAzimuth × {n_rad} ScatterRadial = "
+            f"{needed:,} values, but the file holds {present:,} numbers after the header",
+            hint="the file is cut short or its counts are wrong")
     values = np.zeros((len(channels), n_blocks, n_az, n_rad))
     tis = np.zeros((len(channels), n_blocks))
     lines = np.zeros((len(channels), n_blocks, n_az), dtype=int)
