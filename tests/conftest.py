@@ -29,3 +29,22 @@ def dtype(request):
     import jax.numpy as jnp
 
     return jnp.dtype(request.param)
+
+
+@pytest.fixture(scope="module")
+def mitsuba_scalar():
+    """Mitsuba 3 in its ``scalar_rgb`` variant (float32, needs no LLVM), the independent
+    implementation the agreement tests compare with; the previous variant is restored after."""
+    try:
+        import mitsuba
+    except ImportError as exc:
+        skip_or_fail(f"mitsuba is not importable ({exc}); install the test extra: "
+                     "pip install -e '.[test]'")
+    previous = mitsuba.variant()
+    try:
+        mitsuba.set_variant("scalar_rgb")
+    except Exception as exc:  # noqa: BLE001 - whatever the reason, there is nothing to compare
+        skip_or_fail(f"mitsuba variant scalar_rgb unavailable ({exc})")
+    yield mitsuba
+    if previous is not None and previous != "scalar_rgb":
+        mitsuba.set_variant(previous)

@@ -21,7 +21,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import skip_or_fail
 
 from fitlab.frame import refract
 from fitlab.fresnel import cos_theta_critical, fresnel_dielectric, fresnel_dielectric_Walter2007
@@ -260,33 +259,20 @@ def test_refractions_use_its_cos_theta_t():
 
 
 @pytest.mark.mitsuba
-def test_agrees_with_mitsuba():
-    try:
-        import mitsuba as mi
-    except ImportError as exc:
-        skip_or_fail(f"mitsuba is not importable ({exc}); install the test extra: "
-                     "pip install -e '.[test]'")
-    previous = mi.variant()
-    try:
-        mi.set_variant("scalar_rgb")
-    except Exception as exc:  # noqa: BLE001 - nothing to compare against
-        skip_or_fail(f"mitsuba variant scalar_rgb unavailable ({exc})")
-    try:
-        for eta in ETAS:
-            for c in np.concatenate([COS, -COS[:-1]]):
-                # Mitsuba's scalar variant is float32: compare at the float32 inputs
-                c32, eta32 = float(np.float32(c)), float(np.float32(eta))
-                r, cos_t, eta_it, eta_ti = mi.fresnel(c32, eta32)
-                F, ct, it, ti = (float(x) for x in _fd(jnp.float64(c32), jnp.float64(eta32)))
-                if 0 < abs(ct) < 1e-2:
-                    continue  # float32 cos²θt = 1 - η_ti² sin²θi is ill-conditioned there
-                # Mitsuba's float32 cos²θt carries an absolute error near 1e-7, amplified by
-                # 1/|cos θt| in cos θt and by about 1/cos²θt in F
-                tol = 1e-7 / max(ct * ct, 1e-4)
-                assert F == pytest.approx(r, abs=2e-6 + tol), (c, eta)
-                assert ct == pytest.approx(cos_t, abs=2e-6 + tol), (c, eta)
-                assert it == pytest.approx(eta_it, rel=1e-6) and ti == pytest.approx(eta_ti,
-                                                                                   rel=1e-6)
-    finally:
-        if previous is not None and previous != "scalar_rgb":
-            mi.set_variant(previous)
+def test_agrees_with_mitsuba(mitsuba_scalar):
+    mi = mitsuba_scalar
+    for eta in ETAS:
+        for c in np.concatenate([COS, -COS[:-1]]):
+            # Mitsuba's scalar variant is float32: compare at the float32 inputs
+            c32, eta32 = float(np.float32(c)), float(np.float32(eta))
+            r, cos_t, eta_it, eta_ti = mi.fresnel(c32, eta32)
+            F, ct, it, ti = (float(x) for x in _fd(jnp.float64(c32), jnp.float64(eta32)))
+            if 0 < abs(ct) < 1e-2:
+                continue  # float32 cos²θt = 1 - η_ti² sin²θi is ill-conditioned there
+            # Mitsuba's float32 cos²θt carries an absolute error near 1e-7, amplified by
+            # 1/|cos θt| in cos θt and by about 1/cos²θt in F
+            tol = 1e-7 / max(ct * ct, 1e-4)
+            assert F == pytest.approx(r, abs=2e-6 + tol), (c, eta)
+            assert ct == pytest.approx(cos_t, abs=2e-6 + tol), (c, eta)
+            assert it == pytest.approx(eta_it, rel=1e-6) and ti == pytest.approx(eta_ti,
+                                                                               rel=1e-6)

@@ -72,7 +72,6 @@ import zlib
 import numpy as np
 import pytest
 
-from conftest import skip_or_fail
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.microfacet import widened_alpha, widening_factor
@@ -149,20 +148,8 @@ def _seed(kind, cfg):
 
 
 @pytest.fixture(scope="module")
-def mi():
-    try:
-        import mitsuba
-    except ImportError as exc:
-        skip_or_fail(f"mitsuba is not importable ({exc}); install the test extra: "
-                     "pip install -e '.[test]'")
-    previous = mitsuba.variant()
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # noqa: BLE001 - whatever the reason, there is nothing to compare
-        skip_or_fail(f"mitsuba variant scalar_rgb unavailable ({exc})")
-    yield mitsuba
-    if previous is not None and previous != "scalar_rgb":
-        mitsuba.set_variant(previous)
+def mi(mitsuba_scalar):
+    return mitsuba_scalar
 
 
 def _mi_alpha(alpha):
