@@ -24,6 +24,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.validate import quote
 from fitlab.io.atomic import temporary_beside
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import read_bytes, sha256_of
@@ -114,10 +115,10 @@ def _attrs(path, header) -> dict:
         raise InputFileError(path, "is an OpenEXR file but not a fitlab lookup table (no "
                              "fitlab.schema attribute)", hint="see data_formats/lut_exr.md")
     if out["schema"] != SCHEMA:
-        raise InputFileError(path, f"has schema {out['schema']!r}, expected {SCHEMA!r}",
+        raise InputFileError(path, f"has schema {quote(out['schema'])}, expected {quote(SCHEMA)}",
                              column="fitlab.schema")
     if out.get("schema_version") != str(SCHEMA_VERSION):
-        raise InputFileError(path, f"has schema_version {out.get('schema_version')!r}; this "
+        raise InputFileError(path, f"has schema_version {quote(out.get('schema_version'))}; this "
                              f"fitlab reads version {SCHEMA_VERSION}", column="fitlab.schema_version",
                              hint="write the table again with this fitlab version")
     for key in REQUIRED:
@@ -150,7 +151,7 @@ def _axes(path, attrs):
             raise InputFileError(path, f"each axis needs exactly the fields {', '.join(Axis._fields)}",
                                  column=col)
         if a["mapping"] not in MAPPINGS:
-            raise InputFileError(path, f"unknown mapping {a['mapping']!r}", column=col,
+            raise InputFileError(path, f"unknown mapping {quote(a['mapping'])}", column=col,
                                  hint=f"mappings: {', '.join(MAPPINGS)}")
         size = a["size"]
         if not isinstance(size, int) or not SIZE_MIN <= size <= SIZE_MAX:
@@ -175,7 +176,7 @@ def read_exr(path) -> Table:
     attrs = _attrs(path, header)
     kind = attrs["kind"]
     if kind not in KINDS:
-        raise InputFileError(path, f"unknown table kind {kind!r}", column=PREFIX + "kind",
+        raise InputFileError(path, f"unknown table kind {quote(kind)}", column=PREFIX + "kind",
                              hint=f"kinds: {', '.join(KINDS)}")
     channels = _json(path, attrs, "channels", list)
     axes = _axes(path, attrs)
@@ -196,7 +197,7 @@ def read_exr(path) -> Table:
                                  hint="see data_formats/lut_exr.md, the model table")
     dtype = attrs["dtype"]
     if dtype not in ("half", "float"):
-        raise InputFileError(path, f"dtype must be half or float, got {dtype!r}",
+        raise InputFileError(path, f"dtype must be half or float, got {quote(dtype)}",
                              column=PREFIX + "dtype")
     pixels = {name: c.pixels for name, c in f.channels().items()}
     if sorted(pixels) != sorted(channels):

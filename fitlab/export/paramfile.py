@@ -1,9 +1,12 @@
 """Fit parameter files (JSON, schema ``fitlab-fit`` version 1, data_formats/fit_json.md) and
-optional chain files (NPZ). Both are built in memory and written atomically."""
+optional chain files (NPZ). Both are built in memory and written atomically.
+
+Same inputs, options and seed give the same bytes: the files carry no wall-clock time (their
+provenance is the fitlab and library versions, the data's SHA-256, the seed and the options);
+run times are recorded only on request, in the one top-level ``timings_s`` field."""
 
 from __future__ import annotations
 
-import datetime as _dt
 import io
 import json
 import platform
@@ -72,7 +75,6 @@ def _channel_record(ch, model, fixed):
         "global_search": ls.global_search,
         "starts": ls.starts,
         "starts_disagree": ls.disagreement,
-        "timings_s": {"least_squares": ch["seconds_least_squares"]},
         "mcmc": None,
     }
     if mc is not None:
@@ -86,19 +88,32 @@ def _channel_record(ch, model, fixed):
                 "correlation": np.corrcoef(mc.samples_native.T).tolist()
                 if mc.samples_native.shape[1] > 1 else [[1.0]]}
         rec["mcmc"] = post
-        rec["timings_s"]["mcmc"] = mc.seconds
     if "diagnostics" in ch:
         rec["diagnostics"] = ch["diagnostics"]
     return rec
 
 
+def run_timings(result, read_s: float, total_s: float) -> dict:
+    """Wall-clock seconds of a fit, the ``timings_s`` field (recorded only on request: they
+    differ from run to run): reading the data, least squares and MCMC (summed over the
+    channels), and the whole command."""
+    out = {"read": read_s,
+           "least_squares": sum(ch["seconds_least_squares"] for ch in result["channels"])}
+    runs = [ch["mcmc"] for ch in result["channels"] if ch["mcmc"] is not None]
+    if runs:
+        out["mcmc"] = sum(mc.seconds for mc in runs)
+    out["total"] = total_s
+    return out
+
+
 def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict:
+    """The parameter file's record. No wall-clock field unless ``timings`` (from
+    :func:`run_timings`) is given: then it is the record's only varying field, ``timings_s``."""
     model = result["model"]
     m = measurement
-    return {
+    record = {
         "schema": SCHEMA,
         "schema_version": SCHEMA_VERSION,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "model": {"name": model.name, "options": result["options"], "lobes": model.lobes,
                   "reference": model.reference},
         "conventions": CONVENTIONS,
@@ -111,8 +126,29 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
                  "channels": list(m.channel_names), "metadata": m.metadata},
         "fits": [_channel_record(ch, model, result["fixed"]) for ch in result["channels"]],
         "software": software_versions(),
-        "timings_s": timings or {},
     }
+    if timings is not None:
+        record["timings_s"] = timings
+    return record
+
+
+#: The date of every member of a chain file (the earliest a ZIP can hold): never the clock.
+ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def chain_bytes(chains: dict) -> bytes:
+    """The NPZ chain file (what ``np.savez_compressed`` writes, readable by ``np.load``) with
+    every member dated :data:`ZIP_DATE`, so that equal arrays give equal bytes."""
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, array in chains.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with zf.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(array), allow_pickle=False)
+    return buf.getvalue()
 
 
 def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -> None:
@@ -121,9 +157,7 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
     find it and can check it is this fit's chain."""
     blob = None
     if chains:
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **chains)
-        blob = buf.getvalue()
+        blob = chain_bytes(chains)
         record = {**record, "chain": {"path": path_for_record(chain_path, path),
                                       "sha256": sha256_of(blob)}}
     if (record.get("data") or {}).get("path"):  # no absolute path of this machine
@@ -166,28 +200,26 @@ def first_non_finite(obj, where: str = "") -> str | None:
 
 
 def read_fit(path) -> dict:
-    """Read and validate a parameter file (schema name and version)."""
+    """Read and validate a parameter file: JSON (UTF-8, bounded nesting), schema name and
+    version, every field the tools read checked for type and finiteness
+    (``fitlab.io.fitfile.FIT_SCHEMA``), and a model this fitlab knows."""
+    from fitlab.io.fitfile import check_fit_record
+    from fitlab.io.validate import load_json
+
     path = Path(path)
-    try:
-        data = json.loads(read_bytes(path).decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputFileError(path, "is not UTF-8 text", hint="give a fitlab parameter file "
-                             "(data_formats/fit_json.md)") from None
-    except json.JSONDecodeError as exc:
-        raise InputFileError(path, f"is not valid JSON ({exc.msg})", line=exc.lineno) from None
-    except RecursionError:
-        raise InputFileError(path, "nests too deeply to be a fitlab parameter file",
-                             hint="give a file `fitlab fit` wrote (data_formats/fit_json.md)") from None
+    hint = "give a file `fitlab fit` wrote (data_formats/fit_json.md)"
+    data = load_json(path, read_bytes(path, folder_hint=hint), what="fitlab parameter file",
+                     hint=hint)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise InputFileError(path, f"is not a fitlab parameter file (schema is not {SCHEMA!r})",
                              column="schema")
     if data.get("schema_version") != SCHEMA_VERSION:
-        raise InputFileError(path, f"has schema_version {data.get('schema_version')!r}; this "
-                             f"fitlab reads version {SCHEMA_VERSION}", column="schema_version",
+        from fitlab.io.validate import quote
+
+        raise InputFileError(path, f"has schema_version {quote(data.get('schema_version'), 20)}; "
+                             f"this fitlab reads version {SCHEMA_VERSION}", column="schema_version",
                              hint="refit with this fitlab version or upgrade fitlab")
-    for key in ("model", "fits", "data"):
-        if key not in data:
-            raise InputFileError(path, f"lacks the field {key!r}", column=key)
+    check_fit_record(path, data)
     try:
         fitlab.get_model(data["model"]["name"])
     except (ValueError, KeyError, TypeError):

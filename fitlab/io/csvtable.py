@@ -7,7 +7,6 @@ Everything that is not exactly that is an error naming file, line and column.
 
 from __future__ import annotations
 
-import math
 import re
 from pathlib import Path
 from typing import NamedTuple
@@ -15,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import InputFileError
+from fitlab.io.validate import parse_number
 from fitlab.io.files import read_bytes
 
 
@@ -153,13 +153,6 @@ def _parse_header(path, lineno, fields, required, optional, what, column_pattern
 
 
 def _parse_number(path, lineno, column, cell) -> float:
-    try:
-        value = float(cell)
-    except ValueError:
-        shown = cell if cell else "(empty)"
-        raise InputFileError(path, f"{shown!r} is not a number", line=lineno, column=column,
-                             hint="every cell must be a decimal number") from None
-    if not math.isfinite(value):
-        raise InputFileError(path, f"{cell!r} is not a finite number", line=lineno, column=column,
-                             hint="remove or fix rows with NaN or infinite values")
-    return value
+    return parse_number(cell, path, line=lineno, column=column,
+                        hint="every cell must be a finite decimal number; remove or fix rows "
+                        "with NaN or infinite values")

@@ -9,10 +9,123 @@ from pathlib import Path
 from fitlab.errors import FitlabError
 from fitlab.fit.space import SCALE
 from fitlab.io.files import read_bytes
+from fitlab.io.validate import (Any, Bool, Either, Int, List, Map, Num, Optional, Record, Str,
+                                check)
 
 #: A parameter file names its schema near the top; enough bytes to find it there.
 SNIFF_BYTES = 256
 SCHEMA_TAG = b'"fitlab-fit"'
+
+
+#: Most channels one parameter file holds (a spectral fit has one per wavelength).
+MAX_CHANNELS = 1024
+#: Most parameters one fitted model has.
+MAX_PARAMETERS = 256
+
+_NAME = Str(max_len=200)
+_NUM = Num()
+_OPT_NUM = Optional(_NUM)
+_TEXT_LIST = List(Str(), max_len=10_000)
+
+_POSTERIOR = Record(optional={k: _OPT_NUM for k in ("mean", "median", "std", "p2_5", "p16",
+                                                    "p50", "p84", "p97_5")})
+_PARAMETER = Record(
+    required={"value": _NUM, "fixed": Bool()},
+    optional={"unit": Str(max_len=200), "bounds": List(_NUM, length=2),
+              "stderr": _OPT_NUM, "at_bound": Bool(), "transform": Str(max_len=50),
+              "posterior": Optional(_POSTERIOR)})
+_COVARIANCE = Record(required={"parameters": List(_NAME, max_len=MAX_PARAMETERS),
+                               "matrix": List(List(_OPT_NUM, max_len=MAX_PARAMETERS),
+                                              max_len=MAX_PARAMETERS)},
+                     optional={"source": Str()})
+_MCMC = Record(optional={
+    "nwalkers": Int(lo=1), "nsteps": Int(lo=1), "burn_in": Int(lo=0), "thin": Int(lo=1),
+    "coordinates": List(_NAME, max_len=MAX_PARAMETERS + 1),
+    "autocorrelation_time": List(_OPT_NUM, max_len=MAX_PARAMETERS + 1),
+    "acceptance_fraction": _OPT_NUM, "effective_sample_size": _OPT_NUM,
+    "samples": Int(lo=0), "trustworthy": Bool(), "warnings": _TEXT_LIST,
+    "correlation": List(List(_OPT_NUM)), "prior": Str()})
+_PER_INCIDENCE = Record(optional={
+    "theta_i": _NUM, "phi_i": _NUM, "n": Int(lo=0), "n_fitted": Int(lo=0), "role": Str(),
+    "rms_relative_error": _OPT_NUM, "max_abs_relative_error": _OPT_NUM,
+    "rms_relative_error_fitted_rows": _OPT_NUM})
+_STATISTICS = Record(optional={
+    "loss": Str(), "n_fit": Int(lo=0), "n_total": Int(lo=0), "cost": _OPT_NUM, "dof": Int(),
+    "residual_noise_scale": _OPT_NUM, "rms_relative_error_fit": _OPT_NUM,
+    "relative_error_floor": _OPT_NUM, "chi2": _OPT_NUM, "chi2_per_dof": _OPT_NUM,
+    "per_incidence": List(_PER_INCIDENCE, max_len=100_000)})
+_VALUES = Map(_OPT_NUM, max_len=MAX_PARAMETERS + 1)
+_EMPIRICAL_D = Record(optional={
+    "points": Int(lo=0), "theta_m_deg": List(_NUM), "D_empirical": List(_NUM),
+    "D_fitted": List(_NUM), "rms_log_ratio": _OPT_NUM, "method": Str()})
+_FIT = Record(
+    required={"channel": _NAME,
+              "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS)},
+    optional={"covariance": Optional(_COVARIANCE), "statistics": _STATISTICS,
+              "warnings": _TEXT_LIST, "mcmc": Optional(_MCMC),
+              "solver": Record(optional={"stopped": Str(), "iterations": Int(lo=0),
+                                         "max_iterations": Int(lo=0), "algorithm": Str()}),
+              "global_search": Record(optional={"evaluations": Int(lo=0),
+                                                "non_finite": Int(lo=0), "lm_starts": Int(lo=0)}),
+              "starts": List(Record(optional={"start": Optional(_VALUES), "end": Optional(_VALUES),
+                                              "cost": _OPT_NUM, "lm_iterations": Int(lo=0),
+                                              "lm_stopped": Str()}), max_len=100_000),
+              "starts_disagree": Optional(Record(optional={"message": Str()})),
+              "diagnostics": Record(optional={"empirical_D": _EMPIRICAL_D}),
+              "timings_s": _VALUES})
+#: What a parameter file must hold, field by field (data_formats/fit_json.md): the fields the
+#: tools read are checked for type and finiteness before any of them is used.
+FIT_SCHEMA = Record(
+    required={
+        "schema": Str(), "schema_version": Int(),
+        "model": Record(required={"name": Str(max_len=10_000)},
+                        optional={"options": Map(Either((Str(max_len=1000), _NUM, Bool())),
+                                                 max_len=256),
+                                  "lobes": Str(), "reference": Str()}),
+        "data": Record(required={"path": Str(max_len=10_000)},
+                       optional={"sha256": Str(max_len=64), "rows": Int(lo=0),
+                                 "rows_fitted": Int(lo=0), "fit_subset": Optional(Str(max_len=10_000)),
+                                 "file_quantity": Str(), "quantity": Str(),
+                                 "channels": List(_NAME, max_len=MAX_CHANNELS),
+                                 "metadata": Map(Any())}),
+        "fits": List(_FIT, min_len=1, max_len=MAX_CHANNELS),
+    },
+    optional={"loss": Str(), "seed": Optional(Int()), "notes": _TEXT_LIST,
+              "conventions": Map(Str()), "software": Map(Str()), "timings_s": _VALUES,
+              "created_utc": Str(), "chain": Record(required={"path": Str(max_len=10_000)},
+                                                    optional={"sha256": Str(max_len=64)})})
+
+
+def check_fit_record(path, record) -> dict:
+    """``record`` (a parsed parameter file) checked against FIT_SCHEMA and for consistency
+    (distinct channels; covariance names among the parameters and its matrix square), or an
+    InputFileError naming ``path`` and the field."""
+    from fitlab.errors import InputFileError
+
+    hint = "give a file `fitlab fit` wrote (data_formats/fit_json.md)"
+    check(record, FIT_SCHEMA, path, hint=hint)
+    channels = [f["channel"] for f in record["fits"]]
+    if len(set(channels)) != len(channels):
+        raise InputFileError(path, "field fits lists a channel twice", hint=hint)
+    for k, fit in enumerate(record["fits"]):
+        cov = fit.get("covariance")
+        if not cov:
+            continue
+        names, matrix = cov["parameters"], cov["matrix"]
+        unknown = [n for n in names if n not in fit["parameters"]]
+        if unknown:
+            raise InputFileError(path, f"field fits[{k}].covariance.parameters names "
+                                 f"{quote_names(unknown)}, not parameters of the fit", hint=hint)
+        if len(matrix) != len(names) or any(len(row) != len(names) for row in matrix):
+            raise InputFileError(path, f"field fits[{k}].covariance.matrix is not "
+                                 f"{len(names)} x {len(names)}", hint=hint)
+    return record
+
+
+def quote_names(names) -> str:
+    from fitlab.io.validate import quote
+
+    return ", ".join(quote(n, 30) for n in names[:5])
 
 
 def is_fit_file(path) -> bool:
@@ -73,4 +186,4 @@ def describe_fit(record: dict) -> dict:
             "mcmc": [bool(f["mcmc"]) for f in record["fits"]]}
 
 
-__all__ = ["is_fit_file", "fit_parameters", "tabulation_channels", "describe_fit"]
+__all__ = ["FIT_SCHEMA", "check_fit_record", "is_fit_file", "fit_parameters", "tabulation_channels", "describe_fit"]

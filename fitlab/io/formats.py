@@ -70,7 +70,9 @@ def detect_format(path, name: str | None = None) -> Format:
 
 def read_any(path, format: str | None = None, **options):
     """Read any supported file to a Measurement (format detected from content unless given)."""
-    return detect_format(path, format).read(path, **options)
+    from fitlab.io.measurement import check_measurement
+
+    return check_measurement(detect_format(path, format).read(path, **options))
 
 
 def describe_any(path, format: str | None = None) -> dict:

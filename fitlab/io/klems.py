@@ -28,6 +28,7 @@ from xml.parsers import expat
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.validate import quote
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
@@ -180,10 +181,10 @@ def _number(path, el, lines, what):
     try:
         v = float(text)
     except ValueError:
-        raise InputFileError(path, f"<{what}> holds {text!r}, not a number",
+        raise InputFileError(path, f"<{what}> holds {quote(text)}, not a number",
                              line=lines.get(el), hint=f"give <{what}> a number") from None
     if not np.isfinite(v):
-        raise InputFileError(path, f"<{what}> holds {text!r}", line=lines.get(el),
+        raise InputFileError(path, f"<{what}> holds {quote(text)}", line=lines.get(el),
                              hint=f"give <{what}> a finite number")
     return v
 
@@ -270,7 +271,7 @@ def parse_scattering_data(path, el, lines, n_rows, n_cols, label):
             try:
                 float(m.group())
             except ValueError:
-                raise InputFileError(path, f"{label}: {m.group()!r} in <ScatteringData> is not a "
+                raise InputFileError(path, f"{label}: {quote(m.group())} in <ScatteringData> is not a "
                                      "number", line=_line_of(start, text, m.start()),
                                      hint="values are decimal numbers separated by commas or "
                                      "spaces") from None
@@ -284,7 +285,7 @@ def parse_scattering_data(path, el, lines, n_rows, n_cols, label):
     bad = np.flatnonzero(~np.isfinite(values) | (values < 0))
     if bad.size:
         m = matches[bad[0]]
-        raise InputFileError(path, f"{label}: value {m.group()!r} (row {bad[0] // n_cols + 1}, "
+        raise InputFileError(path, f"{label}: value {quote(m.group())} (row {bad[0] // n_cols + 1}, "
                              f"column {bad[0] % n_cols + 1}) is not a finite non-negative BSDF",
                              line=_line_of(start, text, m.start()),
                              hint="a BSDF in 1/sr is finite and ≥ 0")
@@ -367,7 +368,7 @@ def read_klems_file(path) -> KlemsFile:
         hint = ("tensor-tree files (Radiance genBSDF -t3/-t4) are not supported; convert with "
                 "Radiance's bsdf2klems" if structure.lower().startswith("tensortree") else
                 "use Columns (incident patches in columns) or Rows")
-        raise InputFileError(path, f"IncidentDataStructure {structure!r} is not supported",
+        raise InputFileError(path, f"IncidentDataStructure {quote(structure)} is not supported",
                              line=lines.get(_child(definition, "IncidentDataStructure")), hint=hint)
     bases = {}
     for el in _children(definition, "AngleBasis"):
@@ -403,7 +404,7 @@ def read_klems_file(path) -> KlemsFile:
             if direction is None:
                 if raw_dir.lower().startswith("absorbed"):
                     continue  # layer absorptance vector, not a BSDF
-                raise InputFileError(path, f"WavelengthDataDirection {raw_dir!r} is unknown",
+                raise InputFileError(path, f"WavelengthDataDirection {quote(raw_dir)} is unknown",
                                      line=lines.get(d_el),
                                      hint=f"use one of {', '.join(DIRECTIONS)}")
             key = (channel, direction)

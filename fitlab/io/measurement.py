@@ -71,6 +71,36 @@ class Measurement(NamedTuple):
         )
 
 
+#: Largest |value| or sigma a measurement may hold: beyond it the squares a fit sums overflow
+#: float64 (any real instrument's units are far below it).
+MAX_ABS_VALUE = 1e100
+
+
+def check_measurement(m: Measurement) -> Measurement:
+    """The checks every reader's result passes before anything uses it (``read_any`` applies
+    them): at least one row, and directions, values and sigma finite and within MAX_ABS_VALUE
+    after conversion to f (dividing by a cosine near grazing can overflow)."""
+    from fitlab.io.validate import check_finite
+
+    if m.n == 0:
+        raise InputFileError(m.path, "holds no data rows", hint="give a file with measurements")
+    line_of = lambda j: int(m.lines[j]) if j < len(m.lines) else None  # noqa: E731
+    for name, arr in (("theta_i", m.theta_i), ("phi_i", m.phi_i), ("theta_o", m.theta_o),
+                      ("phi_o", m.phi_o), ("wi", m.wi), ("wo", m.wo)):
+        check_finite(arr, m.path, what=f"{name}", line_of=line_of, column=name)
+    for name, arr in (("value", m.value), ("sigma", m.sigma)):
+        if arr is None:
+            continue
+        check_finite(arr, m.path, what=f"{name} (as f in 1/sr)", line_of=line_of, column=name,
+                     hint="a value too large overflows when converted to f; check the units")
+        big = np.flatnonzero(np.abs(arr) > MAX_ABS_VALUE)
+        if big.size:
+            raise InputFileError(m.path, f"{arr[big[0]]:.3g} is beyond ±{MAX_ABS_VALUE:g}",
+                                 line=line_of(big[0]), column=name,
+                                 hint="check the units; no instrument measures such values")
+    return m
+
+
 def _meta_choice(table, key, choices, default=None, hint=""):
     path, metadata = table.path, table.metadata
     line = table.metadata_lines.get(key)
@@ -243,13 +273,13 @@ def read_measurement(path) -> Measurement:
     if sigma is not None:
         sigma = sigma / factor
     file_quantity = quantity if quantity != "relative" else f"relative ({relative_to})"
-    return Measurement(
+    return check_measurement(Measurement(
         path=str(path), sha256=sha256_of(path), theta_i=long["theta_i"], phi_i=long["phi_i"],
         theta_o=long["theta_o"], phi_o=long["phi_o"], wi=wi, wo=wo, value=value, sigma=sigma,
         channel=np.asarray(long["channel"], dtype=int), channel_names=channel_names,
         wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
         file_quantity=file_quantity, metadata=dict(meta), lines=np.asarray(lines),
-    )
+    ))
 
 
 # --------------------------------------------------------------------------------------------

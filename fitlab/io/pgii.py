@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.validate import quote
 from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
@@ -156,11 +157,11 @@ def _parse_data(path, data, ncols):
     except ValueError:
         r = next(r for r, row in enumerate(fields) if not all(map(_is_float, row)))
         token = next(f for f in fields[r] if not _is_float(f))
-        raise InputFileError(path, f"{token!r} is not a number", line=int(lines[r]),
+        raise InputFileError(path, f"{quote(token)} is not a number", line=int(lines[r]),
                              hint="data lines hold numbers separated by spaces or tabs") from None
     bad = np.flatnonzero(~np.all(np.isfinite(out), axis=1))
     if bad.size:
-        raise InputFileError(path, f"{data[bad[0]][1]!r} holds a value that is not finite",
+        raise InputFileError(path, f"{quote(data[bad[0]][1])} holds a value that is not finite",
                              line=int(lines[bad[0]]), hint="remove the line or give the value")
     return out, lines
 

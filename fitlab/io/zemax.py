@@ -26,6 +26,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.csvtable import text_lines
+from fitlab.io.validate import parse_number, quote
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, check_indices, describe_loaded
@@ -106,16 +107,7 @@ def _is_number(token) -> bool:
 
 
 def _number(path, lineno, token, what, hint="write a decimal number") -> float:
-    try:
-        value = float(token)
-    except ValueError:
-        raise InputFileError(path, f"{token!r} is not a number", line=lineno, column=what,
-                             hint=hint) from None
-    if not np.isfinite(value):
-        raise InputFileError(path, f"{token!r} is not a finite number", line=lineno, column=what,
-                             hint="remove or replace NaN and infinite values (a direction "
-                             "that was not measured is written 0.000E+00)")
-    return value
+    return parse_number(token, path, line=lineno, column=what, hint=hint)
 
 
 def _choice(path, lineno, keyword, tokens, choices):
@@ -152,7 +144,7 @@ def _parse_header(path, content):
             break
         key = _keyword(tokens)
         if key is None:
-            what = "numbers" if _is_number(tokens[0]) else f"the unknown keyword {tokens[0]!r}"
+            what = "numbers" if _is_number(tokens[0]) else f"the unknown keyword {quote(tokens[0])}"
             raise InputFileError(
                 path, f"found {what} where a header keyword was expected", line=lineno,
                 hint=f"header lines start with one of {', '.join(HEADER_KEYWORDS)}; "
@@ -335,7 +327,7 @@ def _parse_data(path, content, i, header):
                 if i >= len(content) or not _is_number(content[i][1][0]):
                     at = content[i][0] if i < len(content) else last
                     found = "the end of the file" if i >= len(content) else \
-                        f"{content[i][1][0]!r}"
+                        f"{quote(content[i][1][0])}"
                     incomplete(at, f"the block of TIS line {lineno} has {a} of its {n_az} "
                                f"azimuth rows before {found}",
                                f"each block has one row per ScatterAzimuth angle ({n_az}); the "
@@ -348,7 +340,7 @@ def _parse_data(path, content, i, header):
                                  hint=f"a block has exactly {n_az} rows after its TIS line; "
                                  "check ScatterAzimuth and the rows of the block above")
         else:
-            raise InputFileError(path, f"unexpected {tokens[0]!r} in the data section",
+            raise InputFileError(path, f"unexpected {quote(tokens[0])} in the data section",
                                  line=lineno, hint="the data section holds Monochrome/"
                                  "TristimulusX/Y/Z, DataBegin, TIS blocks and DataEnd")
     if not seen_begin:

@@ -15,6 +15,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import InputFileError
+from fitlab.io.validate import quote
 from fitlab.fit.space import SCALE, FitSpace, FreeParameter, StaticSpace
 
 #: Posterior samples used for predictive bands (evenly spaced through the stored samples).
@@ -79,7 +80,7 @@ def load_data(record: dict, fit_path: Path, data_path=None):
                                  hint="give the data file with --data FILE")
         found = _resolve(recorded, fit_path)
         if found is None:
-            raise InputFileError(fit_path, f"names the data file {recorded!r}, which does not "
+            raise InputFileError(fit_path, f"names the data file {quote(recorded)}, which does not "
                                  "exist (relative to this folder or the fit file's folders)",
                                  column="data.path", hint="give the data file with --data FILE")
         data_path = found

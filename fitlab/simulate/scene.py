@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 from fitlab import microfacet
 from fitlab.errors import InputFileError
+from fitlab.io.validate import quote
 from fitlab.io.files import read_bytes
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
@@ -171,7 +172,7 @@ def _number(ctx, table, field, key, *, default=None, lo=None, hi=None, lo_open=F
         return default
     v = table[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        ctx.fail(where, f"{v!r} is not a finite number", hint)
+        ctx.fail(where, f"{quote(v)} is not a finite number", hint)
     v = float(v)
     bad = (lo is not None and (v <= lo if lo_open else v < lo)) or \
         (hi is not None and (v >= hi if hi_open else v > hi))
@@ -210,7 +211,7 @@ def _choice(ctx, table, field, key, choices, default=None):
         return default
     v = table[key]
     if not isinstance(v, str) or v.lower() not in choices:
-        ctx.fail(where, f"{v!r} is not one of {', '.join(choices)}",
+        ctx.fail(where, f"{quote(v)} is not one of {', '.join(choices)}",
                  f"choose one of {', '.join(choices)}")
     return v.lower()
 
@@ -220,7 +221,7 @@ def _bool(ctx, table, field, key, default):
         return default
     v = table[key]
     if not isinstance(v, bool):
-        ctx.fail(f"{field}.{key}", f"{v!r} is not true or false", "write true or false (no quotes)")
+        ctx.fail(f"{field}.{key}", f"{quote(v)} is not true or false", "write true or false (no quotes)")
     return v
 
 
@@ -281,12 +282,12 @@ def _phase(ctx, table, field):
     ptype = _choice(ctx, table, field, "phase", PHASES, default="isotropic")
     g, rough, orient = 0.0, 1.0, (0.0, 0.0, 1.0)
     if ptype != "hg" and "g" in table:
-        ctx.fail(f"{field}.g", f"only phase = \"hg\" has an asymmetry g (phase is {ptype!r})",
+        ctx.fail(f"{field}.g", f"only phase = \"hg\" has an asymmetry g (phase is {quote(ptype)})",
                  "remove g or set phase = \"hg\"")
     if not ptype.startswith("sggx"):
         for key in ("roughness", "orientation"):
             if key in table:
-                ctx.fail(f"{field}.{key}", f"only SGGX phases have {key} (phase is {ptype!r})",
+                ctx.fail(f"{field}.{key}", f"only SGGX phases have {key} (phase is {quote(ptype)})",
                          "remove it or set phase = \"sggx_surface\" / \"sggx_fiber\"")
     if ptype == "hg":
         g = _number(ctx, table, field, "g", lo=-1.0, hi=1.0, lo_open=True, hi_open=True,
@@ -297,7 +298,7 @@ def _phase(ctx, table, field):
         if "orientation" in table:
             v = table["orientation"]
             if not (isinstance(v, list) and len(v) == 3):
-                ctx.fail(f"{field}.orientation", f"{v!r} is not a list of three numbers",
+                ctx.fail(f"{field}.orientation", f"{quote(v)} is not a list of three numbers",
                          "give a direction [x, y, z], e.g. [0, 0, 1]")
             xyz = [_number(ctx, {"orientation": x}, field, "orientation") for x in v]
             norm = math.sqrt(sum(x * x for x in xyz))
@@ -368,7 +369,7 @@ def _detector(ctx, table, base_dir, illum_given):
         sides = table.get("sides", list(SIDES))
         if not isinstance(sides, list) or not sides or any(s not in SIDES for s in sides) \
                 or len(set(sides)) != len(sides):
-            ctx.fail("detector.sides", f"{sides!r} is not a list of distinct sides",
+            ctx.fail("detector.sides", f"{quote(sides)} is not a list of distinct sides",
                      "use [\"reflection\"], [\"transmission\"] or [\"reflection\", \"transmission\"]")
         tb = _number(ctx, table, field, "theta_bins", default=9.0, lo=1, hi=900)
         pb = _number(ctx, table, field, "phi_bins", default=36.0, lo=1, hi=3600)
@@ -424,7 +425,7 @@ def _effects(ctx, table):
     elif isinstance(mb, int) and not isinstance(mb, bool) and 0 <= mb <= 1000:
         max_bounces = int(mb)
     else:
-        ctx.fail("effects.max_bounces", f"{mb!r} is not \"all\" or a whole number 0..1000",
+        ctx.fail("effects.max_bounces", f"{quote(mb)} is not \"all\" or a whole number 0..1000",
                  "0 = top surface only, 1 = one-bounce subsurface reflection, ..., \"all\"")
     return Effects(
         max_bounces=max_bounces,
@@ -451,7 +452,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
     if d.get("format", "fitlab-scene") != "fitlab-scene":
         ctx.fail("format", f"{d['format']!r} is not \"fitlab-scene\"", "remove it or fix it")
     if d.get("version", 1) != 1:
-        ctx.fail("version", f"{d['version']!r} is not a version this fitlab reads (1)",
+        ctx.fail("version", f"{quote(d['version'])} is not a version this fitlab reads (1)",
                  "write version = 1")
     name = d.get("name", Path(str(source)).stem)
     if not isinstance(name, str):
