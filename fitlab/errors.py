@@ -19,7 +19,9 @@ class InputFileError(FitlabError, ValueError):
         where = self.path if line is None else f"{self.path}:{line}"
         text = f"{where}: "
         if column is not None:
-            text += f"column {column!r}: "
+            from fitlab.io.validate import quote  # column names may come from the file
+
+            text += f"column {quote(column)}: "
         text += message
         if hint:
             text += f". {hint}"

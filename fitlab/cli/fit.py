@@ -6,8 +6,6 @@ from __future__ import annotations
 import json
 import sys
 
-import numpy as np
-
 import fitlab
 from fitlab.assignments import parse_assignments
 from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
@@ -55,6 +53,10 @@ def add_parser(sub):
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
     p.add_argument("--chain", metavar="FILE.npz", help="also write the MCMC chain")
+    p.add_argument("--timings", action="store_true",
+                   help="record the run's wall-clock seconds in the parameter file (timings_s); "
+                   "they differ from run to run, so without this the same data, options and "
+                   "seed give the same bytes")
     p.add_argument("--report", metavar="DIR",
                    help="then write an HTML report of the fit into DIR (as `fitlab report`; "
                    "needs --out; with --chain it shows posterior bands and MCMC plots)")
@@ -110,13 +112,20 @@ def _print_summary(record):
             print(f"warning: channel {fit['channel']}: {w}", file=sys.stderr)
 
 
+def _print_timings(timings):
+    names = {"read": "read", "least_squares": "least squares", "mcmc": "MCMC", "total": "total"}
+    print("time: " + ", ".join(f"{names[k]} {v:.2f} s" for k, v in timings.items()),
+          file=sys.stderr)
+
+
 def run(args):
     import time
 
     from fitlab.fit.cache import enable_compilation_cache
 
     enable_compilation_cache()  # before any computation; FITLAB_NO_CACHE=1 turns it off
-    from fitlab.export.paramfile import build_record, chains_payload, write_fit
+    from fitlab.export.paramfile import (build_record, chain_bytes, chains_payload, run_timings,
+                                         write_fit)
     from fitlab.fit.driver import fit_measurement
     from fitlab.fit.subset import subset_mask
     from fitlab.io.formats import read_any
@@ -155,8 +164,9 @@ def run(args):
     for note in result["notes"]:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)
-    timings = {"read": t_read, "total": time.perf_counter() - t0}
-    record = build_record(result, m, subset_expr=args.fit_subset, timings=timings)
+    timings = run_timings(result, t_read, time.perf_counter() - t0)
+    record = build_record(result, m, subset_expr=args.fit_subset,
+                          timings=timings if args.timings else None)
     if args.walter_diagnostics:
         from fitlab.fit.walter import add_empirical_D
 
@@ -166,6 +176,7 @@ def run(args):
         write_fit(args.out, record, chains, args.chain)
         if not args.quiet:
             _print_summary(record)
+            _print_timings(timings)
             print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
                   file=sys.stderr)
         if args.report:
@@ -178,13 +189,11 @@ def run(args):
     else:
         if chains:
             from fitlab.io.atomic import atomic_open
-            import io as _io
 
-            buf = _io.BytesIO()
-            np.savez_compressed(buf, **chains)
             with atomic_open(args.chain, "wb") as fh:
-                fh.write(buf.getvalue())
+                fh.write(chain_bytes(chains))
         if not args.quiet:
             _print_summary(record)
+            _print_timings(timings)
         print(json.dumps(record, indent=2, allow_nan=False))
     return 0

@@ -21,8 +21,9 @@ def add_parser(sub):
         "channel; opaque substrate: no transmitted paths). Writes a measurement CSV "
         "(data_formats/measurement_csv.md): value = BSDF in 1/sr averaged over each bin or "
         "cone, sigma = Monte Carlo standard error, metadata with the effects simulated and "
-        "skipped (and why), samples, seed and time, so `fitlab fit OUT.csv --model ...` works "
-        "on it. Progress on stderr; the output is written atomically.",
+        "skipped (and why), samples and seed (the same scene, samples, seed and batch size give "
+        "the same bytes; the run time is printed, not stored), so `fitlab fit OUT.csv --model "
+        "...` works on it. Progress on stderr; the output is written atomically.",
         epilog="example: fitlab simulate data_formats/examples/scenes/rough_dielectric_interface.toml "
         "--samples 200000 --out sim.csv && fitlab fit sim.csv --model rough_dielectric",
     )
@@ -47,6 +48,7 @@ def run(args):
     from pathlib import Path
 
     from fitlab.io.atomic import atomic_write_text
+    from fitlab.io.files import path_for_record
     from fitlab.io.measurement import format_measurement_csv
     from fitlab.simulate import derive_effects, load_scene, simulate
 
@@ -67,15 +69,18 @@ def run(args):
     res = simulate(scene, args.samples, args.seed, batch_size=args.batch_size,
                    progress=not args.quiet)
     m = res.to_measurement()
-    scatter = {"scatter": res.metadata()["scatter"]}
-    text = format_measurement_csv(m, scatter)
+    # The scene as the output names files: relative to its folder (standard output: the working
+    # folder), never an absolute path of this machine.
+    extra = {"scatter": res.metadata()["scatter"],
+             "scene": path_for_record(args.scene, args.out or "stdout")}
+    text = format_measurement_csv(m, extra)
     if args.out:
         atomic_write_text(args.out, text)
         written = [args.out]
         if args.split_bounces:
             orders_path = str(Path(args.out).with_suffix("")) + ".orders.csv"
             atomic_write_text(orders_path, format_measurement_csv(res.to_measurement(orders=True),
-                                                                  scatter))
+                                                                  extra))
             written.append(orders_path)
     else:
         sys.stdout.write(text)

@@ -15,7 +15,6 @@ values are JSON). :func:`read_exr` validates everything and raises
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import json
 import os
 from pathlib import Path
@@ -24,10 +23,10 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.validate import quote
+from fitlab.io.validate import check_allocation, quote
 from fitlab.io.atomic import temporary_beside
 from fitlab.io.conventions import CONVENTIONS
-from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.files import path_for_record, read_bytes, sha256_of
 from fitlab.lut import (KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN,
                         TEXEL_CONVENTION, Axis, Table)
 
@@ -39,8 +38,10 @@ REQUIRED = ("schema", "schema_version", "kind", "channels", "dtype", "axes", "qu
             "params", "accuracy", "texel_convention", "conventions", "version")
 
 
-def header_attributes(table: Table) -> dict:
-    """The ``fitlab.*`` header attributes of a table (all strings)."""
+def header_attributes(table: Table, path=None) -> dict:
+    """The ``fitlab.*`` header attributes of a table (all strings) to be written to ``path``.
+    No clock time: the same table gives the same header. ``source_fit`` is recorded relative to
+    ``path``'s folder (as given when there is no ``path``)."""
     attrs = {
         "schema": SCHEMA,
         "schema_version": str(SCHEMA_VERSION),
@@ -56,13 +57,13 @@ def header_attributes(table: Table) -> dict:
         "conventions": json.dumps(CONVENTIONS),
         "version": fitlab.__version__,
         "notes": json.dumps(list(table.notes)),
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
     for k, a in enumerate(table.axes):  # readable copies for exrheader & co.
         attrs[f"axis{k}"] = (f"{a.name} in [{a.lo!r}, {a.hi!r}], {a.size} samples, mapping "
                              f"{a.mapping} ({MAPPINGS[a.mapping].formula})")
     if table.source_fit:
-        attrs["source_fit"] = str(table.source_fit)
+        attrs["source_fit"] = (path_for_record(table.source_fit, path) if path is not None
+                               else str(table.source_fit))
         with contextlib.suppress(OSError):
             attrs["source_fit_sha256"] = sha256_of(table.source_fit)
     return {PREFIX + k: v for k, v in attrs.items()}
@@ -82,7 +83,7 @@ def write_exr(path, table: Table) -> None:
     channels = {name: np.ascontiguousarray(values[:, :, k].astype(np_type))
                 for k, name in enumerate(table.channels)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              **header_attributes(table)}
+              **header_attributes(table, path)}
     fd, tmp = temporary_beside(path, suffix=".tmp.exr")  # mode from the umask
     os.close(fd)
     try:
@@ -104,7 +105,7 @@ def _open(path, header_only: bool):
     try:
         return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
     except Exception as exc:  # the binding raises RuntimeError for any damage
-        raise InputFileError(path, f"cannot be read as OpenEXR ({exc})",
+        raise InputFileError(path, f"cannot be read as OpenEXR ({quote(str(exc), 120)})",
                              hint="the file is damaged or truncated; write it again with "
                              "`fitlab lut`") from None
 
@@ -132,10 +133,12 @@ def _attrs(path, header) -> dict:
 
 
 def _json(path, attrs, key, kind):
+    from fitlab.io.validate import load_json
+
     try:
-        value = json.loads(attrs[key])
-    except json.JSONDecodeError as exc:
-        raise InputFileError(path, f"is not valid JSON ({exc.msg})", column=PREFIX + key) from None
+        value = load_json(path, attrs[key].encode("utf-8"), what=f"{PREFIX}{key} attribute")
+    except InputFileError as exc:
+        raise InputFileError(path, str(exc).split(": ", 1)[-1], column=PREFIX + key) from None
     if not isinstance(value, kind):
         raise InputFileError(path, f"must be a JSON {kind.__name__ if isinstance(kind, type) else 'value'}",
                              column=PREFIX + key)
@@ -150,11 +153,11 @@ def _axes(path, attrs):
         if not isinstance(a, dict) or set(a) != set(Axis._fields):
             raise InputFileError(path, f"each axis needs exactly the fields {', '.join(Axis._fields)}",
                                  column=col)
-        if a["mapping"] not in MAPPINGS:
+        if not isinstance(a["mapping"], str) or a["mapping"] not in MAPPINGS:
             raise InputFileError(path, f"unknown mapping {quote(a['mapping'])}", column=col,
                                  hint=f"mappings: {', '.join(MAPPINGS)}")
         size = a["size"]
-        if not isinstance(size, int) or not SIZE_MIN <= size <= SIZE_MAX:
+        if isinstance(size, bool) or not isinstance(size, int) or not SIZE_MIN <= size <= SIZE_MAX:
             raise InputFileError(path, f"size must be an integer in [{SIZE_MIN}, {SIZE_MAX}]",
                                  column=col)
         try:
@@ -171,8 +174,7 @@ def _axes(path, attrs):
 def read_exr(path) -> Table:
     """Read and validate a fitlab LUT → :class:`fitlab.lut.Table` (values as float64)."""
     path = Path(path)
-    f = _open(path, header_only=False)
-    header = f.header()
+    header = _open(path, header_only=True).header()
     attrs = _attrs(path, header)
     kind = attrs["kind"]
     if kind not in KINDS:
@@ -199,14 +201,30 @@ def read_exr(path) -> Table:
     if dtype not in ("half", "float"):
         raise InputFileError(path, f"dtype must be half or float, got {quote(dtype)}",
                              column=PREFIX + "dtype")
-    pixels = {name: c.pixels for name, c in f.channels().items()}
-    if sorted(pixels) != sorted(channels):
-        raise InputFileError(path, f"the file holds channels {sorted(pixels)} but the header "
-                             f"declares {channels}", column=PREFIX + "channels")
     if len(axes) == 1:
         shape = (1, axes[0].size)
     else:
         shape = (axes[1].size * (axes[2].size if len(axes) == 3 else 1), axes[0].size)
+    try:
+        (x0, y0), (x1, y1) = (tuple(int(v) for v in w) for w in header["dataWindow"])
+    except (KeyError, TypeError, ValueError):
+        raise InputFileError(path, "has no valid data window", column="dataWindow") from None
+    if (y1 - y0 + 1, x1 - x0 + 1) != shape:
+        raise InputFileError(path, f"the image is {x1 - x0 + 1} x {y1 - y0 + 1} pixels; the axes "
+                             f"need {shape[1]} x {shape[0]}", column="dataWindow",
+                             hint="write the table again with `fitlab lut`")
+    check_allocation((len(channels),) + shape, path, what="the table", column="dataWindow")
+    try:
+        pixels = {name: c.pixels for name, c in _open(path, header_only=False).channels().items()}
+    except InputFileError:
+        raise
+    except Exception as exc:  # the binding raises RuntimeError/ValueError for any damage
+        raise InputFileError(path, f"its pixels cannot be read ({quote(str(exc), 120)})",
+                             hint="the file is damaged or truncated; write it again with "
+                             "`fitlab lut`") from None
+    if sorted(pixels) != sorted(channels):
+        raise InputFileError(path, f"the file holds channels {sorted(pixels)} but the header "
+                             f"declares {channels}", column=PREFIX + "channels")
     want = np.float16 if dtype == "half" else np.float32
     cols = []
     for name in channels:

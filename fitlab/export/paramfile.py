@@ -17,6 +17,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.fit.space import SCALE
 from fitlab.io.atomic import atomic_open
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import path_for_record, read_bytes, sha256_of
@@ -221,10 +222,20 @@ def read_fit(path) -> dict:
                              hint="refit with this fitlab version or upgrade fitlab")
     check_fit_record(path, data)
     try:
-        fitlab.get_model(data["model"]["name"])
+        model = fitlab.get_model(data["model"]["name"])
     except (ValueError, KeyError, TypeError):
         raise InputFileError(path, "names a model this fitlab does not know",
                              column="model.name", hint="run `fitlab models`") from None
+    try:
+        fitlab.api.resolve_options(model, data["model"].get("options"))
+    except ValueError as exc:
+        raise InputFileError(path, f"field model.options: {exc}", hint=hint) from None
+    for k, fit in enumerate(data["fits"]):
+        values = {n: p["value"] for n, p in fit["parameters"].items() if n != SCALE}
+        try:
+            fitlab.api.check_params(model, values)
+        except ValueError as exc:
+            raise InputFileError(path, f"field fits[{k}].parameters: {exc}", hint=hint) from None
     return data
 
 

@@ -5,6 +5,8 @@ conventions: data_formats/zemax_bsdf.md."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 import fitlab
@@ -13,6 +15,7 @@ from fitlab.errors import FitlabError
 from fitlab.export.paramfile import read_fit
 from fitlab.io.atomic import atomic_write_text
 from fitlab.io.directions import degrees_to_direction
+from fitlab.io.files import path_for_record
 from fitlab.io.fitfile import tabulation_channels
 from fitlab.io.zemax import (DIGITS, HORIZON_EPS, SCATTER, SPEC, Grid, format_zemax,
                              incidence_angle, parse_zemax, scatter_directions, scatter_frame,
@@ -219,8 +222,12 @@ def write_zemax_from_fit(path, fit_path, *, channel: str | None = None, **kwargs
     rec = read_fit(fit_path)
     fits, notes = tabulation_channels(rec, source=fit_path, channel=channel,
                                       layout=("X", "Y", "Z"), single="Y", file_kind="Zemax")
-    source = [("fit", f"{fit_path} (data {rec['data']['path']}, channel(s) "
-                      f"{', '.join(f['channel'] for f in rec['fits'])})")]
+    # Both paths relative to the output's folder: no absolute path of this machine.
+    data = Path(rec["data"]["path"])
+    if not data.is_absolute():  # recorded relative to the fit's folder
+        data = Path(fit_path).parent / data
+    source = [("fit", f"{path_for_record(fit_path, path)} (data {path_for_record(data, path)}, "
+                      f"channel(s) {', '.join(f['channel'] for f in rec['fits'])})")]
     source += [("note", n) for n in notes]
     comments = tuple(kwargs.pop("comments", ())) + tuple(source)
     summary = write_zemax(path, rec["model"]["name"], fits, rec["model"].get("options") or {},

@@ -18,6 +18,7 @@ import ast
 import numpy as np
 
 from fitlab.errors import FitlabError
+from fitlab.io.validate import quote
 
 _ARITH = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide,
           ast.Mod: np.mod}
@@ -33,11 +34,28 @@ def _specular_deg(wi, wo):
                                  np.sum(mirror * wo, axis=-1)))
 
 
-def subset_mask(expr: str, measurement) -> np.ndarray:
+#: Longest expression accepted.
+MAX_EXPRESSION = 2000
+
+
+def subset_mask(expr: str, measurement, source: str = "--fit-subset") -> np.ndarray:
+    """Rows of ``measurement`` the expression selects. ``source`` names where the expression
+    came from in messages (the option, or a parameter file's field)."""
+    if not isinstance(expr, str) or len(expr) > MAX_EXPRESSION:
+        raise FitlabError(f"{source}: the expression must be text of at most {MAX_EXPRESSION} "
+                          "characters")
+    try:
+        return _evaluate(expr, measurement, source)
+    except (RecursionError, MemoryError, OverflowError, ValueError, TypeError) as exc:
+        raise FitlabError(f"{source} {quote(expr)} cannot be evaluated ({type(exc).__name__}); "
+                          "example: 'theta_i == 0 and theta_o > 90'") from None
+
+
+def _evaluate(expr: str, measurement, source: str) -> np.ndarray:
     try:
         tree = ast.parse(expr, mode="eval")
     except SyntaxError as exc:
-        raise FitlabError(f"--fit-subset {expr!r} is not a valid expression ({exc.msg}); "
+        raise FitlabError(f"{source} {quote(expr)} is not a valid expression ({exc.msg}); "
                           "example: 'theta_i == 0 and theta_o > 90'") from None
     m = measurement
     names = {"theta_i": m.theta_i, "phi_i": m.phi_i, "theta_o": m.theta_o, "phi_o": m.phi_o,
@@ -66,14 +84,14 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
             for op, right_node in zip(node.ops, node.comparators):
                 right = ev(right_node)
                 if type(op) not in _CMP:
-                    raise FitlabError(f"--fit-subset: operator not allowed in {expr!r}")
+                    raise FitlabError(f"{source}: operator not allowed in {quote(expr)}")
                 r = _CMP[type(op)](left, right)
                 out = r if out is None else out & r
                 left = right
             return out
         if isinstance(node, ast.Name):
             if node.id not in names:
-                raise FitlabError(f"--fit-subset: unknown name {node.id!r}; use "
+                raise FitlabError(f"{source}: unknown name {quote(node.id)}; use "
                                   f"{', '.join(names)}")
             return names[node.id]
         if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str)):
@@ -81,10 +99,10 @@ def subset_mask(expr: str, measurement) -> np.ndarray:
         if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
                 and node.func.id == "abs" and len(node.args) == 1 and not node.keywords):
             return np.abs(ev(node.args[0]))
-        raise FitlabError(f"--fit-subset: {ast.unparse(node)!r} is not allowed; use column "
+        raise FitlabError(f"{source}: {quote(ast.unparse(node))} is not allowed; use column "
                           "names, numbers, + - * / %, comparisons, and/or/not and abs()")
 
     mask = np.broadcast_to(np.asarray(ev(tree), dtype=bool), (m.n,)).copy()
     if not mask.any():
-        raise FitlabError(f"--fit-subset {expr!r} selects no rows of {m.path}")
+        raise FitlabError(f"{source} {quote(expr)} selects no rows of {m.path}")
     return mask

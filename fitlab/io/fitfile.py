@@ -27,7 +27,7 @@ _NUM = Num()
 _OPT_NUM = Optional(_NUM)
 _TEXT_LIST = List(Str(), max_len=10_000)
 
-_POSTERIOR = Record(optional={k: _OPT_NUM for k in ("mean", "median", "std", "p2_5", "p16",
+_POSTERIOR = Record(optional={k: _NUM for k in ("mean", "median", "std", "p2_5", "p16",
                                                     "p50", "p84", "p97_5")})
 _PARAMETER = Record(
     required={"value": _NUM, "fixed": Bool()},
@@ -60,9 +60,10 @@ _EMPIRICAL_D = Record(optional={
     "D_fitted": List(_NUM), "rms_log_ratio": _OPT_NUM, "method": Str()})
 _FIT = Record(
     required={"channel": _NAME,
-              "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS)},
+              "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS),
+              "mcmc": Optional(_MCMC)},
     optional={"covariance": Optional(_COVARIANCE), "statistics": _STATISTICS,
-              "warnings": _TEXT_LIST, "mcmc": Optional(_MCMC),
+              "warnings": _TEXT_LIST,
               "solver": Record(optional={"stopped": Str(), "iterations": Int(lo=0),
                                          "max_iterations": Int(lo=0), "algorithm": Str()}),
               "global_search": Record(optional={"evaluations": Int(lo=0),
@@ -79,7 +80,7 @@ FIT_SCHEMA = Record(
     required={
         "schema": Str(), "schema_version": Int(),
         "model": Record(required={"name": Str(max_len=10_000)},
-                        optional={"options": Map(Either((Str(max_len=1000), _NUM, Bool())),
+                        optional={"options": Map(Either((Str(max_len=100), _NUM, Bool())),
                                                  max_len=256),
                                   "lobes": Str(), "reference": Str()}),
         "data": Record(required={"path": Str(max_len=10_000)},
@@ -89,8 +90,9 @@ FIT_SCHEMA = Record(
                                  "channels": List(_NAME, max_len=MAX_CHANNELS),
                                  "metadata": Map(Any())}),
         "fits": List(_FIT, min_len=1, max_len=MAX_CHANNELS),
+        "loss": Str(max_len=100),
     },
-    optional={"loss": Str(), "seed": Optional(Int()), "notes": _TEXT_LIST,
+    optional={"seed": Optional(Int()), "notes": _TEXT_LIST,
               "conventions": Map(Str()), "software": Map(Str()), "timings_s": _VALUES,
               "created_utc": Str(), "chain": Record(required={"path": Str(max_len=10_000)},
                                                     optional={"sha256": Str(max_len=64)})})

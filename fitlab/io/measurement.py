@@ -337,7 +337,9 @@ def describe_measurement(path) -> dict:
 
 
 def describe_loaded(m: Measurement) -> dict:
-    """What a Measurement holds, for ``fitlab info`` (shared by every reader)."""
+    """What a Measurement holds, for ``fitlab info`` (shared by every reader; checked as
+    ``read_any`` checks it first)."""
+    check_measurement(m)
     incid = np.unique(np.stack([m.theta_i, np.mod(m.phi_i, 360)], axis=1), axis=0)
     trans = (m.wi[:, 2] * m.wo[:, 2]) < 0
     return {

@@ -202,6 +202,9 @@ def read_merl_table(path) -> MerlTable:
                              f"{offset}) holds {float(raw[c, i, j, k])}; {int(bad.sum())} "
                              "value(s) in the file are not finite", hint="a MERL table holds finite numbers only "
                              "(negative marks a bin without value); re-copy the file")
+    if not np.any(raw >= 0):
+        raise InputFileError(path, "every bin is marked invalid (negative): the table holds no "
+                             "BRDF value", hint="re-copy the file or give another material")
     brdf = raw * np.asarray(SCALES).reshape(3, 1, 1, 1)
     return MerlTable(str(path), sha256_of(raw_bytes), brdf)
 

@@ -50,6 +50,7 @@ import numpy as np
 from fitlab import colorimetry
 from fitlab.errors import InputFileError
 from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.validate import quote
 from fitlab.io.measurement import Measurement, describe_loaded
 
 # --------------------------------------------------------------------------------------------
@@ -118,7 +119,7 @@ def parse_tensor_file(buf: bytes, path="<bytes>") -> TensorFile:
         need = struct.calcsize(fmt)
         if pos + need > size:
             _fail(path, f"the header ends inside the {what} of field #{k + 1}"
-                  + (f" ({name!r})" if name else "") + f" (the file has {size} bytes, "
+                  + (f" ({quote(name)})" if name else "") + f" (the file has {size} bytes, "
                   f"the header says {n_fields} fields)", byte=pos, hint=_DAMAGED)
         out = struct.unpack_from(fmt, buf, pos)
         pos += need
@@ -131,7 +132,7 @@ def parse_tensor_file(buf: bytes, path="<bytes>") -> TensorFile:
         try:
             name = raw_name.decode("utf-8")
         except UnicodeDecodeError:
-            _fail(path, f"the name of field #{k + 1} is not text ({raw_name!r})", byte=start,
+            _fail(path, f"the name of field #{k + 1} is not text ({quote(raw_name)})", byte=start,
                   hint=_DAMAGED)
         ndim, code, offset = take("<HBQ", "rank, type and offset", k, name)
         shape = take(f"<{ndim}Q", "shape", k, name)

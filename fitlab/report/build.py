@@ -72,7 +72,15 @@ class _Report:
 # --------------------------------------------------------------------------------------------
 
 
-def _header(inp):
+def _shown(path, out_dir) -> str:
+    """How the page names a file: relative to the report's folder (no absolute path of the
+    machine that made it, and the same text wherever the folders are)."""
+    from fitlab.io.files import path_for_record
+
+    return path_for_record(path, Path(out_dir) / "index.html")
+
+
+def _header(inp, out_dir):
     rec, m = inp.record, inp.measurement
     meta = rec["data"].get("metadata", {})
     model = rec["model"]
@@ -84,11 +92,12 @@ def _header(inp):
         ("model equations", model.get("reference", "")),
         ("loss", rec.get("loss")),
         ("seed", rec.get("seed")),
-        ("fit made", rec.get("created_utc", "not recorded")),
-        ("parameter file", inp.fit_path),
+        ("parameter file", _shown(inp.fit_path, out_dir)),
     ]
+    if rec.get("created_utc"):  # files of older fitlab versions record when the fit finished
+        rows.append(("fit made", rec["created_utc"]))
     prov = [
-        ("data file", inp.data_path),
+        ("data file", _shown(inp.data_path, out_dir)),
         ("recorded path", rec["data"].get("path")),
         ("SHA-256", rec["data"].get("sha256")),
         ("file quantity", rec["data"].get("file_quantity")),
@@ -102,7 +111,7 @@ def _header(inp):
              if k not in ("sample", "instrument")]
     conv = sorted(rec.get("conventions", {}).items())
     soft = sorted((rec.get("software") or {}).items())
-    chain = inp.chain_path or inp.chain_note
+    chain = _shown(inp.chain_path, out_dir) if inp.chain_path else inp.chain_note
     body = table_html([], rows)
     body += "<h3>Data provenance</h3>\n" + table_html([], prov)
     body += "<h3>Conventions</h3>\n" + table_html([], conv)
@@ -503,7 +512,14 @@ def _lut_tables(fit_path, given, discover):
     return out
 
 
-def _luts(rep, tables):
+def _source_fit(lut_path, source_fit, out_dir) -> str:
+    """A table's ``source_fit`` as the page names files."""
+    from fitlab.report.luts import source_fit_path
+
+    return _shown(source_fit_path(lut_path, source_fit), out_dir) if source_fit else "none"
+
+
+def _luts(rep, tables, out_dir):
     from fitlab.report.luts import accuracy_rows, lut_figure
 
     body = paragraph("Tables baked for this fit (fitlab lut, OpenEXR, data_formats/lut_exr.md): "
@@ -524,7 +540,7 @@ def _luts(rep, tables):
             body += note_html(f"{path.name}: {note}.")
         info = [("kind", t.kind), ("size", f"{size} ({t.dtype})"),
                 ("channels", ", ".join(t.channels)), ("quantity", t.quantity),
-                ("source fit", t.source_fit or "none")]
+                ("source fit", _source_fit(path, t.source_fit, out_dir))]
         info += [(f"axis {a.name}", f"[{a.lo:g}, {a.hi:g}], {a.size} samples, {a.mapping} "
                   f"mapping: {a.description}") for a in t.axes]
         info += [("note", n) for n in t.notes]
@@ -562,7 +578,7 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
     meta = inp.record["data"].get("metadata", {})
     title = f"Fit report: {inp.model.name} on {meta.get('sample') or Path(inp.data_path).name}"
     sections = [("warnings", None, _warnings(inp)),
-                ("header", "Fit, data and provenance", _header(inp))]
+                ("header", "Fit, data and provenance", _header(inp, out_dir))]
     for ch in inp.channels:
         tag = ch.name
         ctitle = f" (channel {ch.name})" if len(inp.channels) > 1 else ""
@@ -585,7 +601,7 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         if walter:
             sections.append((f"walter-{tag}", "Walter diagnostics: empirical D" + ctitle, walter))
     if tables:
-        sections.append(("luts", "Lookup tables", _luts(rep, tables)))
+        sections.append(("luts", "Lookup tables", _luts(rep, tables, out_dir)))
     names = [f"{f.name}.{ext}" for f in rep.figures for ext in ("png", "svg")]
     page = document(title, sections, files=sorted(names))
     files = {}

@@ -7,7 +7,6 @@ a few hundred chain samples in one broadcast call (samples × directions).
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 from typing import NamedTuple
 
@@ -118,32 +117,35 @@ def _space_of(fit: dict, record: dict) -> FitSpace:
     return FitSpace(static, tuple(free), fixed)
 
 
-def _open_chain(chain_path: Path):
-    try:
-        npz = np.load(chain_path, allow_pickle=False)
-    except FileNotFoundError:
+def _open_chain(chain_path: Path) -> dict:
+    """The arrays of a chain file, read through the checked .npz reader (sizes, dtypes,
+    corruption) before any is used."""
+    from fitlab.io.validate import read_npz
+
+    if not chain_path.exists():
         raise InputFileError(chain_path, "no such chain file", hint="check the --chain path, or "
-                             "rerun `fitlab fit ... --mcmc --chain FILE.npz`") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputFileError(chain_path, f"is not a NumPy .npz chain file ({exc})",
-                             hint="give the file `fitlab fit --chain` wrote") from None
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise InputFileError(chain_path, "is a single array, not a .npz chain file",
-                             hint="give the file `fitlab fit --chain` wrote")
-    return npz
+                             "rerun `fitlab fit ... --mcmc --chain FILE.npz`")
+    return read_npz(chain_path, what="fitlab MCMC chain",
+                    hint="give the file `fitlab fit --chain` wrote")
 
 
 def _channel_chain(npz, chain_path, fit, free, fit_path):
     """(samples, chain, coordinates, log_prob) of one channel, checked against the fit."""
     tag = fit["channel"]
     need = [f"{k}_{tag}" for k in ("samples", "chain", "coordinates", "log_prob")]
-    absent = [k for k in need if k not in npz.files]
+    absent = [k for k in need if k not in npz]
     if absent:
         raise InputFileError(chain_path, f"has no array(s) {', '.join(absent)} for channel "
-                             f"{tag} (arrays: {', '.join(sorted(npz.files))})",
+                             f"{tag} (arrays: {', '.join(sorted(npz))})",
                              hint=f"give the chain written together with {fit_path}")
+    for key in need:
+        want = "U" if key.startswith("coordinates") else "iuf"
+        if npz[key].dtype.kind not in want:
+            raise InputFileError(chain_path, f"array {key} holds {npz[key].dtype} values; "
+                                 f"expected {'names' if want == 'U' else 'numbers'}", column=key,
+                                 hint=f"give the chain written together with {fit_path}")
     samples = np.asarray(npz[f"samples_{tag}"], dtype=float)
-    coords = tuple(str(c) for c in npz[f"coordinates_{tag}"])
+    coords = tuple(str(c) for c in np.atleast_1d(npz[f"coordinates_{tag}"]))
     chain = np.asarray(npz[f"chain_{tag}"], dtype=float)
     log_prob = np.asarray(npz[f"log_prob_{tag}"], dtype=float)
     if coords[: len(free)] != tuple(free):
@@ -264,7 +266,8 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
                                      "or rerun the fit with --chain")
 
     rows_fit = (np.ones(m.n, dtype=bool) if not record["data"].get("fit_subset")
-                else subset_mask(record["data"]["fit_subset"], m))
+                else subset_mask(record["data"]["fit_subset"], m,
+                                 source=f"{fit_path}: field data.fit_subset"))
     channels = []
     values = fit_parameters(record, source=fit_path)
     for fit in record["fits"]:

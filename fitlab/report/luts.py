@@ -23,14 +23,25 @@ def _same_file(a, b) -> bool:
         return False
 
 
-def lut_belongs(info: dict, fit_path, fit_sha256: str) -> bool:
-    """Whether an EXR header (``describe_exr``) names this fit: its ``source_fit_sha256`` equals
-    the fit file's, or (without a hash) its ``source_fit`` is the same file."""
+def source_fit_path(lut_path, source_fit: str) -> Path:
+    """The parameter file a table's ``fitlab.source_fit`` names: relative to the table's folder
+    (as fitlab writes it), else (tables of older versions) as given."""
+    src = Path(source_fit)
+    if src.is_absolute():
+        return src
+    beside = Path(lut_path).parent / src
+    return beside if beside.exists() or not src.exists() else src
+
+
+def lut_belongs(info: dict, fit_path, fit_sha256: str, lut_path) -> bool:
+    """Whether an EXR header (``describe_exr``) of the table ``lut_path`` names this fit: its
+    ``source_fit_sha256`` equals the fit file's, or (without a hash) its ``source_fit`` is the
+    same file."""
     sha = info.get("source_fit_sha256")
     if sha:
         return sha == fit_sha256
     src = info.get("source_fit")
-    return bool(src) and _same_file(src, fit_path)
+    return bool(src) and _same_file(source_fit_path(lut_path, src), fit_path)
 
 
 def discover_luts(fit_path) -> list:
@@ -48,7 +59,7 @@ def discover_luts(fit_path) -> list:
             info = describe_exr(p)
         except InputFileError:
             continue  # not a fitlab table: not ours to judge here
-        if lut_belongs(info, fit_path, sha):
+        if lut_belongs(info, fit_path, sha, p):
             found.append(p)
     return found
 
@@ -63,9 +74,9 @@ def check_lut(path, fit_path):
     info = describe_exr(path)
     sha = info.get("source_fit_sha256")
     if table.source_fit:
-        if (sha and sha != sha256_of(fit_path)) or (not sha and not _same_file(table.source_fit,
-                                                                                fit_path)):
-            raise InputFileError(path, f"was baked from the fit {table.source_fit}, not from "
+        src = source_fit_path(path, table.source_fit)
+        if (sha and sha != sha256_of(fit_path)) or (not sha and not _same_file(src, fit_path)):
+            raise InputFileError(path, f"was baked from the fit {src}, not from "
                                  f"{fit_path}", column="fitlab.source_fit",
                                  hint="give the tables baked with `fitlab lut ... --from-fit "
                                  f"{fit_path}`")

@@ -19,13 +19,12 @@ from __future__ import annotations
 
 import difflib
 import math
-import tomllib
 from pathlib import Path
 from typing import NamedTuple
 
 from fitlab import microfacet
 from fitlab.errors import InputFileError
-from fitlab.io.validate import quote
+from fitlab.io.validate import load_toml, quote
 from fitlab.io.files import read_bytes
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
@@ -171,7 +170,11 @@ def _number(ctx, table, field, key, *, default=None, lo=None, hi=None, lo_open=F
             ctx.fail(where, "is missing", hint)
         return default
     v = table[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    try:
+        finite = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(float(v))
+    except OverflowError:  # an integer with hundreds of digits
+        finite = False
+    if not finite:
         ctx.fail(where, f"{quote(v)} is not a finite number", hint)
     v = float(v)
     bad = (lo is not None and (v <= lo if lo_open else v < lo)) or \
@@ -396,11 +399,17 @@ def _detector(ctx, table, base_dir, illum_given):
                  "simulate, relative to the scene file")
     path = (base_dir / name) if not Path(name).is_absolute() else Path(name)
     if not path.is_file():
-        ctx.fail("detector.file", f"{name!r} does not exist (looked for {path})",
+        ctx.fail("detector.file", f"{quote(name)} does not exist (looked for {path})",
                  "give a path relative to the scene file's folder")
     omega = _acceptance(ctx, table)
-    from fitlab.io.measurement import read_measurement
+    from fitlab.io.formats import HEAD_BYTES
+    from fitlab.io.measurement import FORMAT, read_measurement
 
+    if not FORMAT.detect(read_bytes(path, limit=HEAD_BYTES), path):
+        # say so without showing the file: it may be anything the scene points at
+        ctx.fail("detector.file", f"{quote(name)} is not a fitlab measurement CSV (no header "
+                 "line with theta_i, phi_i, theta_o, phi_o)",
+                 "give a measurement CSV (data_formats/measurement_csv.md)")
     m = read_measurement(path)  # raises its own InputFileError naming that file
     if (m.wi[:, 2] <= 0).any():
         ctx.fail("detector.file", f"{path} has incidence from below the surface (theta_i > 90)",
@@ -589,14 +598,6 @@ def load_scene(path) -> Scene:
     """Read and validate a scene TOML file (data_formats/scene_toml.md)."""
     path = Path(path)
     raw = read_bytes(path, folder_hint="give a scene TOML file")
-    try:
-        d = tomllib.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputFileError(path, "is not UTF-8 text", hint="save the scene as UTF-8") from None
-    except RecursionError:
-        raise InputFileError(path, "nests too deeply to be a scene",
-                             hint="see data_formats/scene_toml.md for the scene's shape") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputFileError(path, f"is not valid TOML ({exc})",
-                             hint="fix the syntax at that line (see data_formats/scene_toml.md)") from None
+    d = load_toml(path, raw, what="scene",
+                  hint="see data_formats/scene_toml.md for the scene's syntax and shape")
     return scene_from_dict(d, source=str(path), base_dir=path.parent)

@@ -60,7 +60,9 @@ class SimulationResult(NamedTuple):
         return self.samples * len(self.incidences) / max(self.time_s, 1e-12)
 
     def metadata(self) -> dict:
-        """Metadata lines of the output CSV (data_formats/scene_toml.md, "Output")."""
+        """Metadata lines of the output CSV (data_formats/scene_toml.md, "Output"): what made
+        the numbers, no run time (``time_s`` and ``paths_per_s`` are printed only), so the same
+        scene, samples, seed and batch size give the same file."""
         sides = self.scene.detector.sides
         scatter = "brdf" if sides == ("reflection",) else "btdf" if sides == ("transmission",) \
             else "bsdf"
@@ -71,8 +73,6 @@ class SimulationResult(NamedTuple):
             "scene_name": self.scene.name,
             "samples": str(self.samples),
             "seed": str(self.seed),
-            "time_s": f"{self.time_s:.3f}",
-            "paths_per_s": f"{self.paths_per_s:.4g}",
             "effects_simulated": "; ".join(f"{k} ({v})" for k, v in self.plan.simulated),
             "effects_skipped": "; ".join(f"{k}: {v}" for k, v in self.plan.skipped) or "nothing",
             "truncated_paths": str(self.truncated),
