@@ -574,4 +574,4 @@ def test_header_counts_cannot_size_a_huge_allocation(tmp_path, capsys):
     src.write_text("\n".join(out) + "\n", encoding="latin-1")
     assert main(["info", str(src)]) == 2
     err = capsys.readouterr().err
-    assert "8,468,209,890 values, but the file holds" in err and "Traceback" not in err
+    assert "ScatterRadial) is 8,468,209,890 but the file holds only" in err and "Traceback" not in err

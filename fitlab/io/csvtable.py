@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import InputFileError
-from fitlab.io.validate import parse_number
+from fitlab.io.validate import decode_text, parse_number
 from fitlab.io.files import read_bytes
 
 
@@ -50,12 +50,7 @@ def _read_text(path: Path) -> str:
             path, "starts with a UTF-8 byte-order mark", line=1,
             hint="save the file as plain UTF-8 without BOM (e.g. 'UTF-8' rather than 'UTF-8 with BOM')",
         )
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise InputFileError(path, "is not valid UTF-8 text", line=line,
-                             hint="save it as UTF-8 text") from None
+    return decode_text(path, raw, what="CSV", encoding="utf-8")
 
 
 def _check_delimiters(path, lineno: int, text: str) -> None:

@@ -28,7 +28,7 @@ from xml.parsers import expat
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.validate import quote
+from fitlab.io.validate import check_count, parse_number, quote
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
@@ -176,17 +176,10 @@ def _text(el, name, default=None):
 # --------------------------------------------------------------------------------------------
 
 
-def _number(path, el, lines, what):
+def _number(path, el, lines, what, hint=None, **bounds):
     text = (el.text or "").strip() if el is not None else ""
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputFileError(path, f"<{what}> holds {quote(text)}, not a number",
-                             line=lines.get(el), hint=f"give <{what}> a number") from None
-    if not np.isfinite(v):
-        raise InputFileError(path, f"<{what}> holds {quote(text)}", line=lines.get(el),
-                             hint=f"give <{what}> a finite number")
-    return v
+    return parse_number(text, path, what=f"<{what}>", line=lines.get(el),
+                        hint=hint or f"give <{what}> a finite number", **bounds)
 
 
 def _basis_from_rings(name, lower_bounds, nphis) -> AngleBasis:
@@ -211,13 +204,11 @@ def parse_angle_basis(path, el, lines) -> AngleBasis:
                                  hint="fitlab reads bases with nPhis evenly spaced patches per "
                                  "ring (Klems Full/Half/Quarter)")
         theta.append(_number(path, _child(blk, "Theta"), lines, "Theta"))
-        n = _number(path, _child(blk, "nPhis"), lines, "nPhis")
-        if not (1 <= n <= NPHIS_MAX) or n != int(n):
-            raise InputFileError(path, f"basis {name!r}: nPhis {n:g} is not a whole number of "
-                                 f"patches in [1, {NPHIS_MAX}]",
-                                 line=lines.get(_child(blk, "nPhis")),
-                                 hint="Klems bases have 1 to 24 patches per ring")
-        nphis.append(int(n))
+        nphis.append(check_count(
+            _number(path, _child(blk, "nPhis"), lines, "nPhis", lo=1, hi=NPHIS_MAX,
+                    hint="Klems bases have 1 to 24 patches per ring"), path,
+            what=f"basis {quote(name)}: nPhis", lo=1, line=lines.get(_child(blk, "nPhis")),
+            hint="Klems bases have 1 to 24 patches per ring"))
         bounds = _child(blk, "ThetaBounds")
         if bounds is not None:
             lo.append(_number(path, _child(bounds, "LowerTheta"), lines, "LowerTheta"))

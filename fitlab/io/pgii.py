@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.validate import quote
+from fitlab.io.validate import decode_text, quote
 from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
@@ -128,12 +128,7 @@ def parse_header(path, header_lines) -> PgiiHeader:
 
 def _split_lines(path):
     raw = read_bytes(path)
-    try:
-        text = raw.decode("utf-8", errors="strict")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise InputFileError(path, "is not UTF-8 text", line=line,
-                             hint="a pgII scan is a text file") from None
+    text = decode_text(path, raw, what="pgII scan", encoding="utf-8")
     header, data = [], []
     for n, s, _ in text_lines(text):
         (header if s.startswith("#") else data).append((n, s))

@@ -184,16 +184,16 @@ def check_count(declared, path, *, what: str, present: int | None = None,
     if n < lo:
         raise InputFileError(path, f"{what} is {n}; it must be at least {lo}", line=line,
                              column=column, hint=hint)
+    if present is not None and n > present:
+        raise InputFileError(path, f"{what} is {n:,} but the file holds only {present:,}",
+                             line=line, column=column,
+                             hint=hint or "the file is truncated or the count is wrong")
     limit = max_values()
     if n > limit:
-        raise InputFileError(path, f"{what} is {n}, more than the {limit} values fitlab reads "
+        raise InputFileError(path, f"{what} is {n:,}, more than the {limit:,} values fitlab reads "
                              "from one file", line=line, column=column,
                              hint=hint or f"check the count; for a genuinely larger file set "
                              f"{MAX_VALUES_ENV} higher")
-    if present is not None and n > present:
-        raise InputFileError(path, f"{what} is {n} but the file holds only {present}",
-                             line=line, column=column,
-                             hint=hint or "the file is truncated or the count is wrong")
     return n
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.csvtable import text_lines
-from fitlab.io.validate import parse_number, quote
+from fitlab.io.validate import check_count, decode_text, parse_number, quote
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, check_indices, describe_loaded
@@ -77,10 +77,8 @@ class ZemaxFile(NamedTuple):
 
 def _read_text(path: Path) -> str:
     raw = read_bytes(path, folder_hint="give the path of a .bsdf file")
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        return raw.decode("latin-1")  # only comments can hold non-ASCII text
+    # only comments can hold non-ASCII text, often in a legacy code page: latin-1 then
+    return decode_text(path, raw, what="Zemax BSDF", encoding="utf-8-sig", fallback="latin-1")
 
 
 def _lines(text):
@@ -246,12 +244,12 @@ def _parse_data(path, content, i, header):
     # (small files go on to the block-by-block checks, which name the line where data end)
     needed = len(channels) * n_blocks * n_az * n_rad
     present = sum(len(tokens) for _, tokens in content[i:])
-    if needed > present and needed > ALLOCATION_CHECK_VALUES:
-        raise InputFileError(
-            path, f"its header declares {len(channels)} channel(s) × {n_rot} SampleRotation × "
-            f"{n_aoi} AngleOfIncidence × {n_az} ScatterAzimuth × {n_rad} ScatterRadial = "
-            f"{needed:,} values, but the file holds {present:,} numbers after the header",
-            hint="the file is cut short or its counts are wrong")
+    if needed > ALLOCATION_CHECK_VALUES:
+        check_count(needed, path, present=present,
+                    what=f"the header's count of values ({len(channels)} channel(s) × {n_rot} "
+                    f"SampleRotation × {n_aoi} AngleOfIncidence × {n_az} ScatterAzimuth × "
+                    f"{n_rad} ScatterRadial)",
+                    hint="the file is cut short or its counts are wrong")
     values = np.zeros((len(channels), n_blocks, n_az, n_rad))
     tis = np.zeros((len(channels), n_blocks))
     lines = np.zeros((len(channels), n_blocks, n_az), dtype=int)
