@@ -124,7 +124,7 @@ def _exr_cases(data: bytes):
 FORMATS = {
     "measurement_csv": (lambda: (EXAMPLES / "walter_rough_glass.csv").read_bytes(),
                         lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".csv",
-                        ["info", "convert"]),
+                        ["info", "convert", "fit"]),
     "measurement_csv_rgb": (lambda: (EXAMPLES / "measurement_rgb_sigma.csv").read_bytes(),
                             lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".csv",
                             ["info", "convert"]),
@@ -164,18 +164,23 @@ COMMANDS = {
     "info": lambda s, o: ["info", s],
     "convert": lambda s, o: ["convert", s, o / "x.csv"],
     "convert_fit": lambda s, o: ["convert", s, o / "t.bsdf"],
+    "fit": lambda s, o: ["fit", s, "--model", "rough_dielectric", "--starts", "2", "--quiet",
+                         "--out", o / "f.json"],
     "eval": lambda s, o: ["eval", "rough_conductor", "--param", "alpha=0.3", "--param", "n=1.5",
                           "--param", "k=2", "--directions", s, "--out", o / "v.csv"],
     "lut": lambda s, o: ["lut", "model", "--from-fit", s, "--size", "8x8", "--no-shader",
                          "--check-points", "16", "--quiet", "--out", o / "t.exr"],
-    "report": lambda s, o: ["report", s, "--quiet", "--no-lut-discovery", "--out", o / "r"],
+    "report": lambda s, o: ["report", s, "--data", EXAMPLES / "walter_rough_glass.csv", "--quiet",
+                            "--no-lut-discovery", "--out", o / "r"],
     "report_chain": lambda s, o: ["report", FIT, "--chain", s, "--quiet", "--no-lut-discovery",
                                   "--out", o / "r"],
     "report_lut": lambda s, o: ["report", FIT, "--lut", s, "--quiet", "--out", o / "r"],
     "simulate": lambda s, o: ["simulate", s, "--samples", "32", "--quiet", "--out", o / "s.csv"],
 }
 #: Commands that build a whole report or simulation on success: run on a sample even in CI.
-COSTLY = {"report": 4, "report_chain": 1, "report_lut": 1, "simulate": 1}
+COSTLY = {"report": 4, "report_chain": 1, "report_lut": 1, "simulate": 1, "fit": 6}
+#: Commands run in the whole suite only (each successful case compiles and fits).
+SLOW_COMMANDS = {"fit"}
 #: Seeds too large for the quick tier.
 SLOW_FORMATS = {"klems", "fit_json_rgb", "scene_toml_sggx", "merl"}
 
@@ -184,8 +189,8 @@ def _params():
     for fmt, (_, _, _, commands) in FORMATS.items():
         for cmd in commands:
             for tier in ("quick", "all"):
-                marks = [pytest.mark.slow] if tier == "all" or fmt in SLOW_FORMATS else []
-                if tier == "quick" and fmt in SLOW_FORMATS:
+                marks = [pytest.mark.slow] if tier == "all" else []
+                if tier == "quick" and (fmt in SLOW_FORMATS or cmd in SLOW_COMMANDS):
                     continue
                 yield pytest.param(fmt, cmd, tier, marks=marks, id=f"{fmt}-{cmd}-{tier}")
 

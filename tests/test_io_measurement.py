@@ -138,3 +138,37 @@ def test_bad_wavelength(tmp_path):
     with pytest.raises(InputFileError) as info:
         read_measurement(f)
     assert (info.value.line, info.value.column) == (3, "wavelength_nm")
+
+
+def test_angles_that_look_like_radians_are_flagged(tmp_path, capsys):
+    """Issue 14: a file whose angles all lie in [0, π] gets a warning with the fix; whole-degree
+    angles near normal incidence do not."""
+    from fitlab.cli import main
+    from fitlab.io.measurement import read_measurement, sanity_warnings
+
+    rows = "\n".join(f"0.5236,0,{t:.4f},3.1416,0.{k + 1}" for k, t in enumerate((0.1, 0.3, 0.6, 0.9, 1.2)))
+    src = tmp_path / "rad.csv"
+    src.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n" + rows + "\n")
+    (w,) = sanity_warnings(read_measurement(src))
+    assert "look like radians" in w and "180/π" in w
+    assert main(["info", str(src)]) == 0
+    assert "look like radians" in capsys.readouterr().out
+    out = tmp_path / "o.csv"
+    assert main(["convert", str(src), str(out)]) == 0
+    assert "warning:" in capsys.readouterr().err
+    deg = tmp_path / "deg.csv"
+    deg.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n"
+                   + "\n".join(f"0,0,{t},180,0.5" for t in (1, 2, 3, 4, 5)) + "\n")
+    assert sanity_warnings(read_measurement(deg)) == []  # whole degrees near normal incidence
+
+
+def test_brdf_angle_on_the_far_side_hint_says_how_to_write_it(tmp_path):
+    from fitlab.errors import InputFileError
+    from fitlab.io.measurement import read_measurement
+
+    src = tmp_path / "far.csv"
+    src.write_text("# quantity: bsdf\n# scatter: brdf\ntheta_i,phi_i,theta_o,phi_o,value\n"
+                   "30,0,120,0,0.5\n")
+    with pytest.raises(InputFileError) as e:
+        read_measurement(src)
+    assert "φo + 180°" in str(e.value) and "only if the file really holds transmitted" in str(e.value)

@@ -135,8 +135,12 @@ def run(args):
                           "fit)")
     else:
         from fitlab.io.formats import read_any
+        from fitlab.io.measurement import sanity_warnings
 
-        summary = writer.write_data(output, read_any(source, args.format), source)
+        m = read_any(source, args.format)
+        for w in sanity_warnings(m):
+            print(f"warning: {w}", file=sys.stderr)
+        summary = writer.write_data(output, m, source)
     print(writer.describe(summary), file=sys.stderr)
     for note in summary.get("notes", []):
         print(f"note: {note}", file=sys.stderr)

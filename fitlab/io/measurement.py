@@ -101,6 +101,24 @@ def check_measurement(m: Measurement) -> Measurement:
     return m
 
 
+#: Above this many rows, a file whose angles all lie within [0, π] looks like radians.
+RADIANS_MIN_ROWS = 5
+
+
+def sanity_warnings(m: Measurement) -> list[str]:
+    """Sentences about what looks like a common mistake in a valid file (shown by ``fitlab
+    info``, ``convert`` and ``fit``, and kept in a fit's notes): angles that look like radians."""
+    out = []
+    theta = np.concatenate([m.theta_i, m.theta_o])
+    phi = np.concatenate([m.phi_i, m.phi_o])
+    if m.n >= RADIANS_MIN_ROWS and np.all(np.abs(theta) <= np.pi) and np.any(theta > 0) \
+            and np.all(np.abs(phi) <= 2 * np.pi) and np.any(theta != np.round(theta)):
+        out.append(f"{m.path}: every angle is within [0, π] and not whole degrees: they look like "
+                   "radians, but fitlab reads degrees; convert them (multiply by 180/π) unless "
+                   "the data really span only 3°")
+    return out
+
+
 def _meta_choice(table, key, choices, default=None, hint=""):
     path, metadata = table.path, table.metadata
     line = table.metadata_lines.get(key)
@@ -234,13 +252,19 @@ def read_measurement(path) -> Measurement:
         if bad.size:
             fail_at(bad[0], "theta_o", f"θo = {to[bad[0]]:g}° is on the other side of the surface "
                     f"from θi = {ti[bad[0]]:g}°, but '# scatter: brdf' says these are reflection data",
-                    "fix the angle, or declare '# scatter: bsdf'")
+                    "θ is measured from the +z normal, 0° to 180°, so θ > 90° is below the "
+                    "surface; a reflected direction on the far side of the normal (a negative "
+                    "in-plane angle -θ) is written θo = θ with φo + 180°. Declare '# scatter: "
+                    "bsdf' only if the file really holds transmitted light too")
     if scatter == "btdf":
         bad = np.flatnonzero(same_side)
         if bad.size:
             fail_at(bad[0], "theta_o", f"θo = {to[bad[0]]:g}° is on the same side as θi = "
                     f"{ti[bad[0]]:g}°, but '# scatter: btdf' says these are transmission data",
-                    "fix the angle, or declare '# scatter: bsdf'")
+                    "a transmitted direction has θo > 90° (below the surface) when the light "
+                    "comes from above (θi < 90°), and the reverse; write θo = 180° − θ for an "
+                    "angle measured from the -z normal. Declare '# scatter: bsdf' only if the "
+                    "file really holds reflected light too")
     if quantity != "relative":
         bad = np.flatnonzero(value < 0)
         if bad.size:
@@ -359,6 +383,7 @@ def describe_loaded(m: Measurement) -> dict:
         "eta_inside_over_outside": m.eta(),
         "metadata": m.metadata,
         "sha256": m.sha256,
+        "warnings": sanity_warnings(m),
     }
 
 
