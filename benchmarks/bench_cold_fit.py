@@ -62,7 +62,7 @@ def timed_process(cmd, env) -> tuple[float, float]:
 
 def fit_command(out: Path, mcmc: bool, mcmc_steps: int) -> list[str]:
     cmd = fitlab_command() + ["fit", str(WALTER_CSV), "--model", "rough_dielectric",
-                              "--fit-subset", SUBSET, "--out", str(out), "--quiet"]
+                              "--fit-subset", SUBSET, "--out", str(out), "--quiet", "--timings"]
     return cmd + (["--mcmc", "--mcmc-steps", str(mcmc_steps)] if mcmc else [])
 
 

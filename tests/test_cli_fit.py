@@ -19,10 +19,7 @@ WALTER = str(EXAMPLES / "walter_rough_glass.csv")
 
 def _strip_volatile(rec):
     rec = json.loads(json.dumps(rec))
-    rec.pop("created_utc")
-    rec.pop("timings_s")
     for f in rec["fits"]:
-        f.pop("timings_s")
         if f["mcmc"]:
             f["mcmc"].pop("warnings")
     return rec
@@ -42,6 +39,7 @@ def test_fit_walter_with_mcmc_and_chain(tmp_path, capsys):
     assert rec["model"]["options"] == {"distribution": "ggx", "sampling": "standard"}
     assert rec["data"]["rows_fitted"] == 69 and rec["data"]["fit_subset"] == "theta_i == 0"
     assert len(rec["data"]["sha256"]) == 64 and rec["seed"] == 7
+    assert "created_utc" not in rec and "timings_s" not in rec  # no clock time without --timings
     (fit,) = rec["fits"]
     p = fit["parameters"]
     assert p["eta"] == {"value": 1.51, "unit": "1", "fixed": True, "bounds": [0.2, 5.0]}
@@ -57,7 +55,7 @@ def test_fit_walter_with_mcmc_and_chain(tmp_path, capsys):
     assert list(npz["coordinates_Y"]) == ["alpha", "scale", "log_noise"]
     assert sorted(q.name for q in tmp_path.iterdir()) == ["chain.npz", "fit.json"]
 
-    # Same seed, same result (apart from timestamps and timings).
+    # Same seed, same result (byte for byte: tests/test_determinism.py).
     out2 = tmp_path / "fit2.json"
     assert main(argv[:-4] + ["--out", str(out2), "--quiet"]) == 0
     assert capsys.readouterr().err == ""
@@ -67,8 +65,10 @@ def test_fit_walter_with_mcmc_and_chain(tmp_path, capsys):
 
 def test_fit_to_stdout_without_mcmc(capsys):
     data = EXAMPLES / "measurement_rgb_sigma.csv"
-    assert main(["fit", str(data), "--model", "lambertian", "--quiet"]) == 0
+    assert main(["fit", str(data), "--model", "lambertian", "--quiet", "--timings"]) == 0
     rec = json.loads(capsys.readouterr().out)
+    assert set(rec["timings_s"]) == {"read", "least_squares", "total"}  # asked for: no MCMC
+    assert all("timings_s" not in f for f in rec["fits"])
     assert [f["channel"] for f in rec["fits"]] == ["R", "G", "B"]
     assert all(f["mcmc"] is None for f in rec["fits"])
     assert rec["loss"] == "chi2"
