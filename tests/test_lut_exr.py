@@ -14,6 +14,7 @@ from fitlab import lut
 from fitlab.cli import main
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.export import exr
+from fitlab.io.files import path_for_record
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "data_formats" / "examples"
@@ -187,14 +188,15 @@ def test_cli_lut_from_fit_writes_exr_glsl_and_info_shows_it(tmp_path, capsys):
     assert "lookup vs direct evaluation at 128 random points" in err
     assert out.is_file() and out.with_suffix(".glsl").is_file() and out.with_suffix(".hlsl").is_file()
     t = exr.read_exr(out)
-    assert t.source_fit == str(FIT) and t.model["name"] == "rough_dielectric"
+    # recorded relative to the table's folder (no absolute path of this machine)
+    assert t.source_fit == path_for_record(FIT, out) and t.model["name"] == "rough_dielectric"
     fit = json.loads(FIT.read_text())
     assert t.params == {f["channel"]: {k: v["value"] for k, v in f["parameters"].items()
                                         if k in ("alpha", "eta")} for f in fit["fits"]}
     assert main(["info", str(out), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["format"] == "fitlab-lut-exr" and info["kind"] == "model"
-    assert info["source_fit"] == str(FIT) and len(info["source_fit_sha256"]) == 64
+    assert info["source_fit"] == t.source_fit and len(info["source_fit_sha256"]) == 64
     assert info["axes"]["axis0"]["mapping"] == "u8"
     assert "interpolation" in info["accuracy"]
     assert main(["info", str(out)]) == 0
@@ -213,7 +215,8 @@ def test_cli_lut_model_phi_d_auto_from_fit_and_info(tmp_path, capsys):
     assert "(phi_d axis)" in err
     t = exr.read_exr(out)
     assert [a.name for a in t.axes] == ["cos_theta_h", "cos_theta_d", "phi_d"]
-    assert t.source_fit == str(VINYL_WW) and t.model["name"] == "weidlich_wilkie(lambertian)"
+    assert t.source_fit == path_for_record(VINYL_WW, out)
+    assert t.model["name"] == "weidlich_wilkie(lambertian)"
     glsl = out.with_suffix(".glsl").read_text()
     assert "vec3 fitlab_model_halfdiff(vec3 wi, vec3 wo)" in glsl
     assert "phi_d = min(phi_d, 180.0 - phi_d);" in glsl
