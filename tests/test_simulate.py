@@ -13,6 +13,7 @@ import pytest
 import fitlab  # noqa: F401  (x64)
 from fitlab.cli import main
 from fitlab.errors import InputFileError
+from fitlab.io.files import path_for_record
 from fitlab.io.measurement import read_measurement
 from fitlab.simulate import derive_effects, load_scene, scene_from_dict, simulate
 from fitlab.simulate.simulator import _walk_setup
@@ -254,8 +255,10 @@ def test_cli_simulate_writes_measurement_csv_that_fitlab_fit_reads(tmp_path, cap
     m = read_measurement(out)
     assert m.quantity == "bsdf" and m.sigma is not None and m.n > 100
     assert m.eta() == pytest.approx(1.5)
-    for key in ("effects_simulated", "effects_skipped", "samples", "time_s", "seed"):
+    for key in ("effects_simulated", "effects_skipped", "samples", "seed"):
         assert key in m.metadata
+    assert "time_s" not in m.metadata  # printed, not stored: same seed, same bytes
+    assert m.metadata["scene"] == path_for_record(scene, out)
     assert m.metadata["samples"] == "20000" and "volume scattering" in m.metadata["effects_skipped"]
     orders = read_measurement(tmp_path / "sim.orders.csv")
     assert set(orders.channel_names) <= {"order0", "order1", "order2", "rest"}
