@@ -190,9 +190,10 @@ def test_report_content_matches_the_fit(made):
     assert "No MCMC run for this fit" in text["nochain"]
 
 
-def test_report_is_deterministic(made, tmp_path):
+def test_report_is_deterministic(made):
     fit, chain = made["fits"]["walter"]
-    again = tmp_path / "again"
+    # beside the first report: the page names the fit, data and chain relative to its folder
+    again = made["dir"] / "rep_walter_again"
     assert main(["report", str(fit), "--chain", str(chain), "--out", str(again), "--quiet"]) == 0
     first = made["reports"]["walter"]
     assert sorted(p.name for p in again.iterdir()) == sorted(p.name for p in first.iterdir())
