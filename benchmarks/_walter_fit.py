@@ -83,8 +83,8 @@ class Problem:
     """Everything both sides need: fitlab's space, data and start; plain arrays for NumPy."""
 
     def __init__(self, subset: str | None = SUBSET):
-        from fitlab.fit import driver
-        from fitlab.fit.subset import subset_mask
+        from fitlab.fitting import driver
+        from fitlab.fitting.subset import subset_mask
         from fitlab.io.measurement import read_measurement
 
         m = read_measurement(WALTER_CSV)

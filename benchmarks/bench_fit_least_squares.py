@@ -122,8 +122,8 @@ def run(repeat=7, inner=5, subset=SUBSET, quiet=False):
     import jax
     import jax.numpy as jnp
 
-    from fitlab.fit import least_squares as fls
-    from fitlab.fit.space import z_from_unit
+    from fitlab.fitting import least_squares as fls
+    from fitlab.fitting.space import z_from_unit
 
     info = machine()
     p = Problem(subset)

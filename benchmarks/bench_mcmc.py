@@ -64,8 +64,8 @@ def run(steps=3000, repeat=3, seed=0, quiet=False):
 
     import emcee
 
-    from fitlab.fit import least_squares as fls
-    from fitlab.fit.mcmc import mcmc_setup
+    from fitlab.fitting import least_squares as fls
+    from fitlab.fitting.mcmc import mcmc_setup
 
     logging.getLogger("emcee").setLevel(logging.ERROR)
     info = machine()

@@ -201,7 +201,7 @@ def test_choices_and_help_come_from_the_registries(capsys):
     kinds, mappings, losses, presets are each listed from their registry."""
     from fitlab import lut
     from fitlab.export.writers import DEFAULT, WRITERS, writer_for
-    from fitlab.fit.losses import LOSSES
+    from fitlab.fitting.losses import LOSSES
     from fitlab.io.formats import formats
     from fitlab.models.presets import PRESETS
 

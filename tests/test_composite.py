@@ -81,7 +81,7 @@ def test_mixture_weight_is_f_cos_over_pdf():
 def test_fit_a_sum(tmp_path):
     from test_fit import synthetic
 
-    from fitlab.fit.driver import fit_measurement
+    from fitlab.fitting.driver import fit_measurement
 
     truth = {"albedo": 0.3, "alpha": 0.12, "n": 1.6, "k": 0.0}
     m = synthetic("lambertian+rough_conductor", truth, thetas_i=(15, 45, 75),

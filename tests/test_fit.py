@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import fitlab
-from fitlab.fit.driver import fit_measurement
-from fitlab.fit.subset import subset_mask
+from fitlab.fitting.driver import fit_measurement
+from fitlab.fitting.subset import subset_mask
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.measurement import Measurement, read_measurement
 
@@ -81,7 +81,7 @@ def test_bad_start_does_not_decide(corner):
                   thetas_o=tuple(range(0, 90, 3)) + tuple(range(93, 181, 3)), seed=5)
     model = fitlab.get_model("rough_dielectric")
     bad = {p.name: (p.lower if corner == 0 else p.upper) for p in model.parameters}
-    from fitlab.fit import driver
+    from fitlab.fitting import driver
 
     orig = model.parameters
     try:
@@ -170,7 +170,7 @@ def test_walter_protocol_on_bundled_example():
 
 def test_walter_empirical_D():
     from fitlab.export.paramfile import build_record
-    from fitlab.fit.walter import add_empirical_D
+    from fitlab.fitting.walter import add_empirical_D
 
     m = read_measurement(EXAMPLES / "walter_rough_glass.csv")
     res = fit_measurement(m, "rough_dielectric", subset=subset_mask("theta_i == 0", m), quiet=True)

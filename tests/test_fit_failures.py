@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from fitlab.export.paramfile import build_record
-from fitlab.fit import least_squares as fls
-from fitlab.fit import mcmc as fmcmc
-from fitlab.fit.driver import FitWarning, fit_measurement
-from fitlab.fit.losses import LOSSES, Loss, has_absolute_noise, loss_weights, residuals
+from fitlab.fitting import least_squares as fls
+from fitlab.fitting import mcmc as fmcmc
+from fitlab.fitting.driver import FitWarning, fit_measurement
+from fitlab.fitting.losses import LOSSES, Loss, has_absolute_noise, loss_weights, residuals
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_fit import synthetic  # noqa: E402
@@ -164,7 +164,7 @@ def test_mcmc_nan_log_probability_names_the_point(oren_nayar_data, nan_where_alb
     ch = res["channels"][0]
     space, ls = ch["space"], ch["ls"]
     assert space.names[0] == "albedo"
-    from fitlab.fit.driver import prepare_channel
+    from fitlab.fitting.driver import prepare_channel
 
     data = prepare_channel(m, "oren_nayar", rows=np.ones(m.n, bool))["data"]
     threshold = float(ls.native[0])  # the walkers start around it: about half are past it
@@ -259,7 +259,7 @@ def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
 
 
 @pytest.mark.parametrize("edit, fragment", [
-    (lambda v: np.where(np.arange(v.size) == 5, 1e308, v), "did not reach finite values"),
+    (lambda v: np.where(np.arange(v.size) == 5, 1e308, v), "is beyond ±1e+100"),
     (lambda v: np.zeros_like(v), "is 0: there is nothing to fit"),
 ])
 def test_fits_that_cannot_be_finite_write_nothing(tmp_path, capsys, edit, fragment):
@@ -282,6 +282,23 @@ def test_fits_that_cannot_be_finite_write_nothing(tmp_path, capsys, edit, fragme
                  str(out)]) == 2
     err = capsys.readouterr().err
     assert str(data) in err and fragment in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_fit_whose_cost_overflows_everywhere_writes_nothing(tmp_path, capsys):
+    """Valid values with a sigma of 1e-200 make every χ² residual ~1e200 and the cost inf at
+    every start: the fit says it reached no finite values, names the file, writes nothing."""
+    from fitlab.cli import main
+
+    data = tmp_path / "tiny_sigma.csv"
+    rows = [f"{ti},0,{to},180,{0.1 + 0.01 * k},1e-200" for k, (ti, to) in
+            enumerate((a, b) for a in (0, 20, 40) for b in (10, 30, 50, 70))]
+    data.write_text("# quantity: bsdf\n# scatter: brdf\n"
+                    "theta_i,phi_i,theta_o,phi_o,value,sigma\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(data), "--model", "lambertian", "--quiet", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(data) in err and "did not reach finite values" in err and "Traceback" not in err
     assert not out.exists()
 
 

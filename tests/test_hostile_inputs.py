@@ -178,7 +178,10 @@ COMMANDS = {
     "simulate": lambda s, o: ["simulate", s, "--samples", "32", "--quiet", "--out", o / "s.csv"],
 }
 #: Commands that build a whole report or simulation on success: run on a sample even in CI.
-COSTLY = {"report": 4, "report_chain": 1, "report_lut": 1, "simulate": 1, "fit": 6}
+COSTLY = {"report": 4, "report_chain": 1, "report_lut": 2, "simulate": 1, "fit": 6,
+          "convert_fit": 4}
+#: Formats whose seed is large (MB): every n-th case even in the whole suite.
+LARGE = {"klems": 3, "pgii": 2}
 #: Commands run in the whole suite only (each successful case compiles and fits).
 SLOW_COMMANDS = {"fit"}
 #: Seeds too large for the quick tier.
@@ -203,7 +206,7 @@ def test_hostile_inputs(fmt, command, tier, tmp_path, monkeypatch):
     cases = list(generate(data))
     assert len({c.name for c in cases}) == len(cases), "case names must be unique"
     every = QUICK_EVERY if tier == "quick" else 1
-    every *= COSTLY.get(command, 1)
+    every *= COSTLY.get(command, 1) * LARGE.get(fmt, 1)
     picked = [c for k, c in enumerate(cases) if k % every == 0 or c.allocation]
     breaches = []
     for case in picked:

@@ -342,7 +342,7 @@ def test_narrow_lobe_converges_to_the_delta_weight(theta):
 def test_fit_subset_specular_deg_excludes_the_specular_cone():
     """Fits of a smooth-coat model leave out the rows within a cone about the mirror direction
     with --fit-subset 'specular_deg > C' (data_formats/layered_models.md)."""
-    from fitlab.fit.subset import subset_mask
+    from fitlab.fitting.subset import subset_mask
     from fitlab.io.measurement import Measurement
 
     theta_o = np.array([30.0, 31.0, 33.0, 40.0, 30.0])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import fitlab
-from fitlab.fit.space import make_space, model_values
+from fitlab.fitting.space import make_space, model_values
 from fitlab.models import MODELS, get_model, register_model
 from fitlab.models.base import Capabilities, Model, Parameter
 

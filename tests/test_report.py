@@ -464,7 +464,7 @@ def test_replicated_data_follow_the_loss_noise_model(loss):
     sampled σ_r as their standard deviation."""
     import jax.numpy as jnp
 
-    from fitlab.fit.losses import loss_weights, residuals
+    from fitlab.fitting.losses import loss_weights, residuals
     from fitlab.report.inputs import replicate_data
 
     rng = np.random.default_rng(5)

@@ -3,7 +3,6 @@ optional MCMC), written as a parameter file (and a report)."""
 
 from __future__ import annotations
 
-import json
 import sys
 
 import fitlab
@@ -11,7 +10,7 @@ from fitlab.assignments import parse_assignments
 from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
                                get_model, model_options)
 from fitlab.errors import FitlabError
-from fitlab.fit.losses import LOSSES
+from fitlab.fitting.losses import LOSSES
 
 
 def add_parser(sub):
@@ -121,22 +120,16 @@ def _print_timings(timings):
 def run(args):
     import time
 
-    from fitlab.fit.cache import enable_compilation_cache
+    from fitlab.fitting.cache import enable_compilation_cache
 
     enable_compilation_cache()  # before any computation; FITLAB_NO_CACHE=1 turns it off
-    from fitlab.export.paramfile import (build_record, chain_bytes, chains_payload, run_timings,
-                                         write_fit)
-    from fitlab.fit.driver import fit_measurement
-    from fitlab.fit.subset import subset_mask
-    from fitlab.io.formats import read_any
+    from fitlab.fitting.api import fit, read
+    from fitlab.fitting.result import thaw
 
     t0 = time.perf_counter()
     model = get_model(args.model)
     options = model_options(model, args.option)
     fixed = _fixed_from_cli(model, args.fix)
-    for name in args.free or []:
-        if name not in model.parameter_names:
-            raise FitlabError(f"--free {name}: model {model.name!r} has no parameter {name!r}")
     if args.chain and not args.mcmc:
         raise FitlabError("--chain needs --mcmc: there is no chain to write")
     if args.report and not args.out:
@@ -144,56 +137,40 @@ def run(args):
                           "parameter file")
     if args.mcmc and args.mcmc_steps < 100:
         raise FitlabError("--mcmc-steps must be at least 100")
-    m = read_any(args.data, args.format)
+    m = read(args.data, args.format)
     t_read = time.perf_counter() - t0
-    subset = subset_mask(args.fit_subset, m) if args.fit_subset else None
-    channels = None
-    if args.channel:
-        if args.channel not in m.channel_names:
-            raise FitlabError(f"--channel {args.channel}: {args.data} has channels "
-                              f"{', '.join(m.channel_names)}")
-        channels = [m.channel_names.index(args.channel)]
-    try:
-        result = fit_measurement(m, model.name, options=options, fixed=fixed, free=args.free or (),
-                                 loss=args.loss, subset=subset, mcmc=args.mcmc,
-                                 mcmc_steps=args.mcmc_steps, mcmc_walkers=args.walkers,
-                                 seed=args.seed, n_starts=args.starts, quiet=args.quiet,
-                                 channels=channels, warn=False)  # _print_summary prints them
-    except ValueError as exc:
-        raise FitlabError(str(exc)) from None
-    for note in result["notes"]:
+    result = fit(m, model, fix=fixed, free=args.free or (), options=options, loss=args.loss,
+                 subset=args.fit_subset, channels=[args.channel] if args.channel else None,
+                 mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
+                 starts=args.starts, seed=args.seed,
+                 walter_diagnostics=args.walter_diagnostics, progress=not args.quiet)
+    for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)
-    timings = run_timings(result, t_read, time.perf_counter() - t0)
-    record = build_record(result, m, subset_expr=args.fit_subset,
-                          timings=timings if args.timings else None)
-    if args.walter_diagnostics:
-        from fitlab.fit.walter import add_empirical_D
-
-        add_empirical_D(record, result, m)
-    chains = chains_payload(result) if args.chain else None
+    timings = {"read": t_read, **result.seconds, "total": time.perf_counter() - t0}
+    if args.timings:
+        result = result.with_record({**thaw(result.record), "timings_s": timings})
     if args.out:
-        write_fit(args.out, record, chains, args.chain)
+        result = result.save(args.out, chain=args.chain)
         if not args.quiet:
-            _print_summary(record)
+            _print_summary(thaw(result.record))
             _print_timings(timings)
             print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
                   file=sys.stderr)
         if args.report:
-            from fitlab.report import build_report
-
-            summary = build_report(args.out, args.report, data_path=args.data,
-                                   chain_path=args.chain, progress=not args.quiet)
+            summary = result.report(args.report, data=args.data, chain=args.chain,
+                                    progress=not args.quiet)
             if not args.quiet:
                 print(f"wrote the report {summary['index']}", file=sys.stderr)
     else:
-        if chains:
+        if args.chain:
+            from fitlab.export.paramfile import chain_bytes
             from fitlab.io.atomic import atomic_open
 
             with atomic_open(args.chain, "wb") as fh:
-                fh.write(chain_bytes(chains))
+                fh.write(chain_bytes(dict(result.chains)))
         if not args.quiet:
-            _print_summary(record)
+            _print_summary(thaw(result.record))
             _print_timings(timings)
-        print(json.dumps(record, indent=2, allow_nan=False))
+        print(result.to_json(), end="")
     return 0

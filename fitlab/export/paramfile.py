@@ -17,7 +17,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.fit.space import SCALE
+from fitlab.fitting.space import SCALE
 from fitlab.io.atomic import atomic_open
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import path_for_record, read_bytes, sha256_of
@@ -152,6 +152,11 @@ def chain_bytes(chains: dict) -> bytes:
     return buf.getvalue()
 
 
+def record_text(record) -> str:
+    """A record as the parameter file's text (2-space indented JSON, no NaN)."""
+    return json.dumps(record, indent=2, allow_nan=False) + "\n"
+
+
 def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -> None:
     """Write the JSON (and the NPZ chain file) atomically; nothing is left on failure. With a
     chain, the record gains ``chain`` = {path, sha256} so that later tools (``fitlab report``)
@@ -169,7 +174,7 @@ def write_fit(path, record: dict, chains: dict | None = None, chain_path=None) -
         raise FitlabError(f"{path}: the fit produced a non-finite number at {bad}; nothing was "
                           "written. Check the data (values all 0 or huge, zero sigma) and the "
                           "model's options")
-    text = json.dumps(record, indent=2, allow_nan=False) + "\n"
+    text = record_text(record)
     if blob is not None:
         with atomic_open(chain_path, "wb") as fh:
             fh.write(blob)
@@ -217,7 +222,9 @@ def read_fit(path) -> dict:
     if data.get("schema_version") != SCHEMA_VERSION:
         from fitlab.io.validate import quote
 
-        raise InputFileError(path, f"has schema_version {quote(data.get('schema_version'), 20)}; "
+        v = data.get("schema_version")
+        shown = v if isinstance(v, int) and not isinstance(v, bool) else quote(v, 20)
+        raise InputFileError(path, f"has schema_version {shown}; "
                              f"this fitlab reads version {SCHEMA_VERSION}", column="schema_version",
                              hint="refit with this fitlab version or upgrade fitlab")
     check_fit_record(path, data)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fitlab.errors import FitlabError
-from fitlab.fit.space import SCALE
+from fitlab.fitting.space import SCALE
 from fitlab.io.files import read_bytes
 from fitlab.io.validate import (Any, Bool, Either, Int, List, Map, Num, Optional, Record, Str,
                                 check)

@@ -13,7 +13,7 @@ import numpy as np
 
 import fitlab
 from fitlab.errors import FitlabError
-from fitlab.fit.driver import REL_ERR_FLOOR, relative_errors
+from fitlab.fitting.driver import REL_ERR_FLOOR, relative_errors
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
 from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,

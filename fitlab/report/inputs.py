@@ -15,7 +15,7 @@ import numpy as np
 import fitlab
 from fitlab.errors import InputFileError
 from fitlab.io.validate import quote
-from fitlab.fit.space import SCALE, FitSpace, FreeParameter, StaticSpace
+from fitlab.fitting.space import SCALE, FitSpace, FreeParameter, StaticSpace
 
 #: Posterior samples used for predictive bands (evenly spaced through the stored samples).
 BAND_SAMPLES = 300
@@ -212,7 +212,7 @@ def noise_scales(chain, coords, samples_all, fit, space):
 def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> ReportInputs:
     """Read and cross-check the fit record, its data file and (if any) its chain file."""
     from fitlab.export.paramfile import read_fit
-    from fitlab.fit.subset import subset_mask
+    from fitlab.fitting.subset import subset_mask
     from fitlab.io.fitfile import fit_parameters
 
     say = progress or (lambda msg: None)
@@ -336,7 +336,7 @@ PREDICTIVE_SEED = 0
 def replicate_data(loss: str, model, noise, cos_o, floor: float, rng):
     """New data drawn from the fit's noise model given model values ``model`` (S, P) and noise
     scales ``noise`` (S,): the loss's residual r ~ N(0, σ_r) solved for the data value
-    (``fitlab/fit/losses.py``; the relative loss's scale |v| is taken as max(|m|, floor))."""
+    (``fitlab/fitting/losses.py``; the relative loss's scale |v| is taken as max(|m|, floor))."""
     eps = noise[:, None] * rng.standard_normal(model.shape)
     c = np.abs(np.asarray(cos_o, float))[None, :]
     if loss == "relative":  # r = (m − v) / max(|v|, floor)

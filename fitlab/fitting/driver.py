@@ -22,9 +22,9 @@ import numpy as np
 
 from fitlab.api import check_params, resolve_options
 from fitlab.errors import FitlabError
-from fitlab.fit.least_squares import LM_MAXITER, FitData, fit_least_squares
-from fitlab.fit.losses import loss_weights
-from fitlab.fit.space import SCALE, make_space, model_values
+from fitlab.fitting.least_squares import LM_MAXITER, FitData, fit_least_squares
+from fitlab.fitting.losses import loss_weights
+from fitlab.fitting.space import SCALE, make_space, model_values
 from fitlab.models import get_model
 
 #: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
@@ -235,7 +235,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             + f"  ({t_ls:.2f} s)")
         chain = None
         if mcmc:
-            from fitlab.fit.mcmc import run_mcmc  # emcee (and SciPy) load only when sampling
+            from fitlab.fitting.mcmc import run_mcmc  # emcee (and SciPy) load only when sampling
 
             _log(quiet, f"  MCMC: {mcmc_steps} steps")
             chain = run_mcmc(space, data, loss, ls, seed=seed, nsteps=mcmc_steps,

@@ -26,9 +26,9 @@ import numpy as np
 import functools
 
 from fitlab.errors import FitlabError
-from fitlab.fit.least_squares import FitData, problem_of, residuals_unit
-from fitlab.fit.losses import has_absolute_noise
-from fitlab.fit.space import FitSpace, StaticSpace
+from fitlab.fitting.least_squares import FitData, problem_of, residuals_unit
+from fitlab.fitting.losses import has_absolute_noise
+from fitlab.fitting.space import FitSpace, StaticSpace
 
 #: emcee's rule: a chain shorter than this many autocorrelation times is not trusted.
 MIN_TAU_MULTIPLE = 50

@@ -6,7 +6,7 @@ global search), and the local stage (Levenberg–Marquardt from every start at o
 then each end's cost, residuals and Jacobian in native units). They are cached by the fit's
 static structure (model, options, free names, transforms, loss): data, bounds and fixed values
 are arguments, so refitting new data of the same size reuses the compilation (and ``fitlab
-fit`` keeps it on disk, see fitlab.fit.cache).
+fit`` keeps it on disk, see fitlab.fitting.cache).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import jaxopt
 import nlopt
 import numpy as np
 
-from fitlab.fit.losses import has_absolute_noise, residuals
-from fitlab.fit.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
+from fitlab.fitting.losses import has_absolute_noise, residuals
+from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 
 #: jaxopt Levenberg–Marquardt settings: step limit, Madsen–Nielsen tolerances on the step and
 #: the gradient, and the initial damping relative to the largest diagonal element of JᵀJ.

@@ -1,0 +1,123 @@
+"""The Python API of fitting: ``fitlab.read``, ``fitlab.fit``, ``fitlab.load_fit``. The
+``fitlab fit`` command is a thin layer over these (its options map one to one onto the
+arguments of :func:`fit`).
+
+>>> import fitlab
+>>> m = fitlab.read("data_formats/examples/walter_rough_glass.csv")
+>>> m.n, m.channel_names, round(m.eta(), 2)
+(276, ('Y',), 1.51)
+>>> r = fitlab.fit(m, "rough_dielectric", subset="theta_i == 0", starts=2)
+>>> r.model, r.channels
+('rough_dielectric', ('Y',))
+>>> round(r.parameters["Y"]["alpha"], 2), r.fixed["Y"]["eta"]
+(0.4, 1.51)
+>>> r.stderr["Y"]["alpha"] < 0.01
+True
+>>> import numpy as np
+>>> wi = np.array([0.0, 0.0, 1.0]); wo = np.array([0.0, 0.0, -1.0])
+>>> float(r.predict(wi, wo)) > 0     # scale × f at normal transmission
+True
+>>> "fitlab-fit" in r.to_json()
+True
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+
+
+def read(path, format: str | None = None):
+    """Read any measurement file fitlab knows (format detected from the content unless given:
+    see ``fitlab info``) into a validated :class:`fitlab.io.measurement.Measurement`."""
+    from fitlab.io.formats import read_any
+
+    return read_any(path, format)
+
+
+def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict | None = None,
+        loss: str | None = None, subset=None, channels=None, mcmc: bool = False,
+        mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
+        walter_diagnostics: bool = False, progress: bool = False):
+    """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
+    rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
+    Measurement or a path) and return an immutable :class:`FitResult`.
+
+    fix: {parameter: value} held fixed; free: parameters to fit that the data file would fix
+    (``eta`` from its indices); options: model options (``{"distribution": "beckmann"}``);
+    loss: ``chi2`` (default with sigma), ``relative`` (default without), ``log``, ``cos_l2``;
+    subset: rows to fit (an expression such as ``"theta_i == 0"`` or a boolean mask), the rest
+    predicted; channels: channel names to fit (default all); mcmc: also sample the posterior
+    with emcee (``mcmc_steps``, ``walkers``); starts: Levenberg–Marquardt starts besides the
+    global search's best; seed: every random choice; walter_diagnostics: add Walter 2007 §6.1's
+    empirical D; progress: report progress on stderr.
+    Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
+    import fitlab
+    from fitlab.api import check_params, resolve_options
+    from fitlab.export.paramfile import build_record, chains_payload, run_timings
+    from fitlab.fitting.driver import fit_measurement
+    from fitlab.fitting.result import FitResult
+    from fitlab.fitting.subset import subset_mask
+    from fitlab.io.measurement import sanity_warnings
+
+    m = read(measurement) if not hasattr(measurement, "value") else measurement
+    try:
+        mdl = fitlab.get_model(model) if isinstance(model, str) else model
+        options = resolve_options(mdl, options or {})
+    except ValueError as exc:
+        raise FitlabError(f"{exc} (see `fitlab models`)") from None
+    fixed = {}
+    for name, value in (fix or {}).items():
+        if name not in mdl.parameter_names:
+            raise FitlabError(f"fix {name}: model {mdl.name!r} has no parameter {name!r} "
+                              f"(its parameters: {', '.join(mdl.parameter_names)})")
+        try:
+            fixed[name] = float(value)
+        except (TypeError, ValueError):
+            raise FitlabError(f"fix {name}={value!r}: the value must be a number") from None
+    try:
+        check_params(mdl, {**{p.name: p.default for p in mdl.parameters}, **fixed})
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+    for name in free or ():
+        if name not in mdl.parameter_names:
+            raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
+    if mcmc and mcmc_steps < 100:
+        raise FitlabError("mcmc_steps must be at least 100")
+    expr = subset if isinstance(subset, str) else None
+    if isinstance(subset, str):
+        mask = subset_mask(subset, m)
+    elif subset is not None:
+        mask = np.asarray(subset, dtype=bool)
+        if mask.shape != (m.n,):
+            raise FitlabError(f"subset: a mask of {m.n} rows is needed, got shape {mask.shape}")
+    else:
+        mask = None
+    chan_ids = None
+    if channels is not None:
+        channels = [channels] if isinstance(channels, str) else list(channels)
+        unknown = [c for c in channels if c not in m.channel_names]
+        if unknown:
+            raise FitlabError(f"channel {', '.join(unknown)}: {m.path} has channels "
+                              f"{', '.join(m.channel_names)}")
+        chan_ids = [m.channel_names.index(c) for c in channels]
+    try:
+        result = fit_measurement(m, mdl.name, options=options, fixed=fixed, free=tuple(free or ()),
+                                 loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,
+                                 mcmc_walkers=walkers, seed=seed, n_starts=starts,
+                                 quiet=not progress, channels=chan_ids, warn=False)
+    except ValueError as exc:
+        raise FitlabError(str(exc)) from None
+    result["notes"] = list(result["notes"]) + sanity_warnings(m)
+    record = build_record(result, m, subset_expr=expr)
+    if walter_diagnostics:
+        from fitlab.fitting.walter import add_empirical_D
+
+        add_empirical_D(record, result, m)
+    chains = chains_payload(result) if mcmc else {}
+    seconds = {k: v for k, v in run_timings(result, 0.0, 0.0).items() if k not in ("read", "total")}
+    return FitResult.from_record(record, chains, None, m, seconds)
+
+
+__all__ = ["read", "fit"]
