@@ -241,7 +241,7 @@ def _bad_fit_copy(tmp_path, made, edit, which="walter"):
     ("wrong_version", "schema_version 7"),
     ("chain_of_other_fit", "do not match the fit's free parameters"),
     ("chain_without_mcmc", "records no MCMC run"),
-    ("chain_not_npz", "is not a NumPy .npz chain file"),
+    ("chain_not_npz", "is not a NumPy .npz archive"),
     ("chain_missing", "no such chain file"),
     ("chain_tampered", "is not this fit's chain"),
 ])
