@@ -129,3 +129,18 @@ def test_read_fit_rejects_other_versions(tmp_path):
     f.write_text(json.dumps({"schema": "other"}))
     with pytest.raises(InputFileError, match="not a fitlab parameter file"):
         read_fit(f)
+
+
+def test_least_squares_shows_progress_unless_quiet(tmp_path, capsys):
+    """Issue 14 item 6: the least-squares stage is not silent (a bar with the time left for the
+    global search, then the Levenberg-Marquardt stage); --quiet silences it."""
+    from fitlab.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "data_formats" / "examples" / "walter_rough_glass.csv"
+    args = ["fit", str(src), "--model", "rough_dielectric", "--fit-subset", "theta_i == 0",
+            "--starts", "2", "--out", str(tmp_path / "f.json")]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "global search" in err and "eval" in err and "Levenberg-Marquardt from 4 starts" in err
+    assert main(args + ["--quiet"]) == 0
+    assert capsys.readouterr().err == ""

@@ -221,7 +221,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
-                               seed=seed, lm_maxiter=lm_maxiter)
+                               seed=seed, lm_maxiter=lm_maxiter, progress=not quiet)
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == "non_finite":
             raise FitlabError(

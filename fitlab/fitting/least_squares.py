@@ -12,6 +12,7 @@ fit`` keeps it on disk, see fitlab.fitting.cache).
 from __future__ import annotations
 
 import functools
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
@@ -181,17 +182,31 @@ def halton(n, d, skip=1):
     return out
 
 
-def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=None):
+def progress_bar(enabled: bool, total: int, desc: str, unit: str):
+    """A tqdm bar on stderr (rate and time left), or None when progress is off."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
+                mininterval=0.5, dynamic_ncols=True)
+
+
+def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=None,
+                  on_eval=None):
     """nlopt multi-level single linkage over a low-discrepancy sequence (G_MLSL_LDS) with
     gradient-based local searches (LD_LBFGS), over the unit box of the bounds.
     ``value_and_grad(u, problem)`` returns one array, [cost, gradient...] (one transfer);
     ``value(u, problem)``, if given, the cost alone, for the points where nlopt needs no
-    gradient (most of the low-discrepancy samples)."""
+    gradient (most of the low-discrepancy samples). ``on_eval()``, if given, is called after
+    every evaluation (progress)."""
     evals, non_finite = [0], [0]
     best = {"u": np.full(ndim, 0.5), "v": np.inf}
 
     def objective(u, grad):
         evals[0] += 1
+        if on_eval is not None:
+            on_eval()
         if grad.size or value is None:
             vg = np.asarray(value_and_grad(u, problem))
             if grad.size:
@@ -255,9 +270,10 @@ def local_fits(k, problem, starts_u):
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
                       n_starts: int = 8, seed: int = 0,
                       global_maxeval: int | None = None,
-                      lm_maxiter: int = LM_MAXITER) -> LeastSquaresResult:
+                      lm_maxiter: int = LM_MAXITER, progress: bool = False) -> LeastSquaresResult:
     """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start;
-    ``lm_maxiter`` is each LM run's step limit."""
+    ``lm_maxiter`` is each LM run's step limit; ``progress`` shows a bar with an estimate of the
+    time left for the global search, then the Levenberg–Marquardt stage, on stderr."""
     k = kernels(space.static, loss, int(lm_maxiter))
     problem = problem_of(space, data)
     d = space.ndim
@@ -268,14 +284,26 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
         key = (space.static, loss, int(lm_maxiter), n_local, int(data.value.shape[0]))
         warm = None if key in _compiled_local else pool.submit(
             _compile_local, k, problem, n_local, d)
-        u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed,
-                                          global_maxeval or 150 * (d + 1), value=k["value"])
+        maxeval = global_maxeval or 150 * (d + 1)
+        bar = progress_bar(progress, maxeval, "  global search", "eval")
+        try:
+            u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed, maxeval,
+                                              value=k["value"],
+                                              on_eval=None if bar is None else bar.update)
+        finally:
+            if bar is not None:
+                bar.close()
         if warm is not None:
+            if progress and not warm.done():
+                print("  compiling the Levenberg-Marquardt stage for this data shape (once per "
+                      "shape; cached on disk)...", file=sys.stderr)
             warm.result()
             _compiled_local.add(key)
     starts_u = [u_glob] + list(halton(n_starts, d))
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
+    if progress:
+        print(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...", file=sys.stderr)
     loc = local_fits(k, problem, starts_u)
     runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
              "cost": (float(loc["cost"][i]) if np.isfinite(loc["cost"][i])
