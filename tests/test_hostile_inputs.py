@@ -80,6 +80,36 @@ def _merl_cases(data: bytes):
     del merl
 
 
+def _rgl_cases(data: bytes):
+    """Byte-level damage, and field tables that lie: the field count, a name length, a rank, a
+    data type code, an offset and a shape rewritten in place (a tensor_file's declared sizes)."""
+    yield from H.byte_cases(data, text=False)
+    from fitlab.io.rgl import HEADER_BYTES, parse_tensor_file
+
+    tf = parse_tensor_file(data)
+    yield H.Case("field_count_2^32-1", data[:14] + struct.pack("<I", 2 ** 32 - 1) + data[18:])
+    for name, fld in list(tf.fields.items())[:4]:
+        start = fld.header_offset
+        name_len = struct.unpack_from("<H", data, start)[0]
+        rank_at = start + 2 + name_len
+        ndim = struct.unpack_from("<H", data, rank_at)[0]
+        shape_at = rank_at + 2 + 1 + 8
+
+        def put(fmt, at, value, _d=data):
+            b = bytearray(_d)
+            struct.pack_into(fmt, b, at, value)
+            return bytes(b)
+
+        yield H.Case(f"{name}:name_len_65535", put("<H", start, 65535))
+        yield H.Case(f"{name}:rank_65535", put("<H", rank_at, 65535))
+        yield H.Case(f"{name}:dtype_99", put("<B", rank_at + 2, 99))
+        yield H.Case(f"{name}:offset_2^63", put("<Q", rank_at + 3, 2 ** 63))
+        yield H.Case(f"{name}:offset_in_header", put("<Q", rank_at + 3, HEADER_BYTES))
+        if ndim:
+            yield H.Case(f"{name}:shape_2^40", put("<Q", shape_at, 2 ** 40), allocation=True)
+            yield H.Case(f"{name}:shape_0", put("<Q", shape_at, 0))
+
+
 def _exr_cases(data: bytes):
     """Byte-level damage, and headers that lie: written with the OpenEXR binding."""
     yield from H.byte_cases(data, text=False)
@@ -132,7 +162,7 @@ FORMATS = {
               lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".bsdf",
               ["info", "convert"]),
     "rgl": (lambda: _shared("rgl_epfl_via_fzy28/aurora_white_rgb.bsdf").read_bytes(),
-            lambda d: H.byte_cases(d, text=False), ".bsdf", ["info", "convert"]),
+            _rgl_cases, ".bsdf", ["info", "convert"]),
     "klems": (lambda: _shared("lbnl_bsdfxmlparser/2011-SA1.XML").read_bytes(),
               lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d, positions=2)), ".xml",
               ["info", "convert"]),

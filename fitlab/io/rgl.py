@@ -41,6 +41,7 @@ VNDF has no mass along a row (θi = 90° only) the value is 0 instead of a divis
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 from typing import NamedTuple
@@ -147,7 +148,7 @@ def parse_tensor_file(buf: bytes, path="<bytes>") -> TensorFile:
             _fail(path, f"has the unknown data type code {code} (known: 1-11, uint8 to float64)",
                   field=name, byte=start, hint=_DAMAGED)
         dtype = DTYPES[code]
-        count = int(np.prod(shape, dtype=object)) if shape else 1
+        count = math.prod(shape)  # exact: a lying header may declare 2^64-sized dimensions
         end = offset + count * dtype.itemsize
         if offset < header_end:
             _fail(path, f"its data would start at byte {offset}, inside the field table (which "
