@@ -30,9 +30,43 @@ def test_names_unique_or_prefixed():
     assert "rough_dielectric.distribution" in [o.name for o in m.options]
 
 
+def test_repeated_components_are_numbered():
+    m = fitlab.get_model("lambertian+rough_conductor+rough_conductor")
+    assert m.parameter_names == ("albedo", "alpha", "n", "k", "alpha_2", "n_2", "k_2")
+    assert [o.name for o in m.options] == ["distribution", "fresnel", "sampling",
+                                           "distribution_2", "fresnel_2", "sampling_2"]
+    assert [p.role for p in m.parameters] == ["albedo", "roughness", "index", "extinction",
+                                              "roughness", "index", "extinction"]
+    assert not m.capabilities.energy_conserving and m.capabilities.reciprocal
+    (ex,) = m.exchangeable
+    assert ex.parameters == (("alpha", "n", "k"), ("alpha_2", "n_2", "k_2"))
+    assert ex.options[1] == ("distribution_2", "fresnel_2", "sampling_2") and ex.order_by == 0
+    # a name shared with another component is prefixed as before, then numbered
+    m = fitlab.get_model("lambertian+oren_nayar+oren_nayar")
+    assert m.parameter_names == ("lambertian.albedo", "oren_nayar.albedo", "sigma", "albedo_2",
+                                 "sigma_2")
+    assert fitlab.get_model("lambertian+lambertian").parameter_names == ("albedo", "albedo_2")
+    m = fitlab.get_model("rough_conductor+rough_conductor+rough_conductor")
+    assert m.exchangeable[0].parameters[2] == ("alpha_3", "n_3", "k_3")
+    # layered over a repeated sum: the inner lobes stay interchangeable
+    m = fitlab.get_model("coated(lambertian+rough_conductor+rough_conductor,specular=lobe)")
+    assert m.exchangeable == fitlab.get_model("lambertian+rough_conductor+rough_conductor"
+                                              ).exchangeable
+
+
+def test_repeated_sum_is_the_sum():
+    wi, wo = _dirs(500, 1), _dirs(500, 2)
+    p = {"albedo": 0.2, "alpha": 0.05, "n": 1.5, "k": 0.0, "alpha_2": 0.4, "n_2": 2.0, "k_2": 1.0}
+    total = fitlab.eval_bsdf("lambertian+rough_conductor+rough_conductor", p, wi, wo,
+                             {"distribution_2": "beckmann"})
+    parts = (fitlab.eval_bsdf("lambertian", {"albedo": 0.2}, wi, wo)
+             + fitlab.eval_bsdf("rough_conductor", {"alpha": 0.05, "n": 1.5, "k": 0.0}, wi, wo)
+             + fitlab.eval_bsdf("rough_conductor", {"alpha": 0.4, "n": 2.0, "k": 1.0}, wi, wo,
+                                {"distribution": "beckmann"}))
+    np.testing.assert_allclose(total, parts, rtol=1e-14, atol=0)
+
+
 def test_bad_sums():
-    with pytest.raises(ValueError, match="cannot repeat"):
-        fitlab.get_model("lambertian+lambertian")
     with pytest.raises(ValueError, match="unknown model 'glossy'"):
         fitlab.get_model("lambertian+glossy")
 

@@ -12,6 +12,8 @@ incidence from below):
 3. reciprocity where the model declares it (f(i, o) = f(o, i) on the reflection side; the
    generalized form f(i, o)/η_o² = f(o, i)/η_i² across a transmitting interface);
 4. white furnace: the directional albedo (mean sample weight) is at most 1;
+4b. lobes a model declares interchangeable (``model.exchangeable``) trade places without
+   changing f or the pdf;
 5. (slow) χ² goodness of fit of ``sample`` against ``pdf`` (tests/chi2.py).
 """
 
@@ -46,7 +48,8 @@ def _registry_models():
                 continue
             names.append(name)
     names += ["lambertian+rough_conductor", "coated(lambertian,specular=lobe)",
-              "weidlich_wilkie(oren_nayar,layers=3)"]
+              "weidlich_wilkie(oren_nayar,layers=3)",
+              "lambertian+rough_conductor+rough_conductor"]  # a sum that repeats a component
     return tuple(dict.fromkeys(names))
 
 
@@ -305,6 +308,30 @@ def test_white_furnace_albedo_at_most_one(name):
     over = mean > 1.0 + 4.0 * err + 1e-3
     assert not over.any(), f"{name}: albedo > 1 at " + ", ".join(
         f"{rows[i]}: {mean[i]:.4f} ± {err[i]:.4f}" for i in np.flatnonzero(over))
+
+
+# ----------------------------------------------------------------------------------------------
+# 4b. interchangeable lobes
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if get_model(n).exchangeable])
+def test_exchangeable_lobes_trade_places(name):
+    """Swapping the values of two interchangeable lobes (alternating widths 0.03 / 0.6 from the
+    'anisotropic' set, so the lobes differ) leaves f and the pdf unchanged."""
+    model = get_model(name)
+    params, wi, wo = _batch(model, "float64")
+    for ex in model.exchangeable:
+        a, b = ex.parameters[0], ex.parameters[1]
+        swapped = dict(params)
+        for x, y in zip(a, b):
+            swapped[x], swapped[y] = params[y], params[x]
+        assert any(np.any(params[x] != params[y]) for x, y in zip(a, b))
+        for which in ("eval", "pdf"):
+            np.testing.assert_allclose(_fn(name, which)(swapped, wi, wo),
+                                       _fn(name, which)(params, wi, wo), rtol=1e-12, atol=0,
+                                       err_msg=f"{name}: {which} changes when lobes {a} and "
+                                       f"{b} trade places")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -77,6 +77,26 @@ class Capabilities(NamedTuple):
         )
 
 
+class Exchangeable(NamedTuple):
+    """Lobes of a model that can trade places without changing f: a sum that repeats a
+    component (``rough_conductor+rough_conductor``). ``parameters[j]`` and ``options[j]`` are the
+    names of lobe j's parameters and options, in corresponding order across the lobes; swapping
+    two lobes' values (parameters and options together) leaves ``eval``, ``pdf`` and ``sample``'s
+    distribution unchanged. ``order_by`` is the position (in a lobe's parameters) of the value
+    that orders the lobes of a fit (the first ``roughness`` parameter, else the first), so
+    that the fitter reports one labelling: lobe 1 the narrowest (fitlab/fitting/exchange.py)."""
+
+    parameters: tuple[tuple[str, ...], ...]
+    options: tuple[tuple[str, ...], ...]
+    order_by: int = 0
+
+    def renamed(self, parameter_names: dict, option_names: dict) -> "Exchangeable":
+        return Exchangeable(tuple(tuple(parameter_names[n] for n in lobe)
+                                  for lobe in self.parameters),
+                            tuple(tuple(option_names[n] for n in lobe) for lobe in self.options),
+                            self.order_by)
+
+
 class Option(NamedTuple):
     name: str
     choices: tuple
@@ -98,6 +118,8 @@ class Model(NamedTuple):
     #: for a single microfacet interface: (params, **options) -> its MicrofacetDistribution
     #: (Walter's empirical-D diagnostic, the exporters); None for other models
     microfacet: Callable | None = None
+    #: sets of interchangeable lobes (a sum that repeats a component); () for most models
+    exchangeable: tuple[Exchangeable, ...] = ()
 
     @property
     def lobes(self) -> str:

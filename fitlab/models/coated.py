@@ -198,6 +198,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
                 "" if specular == "lobe" else
                 "the smooth coat's mirror reflection F(θi) δ(ωo - mirror(ωi)) "
                 "(coated.specular_reflectance)", inner.capabilities.delta) if d)),
+        exchangeable=inner.exchangeable,  # f_inner's repeated lobes still trade places
         reference=("bsdf_under_smooth_interface (f = T(θi)T(θo) η0²/η1² f_inner(ωi', ωo')); "
                    "Elek 2010 eq. 3 (absorption); Walter 2007 eq. 22 (Fresnel)" + lobe_note
                    + f"; inner: {inner.reference}"),
