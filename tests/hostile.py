@@ -306,6 +306,8 @@ def run_contract(argv, case_file: Path, out_dir: Path, *, allocation=False,
         o.problems.append(f"exit status {status}")
     if "Traceback" in err:
         o.problems.append("traceback on stderr")
+    if "root:x:0:0" in err + out_buf.getvalue():
+        o.problems.append("shows the content of a system file (external entity or path)")
     if status == 2:
         if len(err) > MAX_MESSAGE:
             o.problems.append(f"message of {len(err)} characters: {err[:200]!r}...")

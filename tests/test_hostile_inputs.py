@@ -110,6 +110,22 @@ def _rgl_cases(data: bytes):
             yield H.Case(f"{name}:shape_0", put("<Q", shape_at, 0))
 
 
+def _xml_cases(data: bytes):
+    """Text damage plus XML's own hazards: entity expansion (billion laughs), an external
+    entity naming a system file, a DOCTYPE, deep element nesting, a huge nPhis."""
+    yield from H.byte_cases(data)
+    yield from H.text_cases(data, positions=2)
+    head, _, body = data.partition(b"?>")
+    laughs = (b'<!DOCTYPE x [<!ENTITY a "aaaaaaaaaa">' + b"".join(
+        f'<!ENTITY {chr(98 + k)} "{("&" + chr(97 + k) + ";") * 10}">'.encode() for k in range(9))
+        + b"]>")
+    yield H.Case("billion_laughs", head + b"?>" + laughs + body.replace(b"<Layer>", b"<Layer>&j;", 1))
+    yield H.Case("external_entity", head + b'?><!DOCTYPE x [<!ENTITY e SYSTEM "file:///etc/passwd">]>'
+                 + body.replace(b"<Layer>", b"<Layer>&e;", 1))
+    yield H.Case("deep_elements", head + b"?>" + b"<a>" * 200_000 + b"</a>" * 200_000)
+    yield H.Case("nphis_huge", data.replace(b"<nPhis>8</nPhis>", b"<nPhis>99999999999</nPhis>", 1))
+
+
 def _exr_cases(data: bytes):
     """Byte-level damage, and headers that lie: written with the OpenEXR binding."""
     yield from H.byte_cases(data, text=False)
@@ -164,7 +180,7 @@ FORMATS = {
     "rgl": (lambda: _shared("rgl_epfl_via_fzy28/aurora_white_rgb.bsdf").read_bytes(),
             _rgl_cases, ".bsdf", ["info", "convert"]),
     "klems": (lambda: _shared("lbnl_bsdfxmlparser/2011-SA1.XML").read_bytes(),
-              lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d, positions=2)), ".xml",
+              _xml_cases, ".xml",
               ["info", "convert"]),
     "pgii": (_pgii_seed, lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".txt",
              ["info", "convert"]),
