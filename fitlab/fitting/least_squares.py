@@ -83,10 +83,17 @@ def problem_of(space: FitSpace, data: FitData) -> dict:
     return {**jax.device_put(space.arrays()), "data": jax.device_put(data)}
 
 
+#: A per-row 0/1 array under this key of ``FitData.consts`` leaves the rows with 0 out of the fit
+#: (their residual is 0) while the data keep their shape, so every fold of a cross-validation
+#: reuses one compilation (fitlab.fitting.compare). Only the least-squares stage honours it.
+ROW_MASK = "row_mask"
+
+
 def residuals_native(static: StaticSpace, loss: str, theta, problem):
     d = problem["data"]
     m = predict(static, theta, problem["fixed"], d.wi, d.wo)
-    return residuals(loss, m, d.value, d.consts)
+    r = residuals(loss, m, d.value, d.consts)
+    return r * d.consts[ROW_MASK] if ROW_MASK in d.consts else r
 
 
 def residuals_unit(static, loss, u, problem):
