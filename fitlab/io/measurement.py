@@ -45,10 +45,37 @@ class Measurement(NamedTuple):
     file_quantity: str  # what the file stored: bsdf, bsdf_cos, relative (+ relative_to)
     metadata: dict
     lines: np.ndarray  # file line of each row
+    # The instrument's aperture (data_formats/measurement_csv.md, "Aperture"); None: not given.
+    aperture_deg: np.ndarray | None = None  # (N,) detector cone half-angle, degrees; 0: a point
+    bin_o_deg: np.ndarray | None = None  # (N, 4) θo_lo, θo_hi, φo_lo, φo_hi, degrees
+    source_divergence_deg: np.ndarray | None = None  # (N,) source cone half-angle, degrees
 
     @property
     def n(self) -> int:
         return int(self.value.shape[0])
+
+    @property
+    def has_aperture(self) -> bool:
+        """Whether some row averages over a solid angle (a detector cone or bin, a divergent
+        source): a fit then predicts aperture-averaged model values (fitlab.aperture)."""
+        from fitlab.aperture import bin_has_extent
+
+        return bool((self.aperture_deg is not None and np.any(self.aperture_deg > 0))
+                    or (self.bin_o_deg is not None and np.any(bin_has_extent(self.bin_o_deg)))
+                    or (self.source_divergence_deg is not None
+                        and np.any(self.source_divergence_deg > 0)))
+
+    def with_aperture(self, aperture_deg=None, source_divergence_deg=None) -> "Measurement":
+        """The same data with a detector cone half-angle and/or a source divergence (degrees;
+        a number for every row or one per row), e.g. for a format that does not record the
+        instrument's aperture; checked like a file's."""
+        full = lambda v: None if v is None else np.broadcast_to(  # noqa: E731
+            np.asarray(v, dtype=np.float64), (self.n,)).copy()
+        m = self._replace(
+            aperture_deg=self.aperture_deg if aperture_deg is None else full(aperture_deg),
+            source_divergence_deg=self.source_divergence_deg if source_divergence_deg is None
+            else full(source_divergence_deg))
+        return check_measurement(m)
 
     @property
     def is_relative(self) -> bool:
@@ -68,6 +95,8 @@ class Measurement(NamedTuple):
             theta_i=self.theta_i[mask], phi_i=self.phi_i[mask], theta_o=self.theta_o[mask],
             phi_o=self.phi_o[mask], wi=self.wi[mask], wo=self.wo[mask], value=self.value[mask],
             sigma=pick(self.sigma), channel=self.channel[mask], lines=self.lines[mask],
+            aperture_deg=pick(self.aperture_deg), bin_o_deg=pick(self.bin_o_deg),
+            source_divergence_deg=pick(self.source_divergence_deg),
         )
 
 
@@ -98,7 +127,85 @@ def check_measurement(m: Measurement) -> Measurement:
             raise InputFileError(m.path, f"{arr[big[0]]:.3g} is beyond ±{MAX_ABS_VALUE:g}",
                                  line=line_of(big[0]), column=name,
                                  hint="check the units; no instrument measures such values")
+    check_aperture(m, line_of)
     return m
+
+
+#: Columns of a measurement CSV that give each row's aperture (data_formats/measurement_csv.md).
+CONE_COLUMNS = ("aperture_deg", "source_divergence_deg")
+BIN_COLUMNS = ("theta_o_lo", "theta_o_hi", "phi_o_lo", "phi_o_hi")
+#: Largest cone half-angle (degrees, exclusive): a cone is at most a hemisphere.
+MAX_CONE_DEG = 90.0
+#: Tolerance (degrees) of "the row's direction lies in its bin".
+BIN_TOL_DEG = 1e-6
+
+
+def check_aperture(m: Measurement, line_of) -> None:
+    """The aperture fields, where given: one entry per row, finite, cones in [0°, 90°), bins
+    on one side of the surface (θ0 ≤ θ1, φ0 ≤ φ1 ≤ φ0 + 360°, a point or an area) holding the
+    row's direction, and no row with both a cone and a bin."""
+    from fitlab.aperture import bin_has_extent
+    from fitlab.io.validate import check_finite
+
+    def fail(j, column, message, hint):
+        raise InputFileError(m.path, message, line=line_of(j), column=column, hint=hint)
+
+    for name in CONE_COLUMNS:
+        arr = getattr(m, name)
+        if arr is None:
+            continue
+        if np.shape(arr) != (m.n,):
+            raise InputFileError(m.path, f"{name} has shape {np.shape(arr)}, not ({m.n},)")
+        check_finite(arr, m.path, what=name, line_of=line_of, column=name)
+        bad = np.flatnonzero((arr < 0) | (arr >= MAX_CONE_DEG))
+        if bad.size:
+            fail(bad[0], name, f"{arr[bad[0]]:g}° is not a cone half-angle in [0°, 90°)",
+                 "give the half-angle of the cone in degrees (0 for a point)")
+    b = m.bin_o_deg
+    if b is None:
+        return
+    if np.shape(b) != (m.n, 4):
+        raise InputFileError(m.path, f"bin_o_deg has shape {np.shape(b)}, not ({m.n}, 4)")
+    for k, name in enumerate(BIN_COLUMNS):
+        check_finite(b[:, k], m.path, what=name, line_of=line_of, column=name)
+    t0, t1, p0, p1 = b.T
+    hint = ("a bin is theta_o_lo <= theta_o_hi on one side of the surface (both <= 90 or both "
+            ">= 90) and phi_o_lo <= phi_o_hi <= phi_o_lo + 360, in degrees; a row without a bin "
+            "repeats its direction (theta_o_lo = theta_o_hi = theta_o, phi_o_lo = phi_o_hi = "
+            "phi_o)")
+    checks = (
+        ((t0 < 0) | (t1 > 180), "theta_o_lo", "the θo bin is outside [0°, 180°]"),
+        (t0 > t1, "theta_o_hi", "theta_o_hi is below theta_o_lo"),
+        ((t0 < 90) & (t1 > 90), "theta_o_hi", "the θo bin crosses the surface plane (90°)"),
+        ((np.abs(p0) > 360) | (np.abs(p1) > 360), "phi_o_lo",
+         "the φo bin is outside [-360°, 360°]"),
+        ((p0 > p1) | (p1 - p0 > 360), "phi_o_hi",
+         "phi_o_hi is below phi_o_lo or more than 360° above it"),
+        ((t0 == t1) != (p0 == p1), "theta_o_lo",
+         "the bin has zero width in one angle only (an arc, with no solid angle)"),
+    )
+    for bad, column, message in checks:
+        j = np.flatnonzero(bad)
+        if j.size:
+            fail(j[0], column, message, hint)
+    to = m.theta_o
+    out = np.flatnonzero((to < t0 - BIN_TOL_DEG) | (to > t1 + BIN_TOL_DEG))
+    if out.size:
+        j = out[0]
+        fail(j, "theta_o", f"θo = {to[j]:g}° lies outside its bin [{t0[j]:g}°, {t1[j]:g}°]",
+             "a row's direction is a point of its bin (usually its centre)")
+    on_pole = np.sin(np.radians(to)) < 1e-12  # φ means nothing there
+    rel = np.mod(m.phi_o - p0 + BIN_TOL_DEG, 360.0) - BIN_TOL_DEG
+    out = np.flatnonzero(~on_pole & (rel > (p1 - p0) + BIN_TOL_DEG))
+    if out.size:
+        j = out[0]
+        fail(j, "phi_o", f"φo = {m.phi_o[j]:g}° lies outside its bin [{p0[j]:g}°, {p1[j]:g}°] "
+             "(modulo 360°)", "a row's direction is a point of its bin (usually its centre)")
+    if m.aperture_deg is not None:
+        both = np.flatnonzero((m.aperture_deg > 0) & bin_has_extent(b))
+        if both.size:
+            fail(both[0], "aperture_deg", "the row has both a detector cone and a bin",
+                 "give a row either aperture_deg or bin edges, not both")
 
 
 #: Above this many rows, a file whose angles all lie within [0, π] looks like radians.
@@ -183,7 +290,7 @@ def _melt_channels(table):
 def read_measurement(path) -> Measurement:
     """Read and validate a measurement CSV; raises InputFileError naming file, line and column."""
     path = Path(path)
-    optional = ("value", "sigma", "channel", "wavelength_nm")
+    optional = ("value", "sigma", "channel", "wavelength_nm") + CONE_COLUMNS + BIN_COLUMNS
     table = read_table(path, DIRECTION_COLUMNS, optional, what="measurement CSV",
                        text_columns=("channel",),
                        column_pattern=f"{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}")
@@ -234,6 +341,8 @@ def read_measurement(path) -> Measurement:
             long["channel"] = np.zeros(len(lines), dtype=int)
             wavelengths = None
 
+    aperture = _read_aperture(table, (lambda a: np.repeat(a, len(channel_names), axis=0)) if wide
+                              else (lambda a: a))
     ti, to = long["theta_i"], long["theta_o"]
     value = np.asarray(long["value"], dtype=np.float64)
     sigma = long.get("sigma")
@@ -302,8 +411,39 @@ def read_measurement(path) -> Measurement:
         theta_o=long["theta_o"], phi_o=long["phi_o"], wi=wi, wo=wo, value=value, sigma=sigma,
         channel=np.asarray(long["channel"], dtype=int), channel_names=channel_names,
         wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
-        file_quantity=file_quantity, metadata=dict(meta), lines=np.asarray(lines),
+        file_quantity=file_quantity,
+        metadata={k: v for k, v in meta.items() if k not in CONE_COLUMNS},
+        lines=np.asarray(lines), **aperture,
     ))
+
+
+def _read_aperture(table, per_row) -> dict:
+    """The Measurement's aperture fields from the columns (per row) and the ``# aperture_deg:``
+    / ``# source_divergence_deg:`` metadata lines (every row; a column overrides the line).
+    ``per_row`` maps a table column to the Measurement's rows (repeated per channel in the wide
+    form). Ranges are checked with the rest of the Measurement (check_aperture)."""
+    from fitlab.io.validate import parse_number
+
+    cols, n = table.columns, len(table.lines)
+    out = {}
+    for name in CONE_COLUMNS:
+        if name in cols:
+            out[name] = per_row(np.asarray(cols[name], dtype=np.float64))
+        elif name in table.metadata:
+            v = parse_number(table.metadata[name], table.path, what=f"'# {name}:'",
+                             line=table.metadata_lines.get(name), lo=0.0, hi=MAX_CONE_DEG,
+                             hint="give the cone's half-angle in degrees, in [0, 90)")
+            out[name] = per_row(np.full(n, v))
+    given = [c for c in BIN_COLUMNS if c in cols]
+    if given and len(given) != len(BIN_COLUMNS):
+        missing = [c for c in BIN_COLUMNS if c not in cols]
+        raise InputFileError(table.path, f"gives {', '.join(given)} but not {', '.join(missing)}",
+                             line=int(table.lines[0]) - 1,
+                             hint="a bin needs the four columns " + ", ".join(BIN_COLUMNS))
+    if given:
+        out["bin_o_deg"] = per_row(np.stack([np.asarray(cols[c], dtype=np.float64)
+                                             for c in BIN_COLUMNS], axis=1))
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -318,21 +458,33 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
     out = io.StringIO()
     out.write("# fitlab measurement CSV (data_formats/measurement_csv.md)\n")
     meta = {k: v for k, v in m.metadata.items()
-            if k not in ("quantity", "relative_to", "scatter")}
+            if k not in ("quantity", "relative_to", "scatter") + CONE_COLUMNS}
     meta.update(extra_metadata or {})
+    # The aperture: a cone the same for every row as a metadata line, else per-row columns.
+    per_row = {}
+    for name in CONE_COLUMNS:
+        arr = getattr(m, name)
+        if arr is None or not arr.size:
+            continue
+        if np.all(arr == arr[0]):
+            meta[name] = f"{arr[0]:.10g}"
+        else:
+            per_row[name] = arr
+    if m.bin_o_deg is not None:
+        per_row.update({c: m.bin_o_deg[:, k] for k, c in enumerate(BIN_COLUMNS)})
     out.write(f"# quantity: {m.quantity}\n")
     for k, v in meta.items():
         out.write(f"# {k}: {v}\n")
     spectral = m.wavelength_nm is not None
     multi = len(m.channel_names) > 1 and not spectral
-    cols = ["theta_i", "phi_i", "theta_o", "phi_o"] + (["channel"] if multi else []) \
-        + (["wavelength_nm"] if spectral else []) + ["value"]
+    cols = ["theta_i", "phi_i", "theta_o", "phi_o"] + list(per_row) \
+        + (["channel"] if multi else []) + (["wavelength_nm"] if spectral else []) + ["value"]
     if m.sigma is not None:
         cols.append("sigma")
     out.write(",".join(cols) + "\n")
     for j in range(m.n):
         cells = [f"{m.theta_i[j]:.10g}", f"{m.phi_i[j]:.10g}", f"{m.theta_o[j]:.10g}",
-                 f"{m.phi_o[j]:.10g}"]
+                 f"{m.phi_o[j]:.10g}"] + [f"{a[j]:.10g}" for a in per_row.values()]
         if multi:
             cells.append(m.channel_names[m.channel[j]])
         if spectral:
@@ -384,7 +536,31 @@ def describe_loaded(m: Measurement) -> dict:
         "metadata": m.metadata,
         "sha256": m.sha256,
         "warnings": sanity_warnings(m),
+        **({"aperture": aperture_summary(m)} if m.has_aperture else {}),
     }
+
+
+def aperture_summary(m: Measurement) -> dict:
+    """What the rows' apertures are (``fitlab info``; a fit's parameter file)."""
+    from fitlab.aperture import bin_has_extent
+
+    out = {}
+    if m.aperture_deg is not None and np.any(m.aperture_deg > 0):
+        a = m.aperture_deg[m.aperture_deg > 0]
+        out["detector_cone_rows"] = int(a.size)
+        out["detector_cone_half_angle_deg"] = [float(a.min()), float(a.max())]
+    if m.bin_o_deg is not None and np.any(bin_has_extent(m.bin_o_deg)):
+        b = m.bin_o_deg[bin_has_extent(m.bin_o_deg)]
+        out["bin_rows"] = int(b.shape[0])
+        out["bin_width_theta_deg"] = [float((b[:, 1] - b[:, 0]).min()),
+                                      float((b[:, 1] - b[:, 0]).max())]
+        out["bin_width_phi_deg"] = [float((b[:, 3] - b[:, 2]).min()),
+                                    float((b[:, 3] - b[:, 2]).max())]
+    if m.source_divergence_deg is not None and np.any(m.source_divergence_deg > 0):
+        d = m.source_divergence_deg[m.source_divergence_deg > 0]
+        out["source_cone_rows"] = int(d.size)
+        out["source_divergence_deg"] = [float(d.min()), float(d.max())]
+    return out
 
 
 def _format():
