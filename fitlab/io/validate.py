@@ -424,6 +424,17 @@ def Optional(spec: Spec) -> Either:  # noqa: N802 - reads like the types above
     return Either((spec, Null()))
 
 
+def _length_problem(n: int, min_len: int, max_len: int | None, length: int | None = None):
+    """What is wrong with a list or object of ``n`` entries, or None."""
+    if length is not None and n != length:
+        return f"has {n} entries; expected {length}"
+    if n < min_len:
+        return f"has {n} entries; expected at least {min_len}"
+    if max_len is not None and n > max_len:
+        return f"has {n} entries; expected at most {max_len}"
+    return None
+
+
 @dataclass(frozen=True)
 class List(Spec):
     item: Spec = field(default_factory=Any)
@@ -439,13 +450,9 @@ class List(Spec):
         if not isinstance(value, list):
             yield where, f"is {_kind(value)}; expected a list"
             return
-        n = len(value)
-        if self.length is not None and n != self.length:
-            yield where, f"has {n} entries; expected {self.length}"
-            return
-        if n < self.min_len or (self.max_len is not None and n > self.max_len):
-            rule = (f"at least {self.min_len}" if n < self.min_len else f"at most {self.max_len}")
-            yield where, f"has {n} entries; expected {rule}"
+        problem = _length_problem(len(value), self.min_len, self.max_len, self.length)
+        if problem:
+            yield where, problem
             return
         for i, v in enumerate(value):
             yield from self.item.errors(v, f"{where}[{i}]")
@@ -467,11 +474,9 @@ class Map(Spec):
         if not isinstance(value, dict):
             yield where, f"is {_kind(value)}; expected an object"
             return
-        if len(value) < self.min_len:
-            yield where, f"has {len(value)} entries; expected at least {self.min_len}"
-            return
-        if self.max_len is not None and len(value) > self.max_len:
-            yield where, f"has {len(value)} entries; expected at most {self.max_len}"
+        problem = _length_problem(len(value), self.min_len, self.max_len)
+        if problem:
+            yield where, problem
             return
         for k, v in value.items():
             yield from self.value.errors(v, _join(where, k))
