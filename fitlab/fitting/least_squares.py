@@ -45,6 +45,10 @@ class FitData(NamedTuple):
     wo: jnp.ndarray
     value: jnp.ndarray
     consts: dict
+    #: Aperture quadrature (fitlab.aperture): with weights (N, K), wi and wo are nodes
+    #: (N, K, 3) and a row's model value is Σ_k weights[:, k] f(wi[:, k], wo[:, k]); None: one
+    #: direction pair per row.
+    weights: jnp.ndarray | None = None
 
 
 class LeastSquaresResult(NamedTuple):
@@ -61,6 +65,7 @@ class LeastSquaresResult(NamedTuple):
     disagreement: dict | None
     global_search: dict
     solver: dict  # why the best start's LM stopped (see lm_record)
+    jacobian: np.ndarray | None = None  # ∂r/∂θ (rows, free) at the optimum, native units
 
 
 #: Why a Levenberg–Marquardt run ended: its stopping rule was met, it ran out of steps, or it
@@ -89,9 +94,16 @@ def problem_of(space: FitSpace, data: FitData) -> dict:
 ROW_MASK = "row_mask"
 
 
+def predict_data(static: StaticSpace, theta, fixed: dict, d: FitData):
+    """The model value of every row of ``d``: at its direction pair, or averaged over its
+    aperture's nodes when ``d.weights`` is given."""
+    m = predict(static, theta, fixed, d.wi, d.wo)
+    return m if d.weights is None else jnp.sum(d.weights * m, axis=-1)
+
+
 def residuals_native(static: StaticSpace, loss: str, theta, problem):
     d = problem["data"]
-    m = predict(static, theta, problem["fixed"], d.wi, d.wo)
+    m = predict_data(static, theta, problem["fixed"], d)
     r = residuals(loss, m, d.value, d.consts)
     return r * d.consts[ROW_MASK] if ROW_MASK in d.consts else r
 
@@ -288,7 +300,8 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
         # compiles outside the GIL, so with two cores the two compilations overlap).
-        key = (space.static, loss, int(lm_maxiter), n_local, int(data.value.shape[0]))
+        key = (space.static, loss, int(lm_maxiter), n_local, int(data.value.shape[0]),
+               None if data.weights is None else tuple(data.weights.shape))
         warm = None if key in _compiled_local else pool.submit(
             _compile_local, k, problem, n_local, d)
         maxeval = global_maxeval or 150 * (d + 1)
@@ -353,7 +366,7 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     glob_info = dict(glob_info, lm_starts=len(runs), local_minima_worse=len(worse))
     solver = lm_record(best["stopped"], best["iters"], int(lm_maxiter))
     return LeastSquaresResult(theta, cost, r, cov, stderr, noise, dof, at_bound,
-                              best["iters"], starts, disagreement, glob_info, solver)
+                              best["iters"], starts, disagreement, glob_info, solver, J)
 
 
 def lm_record(stopped: str, iterations: int, max_iterations: int) -> dict:
