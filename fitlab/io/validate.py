@@ -298,6 +298,10 @@ class Spec:
     def errors(self, value, where):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def matches(self, value) -> bool:
+        """Whether ``value`` is of this spec's type (its content may still be wrong)."""
+        return True
+
 
 def _kind(value) -> str:
     if value is None:
@@ -325,6 +329,9 @@ class Num(Spec):
     def description(self):
         return "a finite number"
 
+    def matches(self, value) -> bool:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+
     def errors(self, value, where):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             yield where, f"is {_kind(value)}; expected {self.description}"
@@ -346,13 +353,17 @@ class Int(Spec):
     hi: int | None = None
     description = "a whole number"
 
+    def matches(self, value) -> bool:
+        return isinstance(value, int) and not isinstance(value, bool)
+
     def errors(self, value, where):
         if isinstance(value, bool) or not isinstance(value, int):
             yield where, f"is {_kind(value)}; expected {self.description}"
         elif (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
             rule = " and ".join(s for s in (f">= {self.lo}" if self.lo is not None else "",
                                             f"<= {self.hi}" if self.hi is not None else "") if s)
-            yield where, f"is {quote(value, 24)}; it must be {rule}"
+            shown = value if abs(value) < 10 ** 15 else quote(value, 24)
+            yield where, f"is {shown}; it must be {rule}"
 
 
 @dataclass(frozen=True)
@@ -360,6 +371,9 @@ class Str(Spec):
     choices: tuple = ()
     max_len: int = 100_000
     description = "a string"
+
+    def matches(self, value) -> bool:
+        return isinstance(value, str)
 
     def errors(self, value, where):
         if not isinstance(value, str):
@@ -374,6 +388,9 @@ class Str(Spec):
 class Bool(Spec):
     description = "true or false"
 
+    def matches(self, value) -> bool:
+        return isinstance(value, bool)
+
     def errors(self, value, where):
         if not isinstance(value, bool):
             yield where, f"is {_kind(value)}; expected true or false"
@@ -382,6 +399,9 @@ class Bool(Spec):
 @dataclass(frozen=True)
 class Null(Spec):
     description = "null"
+
+    def matches(self, value) -> bool:
+        return value is None
 
     def errors(self, value, where):
         if value is not None:
@@ -404,19 +424,21 @@ class Either(Spec):
     def description(self):
         return " or ".join(o.description for o in self.options)
 
+    def matches(self, value) -> bool:
+        return any(o.matches(value) for o in self.options)
+
     def errors(self, value, where):
+        typed = [o for o in self.options if o.matches(value)]
+        if not typed:
+            yield where, f"is {_kind(value)}; expected {self.description}"
+            return
         found = []
-        for o in self.options:
+        for o in typed:
             errs = list(o.errors(value, where))
             if not errs:
                 return
             found.append(errs)
-        # the option whose first problem is deepest (it matched the outer type) explains best
-        best = max(found, key=lambda e: len(e[0][0]))
-        if best[0][0] == where and len(self.options) > 1:
-            yield where, f"is {_kind(value)}; expected {self.description}"
-        else:
-            yield from best
+        yield from found[0]
 
 
 def Optional(spec: Spec) -> Either:  # noqa: N802 - reads like the types above
@@ -446,6 +468,9 @@ class List(Spec):
     def description(self):
         return "a list"
 
+    def matches(self, value) -> bool:
+        return isinstance(value, list)
+
     def errors(self, value, where):
         if not isinstance(value, list):
             yield where, f"is {_kind(value)}; expected a list"
@@ -470,6 +495,9 @@ class Map(Spec):
     def description(self):
         return "an object"
 
+    def matches(self, value) -> bool:
+        return isinstance(value, dict)
+
     def errors(self, value, where):
         if not isinstance(value, dict):
             yield where, f"is {_kind(value)}; expected an object"
@@ -493,6 +521,9 @@ class Record(Spec):
     @property
     def description(self):
         return "an object"
+
+    def matches(self, value) -> bool:
+        return isinstance(value, dict)
 
     def errors(self, value, where):
         if not isinstance(value, dict):
