@@ -22,6 +22,7 @@ import jaxopt
 import nlopt
 import numpy as np
 
+from fitlab.fitting.exchange import canonical_runs
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 
@@ -186,9 +187,19 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     }
 
 
+def _primes(d):
+    """The first d primes (one Halton base per dimension; a joint fit over channels has many)."""
+    out, k = [], 2
+    while len(out) < d:
+        if all(k % p for p in out if p * p <= k):
+            out.append(k)
+        k += 1
+    return out
+
+
 def halton(n, d, skip=1):
     """First n points of the d-dimensional Halton sequence (a low-discrepancy start set)."""
-    primes = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47][:d]
+    primes = _primes(d)
     out = np.empty((n, d))
     for j, b in enumerate(primes):
         for i in range(n):
@@ -324,7 +335,8 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
     if progress:
         print(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...", file=sys.stderr)
-    loc = local_fits(k, problem, starts_u)
+    loc = canonical_runs(space, local_fits(k, problem, starts_u))  # one labelling of
+    # interchangeable lobes (a sum that repeats a component: fitlab/fitting/exchange.py)
     runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
              "cost": (float(loc["cost"][i]) if np.isfinite(loc["cost"][i])
                       and loc["end_finite"][i] else np.inf),

@@ -1,7 +1,8 @@
 """Posterior sampling with emcee: a jitted, vectorized log-posterior over all walkers at once.
 
 Prior: uniform over the bounds in each parameter's unit-box coordinate (linear, or logarithmic
-for parameters spanning decades). Likelihood: Gaussian residuals of the fit's loss; for losses
+for parameters spanning decades); for a sum that repeats a component, restricted to the lobes'
+ordered labelling (fitlab/fitting/exchange.py). Likelihood: Gaussian residuals of the fit's loss; for losses
 whose residuals are not in units of the data's σ (everything but chi2) a noise scale σ_r is
 sampled too, with a Jeffreys prior p(σ_r) ∝ 1/σ_r (its log is the last chain coordinate).
 
@@ -26,6 +27,7 @@ import numpy as np
 import functools
 
 from fitlab.errors import FitlabError
+from fitlab.fitting.exchange import canonical, order_keys, ordered
 from fitlab.fitting.least_squares import FitData, problem_of, residuals_unit
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.space import FitSpace, StaticSpace
@@ -66,15 +68,17 @@ class MCMCResult(NamedTuple):
 
 
 @functools.lru_cache(maxsize=64)
-def log_posterior_fn(static: StaticSpace, loss: str):
-    """Jitted, vectorized log-posterior over walker positions x (nwalkers, ndim[+1])."""
+def log_posterior_fn(static: StaticSpace, loss: str, order: tuple = ()):
+    """Jitted, vectorized log-posterior over walker positions x (nwalkers, ndim[+1]); ``order``:
+    the ordered labelling of interchangeable lobes (``exchange.order_keys``)."""
     nuisance = not has_absolute_noise(loss)
     ndim = len(static.names)
 
     def one(x, problem):
         u = x[:ndim]
         n = problem["data"].value.shape[0]
-        inside = jnp.all((u >= 0) & (u <= 1))
+        # the prior's support: the unit box, lobes of a repeated component in order (exchange.py)
+        inside = jnp.all((u >= 0) & (u <= 1)) & ordered(order, u)
         u_safe = jnp.where(inside, u, 0.5)
         r = residuals_unit(static, loss, u_safe, problem)
         chi2 = jnp.sum(r * r)
@@ -95,7 +99,7 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
     log-posteriors (n,)), the start positions ``p0`` (nwalkers, ndim), the coordinate ``names``
     and whether a noise scale is sampled (``nuisance``). Walkers start in a small ball around
     the least-squares optimum."""
-    logp, nuisance = log_posterior_fn(space.static, loss)
+    logp, nuisance = log_posterior_fn(space.static, loss, order_keys(space))
     problem = problem_of(space, data)
     names = space.names + (("log_noise",) if nuisance else ())
     ndim = len(names)
@@ -108,7 +112,7 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
     du = np.clip(np.nan_to_num(du, nan=1e-2), 1e-5, 0.05)
     centre = np.clip(u_best, eps, 1 - eps)
     p0 = centre + du * rng.standard_normal((nwalkers, space.ndim)) * 0.5
-    p0 = np.clip(p0, eps, 1 - eps)
+    p0 = canonical(space, np.clip(p0, eps, 1 - eps))  # into the ordered labelling
     if nuisance:
         log_s = np.log(max(ls.noise_scale, 1e-300))
         p0 = np.column_stack([p0, log_s + 0.01 * rng.standard_normal(nwalkers)])
