@@ -102,6 +102,10 @@ def predict_data(static: StaticSpace, theta, fixed: dict, d: FitData):
     return m if d.weights is None else jnp.sum(d.weights * m, axis=-1)
 
 
+#: Key of the per-start row weights inside the local stage (see ``kernels``).
+ROW_WEIGHT = "row_weight"
+
+
 def residuals_native(static: StaticSpace, loss: str, theta, problem):
     d = problem["data"]
     m = predict_data(static, theta, problem["fixed"], d)
@@ -138,12 +142,14 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     """Jitted kernels for one static structure: ``value`` and ``value_and_grad`` (the cost, and
     the cost and its gradient as one array [cost, gradient...], in the unit box, for the global
     search) and ``local`` (LM from a batch of starts, then each end's cost, residuals and
-    Jacobian in native units)."""
+    Jacobian in native units). ``local`` takes one row weight vector per start (the residuals
+    are multiplied by it; ones for a fit): the block bootstrap (fitlab.fitting.resampling)
+    refits a batch of resampled datasets, one per start, with the fit's own compilation."""
 
     r_and_jac_native = _value_and_jacobian(functools.partial(residuals_native, static, loss))
 
     def r_z(z, problem):
-        return residuals_unit(static, loss, unit_from_z(z), problem)
+        return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
 
     # jaxopt's Levenberg–Marquardt (Madsen–Nielsen stopping rule, Cholesky on the materialized
     # JᵀJ), vmapped over the starts.
@@ -153,7 +159,8 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
                                        solver="cholesky", materialize_jac=True,
                                        implicit_diff=False, jit=True)
 
-    def one(z0, u0, problem):
+    def one(z0, u0, w, problem):
+        problem = {**problem, ROW_WEIGHT: w}
         sol = solver.run(z0, problem)
         # jaxopt's own stopping test (its loop's condition): still true after the loop means
         # the step limit, not the Madsen–Nielsen rule, ended the run.
@@ -166,13 +173,14 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
         z = jnp.where(end_finite, sol.params, z0)
         theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
         r, J = r_and_jac_native(theta, problem)
+        r, J = r * w, J * w[:, None]
         return {"z": z, "iters": sol.state.iter_num, "rule_unmet": rule_unmet,
                 "end_finite": end_finite, "u": unit_from_z(z),
                 "native": theta, "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
                 "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
 
-    def local(Z0, U0, problem):
-        return jax.vmap(one, in_axes=(0, 0, None))(Z0, U0, problem)
+    def local(Z0, U0, W, problem):
+        return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
 
     cost = functools.partial(cost_unit, static, loss)
 
@@ -281,19 +289,23 @@ _compiled_local = set()
 def _compile_local(k, problem, n_local, d):
     """Compile (and run once, on placeholder starts) the local stage for this shape."""
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
+        n_rows = problem["data"].value.shape[0]
         jax.block_until_ready(k["local"](np.zeros((n_local, d)), np.full((n_local, d), 0.5),
-                                         problem))
+                                         np.ones((n_local, n_rows)), problem))
 
 
-def local_fits(k, problem, starts_u):
+def local_fits(k, problem, starts_u, weights=None):
     """Levenberg–Marquardt from each start (unit-box points) in one batched call; per start (as
     NumPy arrays): z (logit coordinates), iters, rule_unmet (LM's stopping rule not met at
     the end), u, native, cost, residuals, jacobian (native
-    units), start_native."""
+    units), start_native. ``weights`` (starts, rows), if given, multiplies each start's
+    residuals (default ones: every start fits the same data)."""
     U0 = np.stack([np.asarray(u0, dtype=float) for u0 in starts_u])
     Z0 = np.stack([z_from_unit(u0) for u0 in U0])
+    W = (np.ones((U0.shape[0], problem["data"].value.shape[0])) if weights is None
+         else np.asarray(weights, dtype=float))
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
-        out = k["local"](Z0, U0, problem)
+        out = k["local"](Z0, U0, W, problem)
     return {key: np.asarray(v) for key, v in out.items()}
 
 
