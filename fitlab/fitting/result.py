@@ -120,6 +120,21 @@ class FitResult:
         return {f["channel"]: {k: p["value"] for k, p in f["parameters"].items() if p["fixed"]}
                 for f in self.record["fits"]}
 
+    @property
+    def shared(self) -> tuple[str, ...]:
+        """Parameters shared by every channel (a joint fit, ``share=``); () otherwise."""
+        return tuple((self.record.get("joint") or {}).get("shared", ()))
+
+    def joint_covariance(self) -> tuple[tuple[str, ...], np.ndarray] | None:
+        """(coordinates, covariance) of a joint fit's whole problem: each shared parameter
+        once, the others per channel as ``name[channel]``; None without shared parameters."""
+        joint = self.record.get("joint")
+        if not joint or not joint.get("covariance"):
+            return None
+        cov = joint["covariance"]
+        m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
+        return tuple(cov["parameters"]), _frozen(m)
+
     def covariance(self, channel: str | None = None) -> tuple[tuple[str, ...], np.ndarray]:
         """(free parameter names, covariance matrix in native units) of a channel."""
         cov = self._fit(channel)["covariance"]
@@ -141,11 +156,28 @@ class FitResult:
         """Goodness of fit: cost, dof, χ²/dof (with sigma), RMS relative error, per incidence."""
         return thaw(self._fit(channel)["statistics"])
 
+    def bootstrap(self, channel: str | None = None) -> dict | None:
+        """{parameter: {std, p16, p50, p84, p2_5, p97_5}} of the block bootstrap over incidence
+        directions (an uncertainty that accounts for misfit), or None where it did not run
+        (older files, fewer than 3 fitted incidences, ``bootstrap=0``)."""
+        fit = self._fit(channel)
+        out = {k: dict(p["bootstrap"]) for k, p in fit["parameters"].items()
+               if p.get("bootstrap")}
+        return out or None
+
+    def goodness(self, channel: str | None = None) -> dict | None:
+        """Goodness of fit (``describes_data``, ``failed``, per-incidence χ²/dof or variance
+        ratio, runs test, posterior predictive check; data_formats/fit_json.md), or None for
+        files written before fitlab checked it."""
+        g = self._fit(channel).get("goodness")
+        return None if g is None else thaw(g)
+
     def diagnostics(self, channel: str | None = None) -> dict:
         """Solver, global search, starts, MCMC diagnostics and any extra diagnostics."""
         f = self._fit(channel)
         return thaw({k: f.get(k) for k in ("solver", "global_search", "starts",
-                                                     "starts_disagree", "mcmc", "diagnostics")
+                                                     "starts_disagree", "mcmc", "diagnostics",
+                                                     "bootstrap")
                               if k in f})
 
     @property

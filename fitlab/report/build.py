@@ -138,17 +138,31 @@ def _warnings(inp):
                              f"{p['bounds']}: its uncertainty is not meaningful")
         if fit.get("starts_disagree"):
             items.append(tag + fit["starts_disagree"].get("message", "starts disagree"))
+        from fitlab.report.goodness import misfit_sentence
+
+        if misfit_sentence(fit):  # goodness of fit failed (fitlab.fitting.goodness)
+            items.append(tag + misfit_sentence(fit))
     return warning_html("Warnings: read these before trusting the numbers below", items) \
         if items else ""
 
 
+def _bootstrap_cells(boot):
+    if not boot:
+        return ["n/a", ""]
+    return [_fmt(boot["std"], 3), f"[{_fmt(boot['p16'], 6)}, {_fmt(boot['p84'], 6)}]"]
+
+
 def _parameter_table(ch):
+    from fitlab.report.goodness import conditional_note, has_bootstrap
+
+    boot_cols = has_bootstrap(ch.fit)  # block bootstrap over incidences: two more columns
     rows = []
     for name, p in ch.fit["parameters"].items():
         post = p.get("posterior")
         if p["fixed"]:
             rows.append([name, p.get("unit", ""), _fmt(p["value"], 6), "fixed", "", "", "",
-                         f"[{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}]", "fixed"])
+                         f"[{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}]", "fixed"]
+                        + (["", ""] if boot_cols else []))
             continue
         flags = [p.get("transform", "")] + (["AT BOUND"] if p.get("at_bound") else [])
         rows.append([
@@ -158,10 +172,13 @@ def _parameter_table(ch):
             f"[{_fmt(post['p16'], 6)}, {_fmt(post['p84'], 6)}]" if post else "",
             f"[{_fmt(post['p2_5'], 6)}, {_fmt(post['p97_5'], 6)}]" if post else "",
             f"[{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}]", ", ".join(f for f in flags if f),
-        ])
-    return table_html(["parameter", "unit", "best fit (least squares)", "std. error (LS)",
-                       "posterior median", "68% interval", "95% interval", "bounds", "notes"],
-                      rows, numeric=(2, 3, 4))
+        ] + (_bootstrap_cells(p.get("bootstrap")) if boot_cols else []))
+    table = table_html(["parameter", "unit", "best fit (least squares)", "std. error (LS)",
+                        "posterior median", "68% interval", "95% interval", "bounds", "notes"]
+                       + (["bootstrap std. error", "bootstrap 68% interval"] if boot_cols
+                          else []), rows, numeric=(2, 3, 4) + ((9,) if boot_cols else ()))
+    note = conditional_note(ch.fit)
+    return table + (note_html(note) if note else "")
 
 
 def _correlation(rep, ch, tag):
@@ -252,6 +269,11 @@ def _scans(rep, inp, ch, preds, tag):
     if ch.samples is None:
         body += note_html("No posterior bands: " + (inp.chain_note or "no chain for this "
                                                     "channel") + ".")
+    else:
+        from fitlab.report.goodness import conditional_note
+
+        if conditional_note(ch.fit):  # the bands assume a model the checks reject
+            body += note_html(conditional_note(ch.fit))
     body = paragraph(
         "Each figure: one incidence direction. Top two panels: the data in the plane of "
         f"incidence (points within ±{geo.IN_PLANE_TOL_DEG:g}°; red: fitted rows, orange: "
@@ -588,6 +610,11 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         sections.append((f"parameters-{tag}", "Parameters" + ctitle, body))
         sections.append((f"errors-{tag}", "Errors per incidence" + ctitle,
                          _error_tables(inp, ch, preds)))
+        from fitlab.report.goodness import goodness_section
+
+        good = goodness_section(rep, ch, tag)  # None for files written before the checks
+        if good:
+            sections.append((f"goodness-{tag}", "Goodness of fit" + ctitle, good))
         sections.append((f"scans-{tag}", "In-plane scans" + ctitle, _scans(rep, inp, ch, preds,
                                                                           tag)))
         maps = _maps(rep, inp, ch, preds, tag)

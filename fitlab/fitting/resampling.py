@@ -1,0 +1,192 @@
+"""What goodness of fit and a misfit-aware uncertainty need from the fit's kernels: the block
+bootstrap over incidence directions, and the residuals at posterior draws for the posterior
+predictive check. The statistics themselves are pure functions in fitlab.fitting.goodness.
+
+**Block bootstrap** (data_formats/fit_json.md, *Uncertainty that accounts for misfit*): each
+replicate resamples the fitted incidence directions with replacement (whole incidences, so that
+the residuals' structure within a scan, which a misfit makes strongly correlated, travels with
+its block) and refits from the least-squares optimum. A resample is a row weight, √(times the
+incidence was drawn), on the same rows: every replicate has the fit's shape, and a batch of
+them (as many as the fit had starts) runs as one call of the fit's own compiled
+Levenberg–Marquardt stage (``kernels(...)["local"]``, one row-weight vector per start), so
+nothing is compiled for the bootstrap. Replicates are drawn from a generator seeded with the
+fit's seed: the same fit gives the same intervals, byte for byte.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import jax
+import numpy as np
+
+from fitlab.fitting import goodness as gof
+from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_stop_reason,
+                                          problem_of, progress_bar, residuals_native)
+from fitlab.fitting.losses import has_absolute_noise
+
+#: The bootstrap needs at least this many fitted incidence directions (blocks).
+MIN_BLOCKS = 3
+#: Refits when the bootstrap is not asked for explicitly (``bootstrap=None``), on channels with
+#: at least MIN_BLOCKS fitted incidences. 100 is enough: the Monte Carlo error of a standard
+#: error from B refits is about 1/√(2B) = 7%, below the bootstrap's own roughness with ~10
+#: blocks (about 1/√(2K) = 22%); it costs about a third of the least-squares fit (brown vinyl:
+#: 3 s against 7-15 s), since batches of refits run in the fit's compiled stage.
+DEFAULT_BOOTSTRAP = 100
+#: Fewest refits one may ask for (a 68% interval from fewer is mostly noise).
+MIN_REFITS = 10
+#: Fewer blocks than this: the bootstrap's spread is itself rough (noted in the record).
+FEW_BLOCKS = 8
+#: Stream tags mixed with the fit's seed (distinct from the MCMC's own use of the seed).
+_BOOTSTRAP_STREAM = 0xB0075
+_PPC_STREAM = 0x99C
+
+
+def _canonical(space, loc):
+    """One labelling of interchangeable lobes, where the fitter has that notion."""
+    try:
+        from fitlab.fitting.exchange import canonical_runs
+    except ImportError:
+        return loc
+    return canonical_runs(space, loc)
+
+
+def resample_counts(n_blocks: int, n_replicates: int, seed: int) -> np.ndarray:
+    """(replicates, blocks): how often each block is drawn in each replicate (n_blocks draws
+    with replacement, seeded by the fit's seed)."""
+    rng = np.random.default_rng([int(seed), _BOOTSTRAP_STREAM])
+    draws = rng.integers(0, n_blocks, size=(n_replicates, n_blocks))
+    return np.stack([np.bincount(d, minlength=n_blocks) for d in draws])
+
+
+def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int, batch: int,
+                    lm_maxiter: int = LM_MAXITER, progress: bool = False) -> dict:
+    """``replicates`` refits of the channel on incidence-resampled data (``block``: the block
+    index of each fitted row), ``batch`` at a time (the fit's number of Levenberg–Marquardt
+    starts, so that the fit's compiled stage is reused). Returns {samples (ok, ndim) native,
+    requested, replicates, non_finite, max_iterations, blocks, seconds}."""
+    t0 = time.perf_counter()
+    k = kernels(space.static, loss, int(lm_maxiter))
+    problem = problem_of(space, data)
+    block = np.asarray(block)
+    n_blocks = int(block.max()) + 1
+    counts = resample_counts(n_blocks, replicates, seed)
+    weights = np.sqrt(counts[:, block].astype(float))  # (replicates, rows)
+    u0 = space.to_unit(np.asarray(ls.native, float))
+    bar = progress_bar(progress, replicates, "  bootstrap", "refit")
+    natives, stops = [], []
+    try:
+        for start in range(0, replicates, batch):
+            w = weights[start:start + batch]
+            n = w.shape[0]
+            if n < batch:  # pad to the compiled batch with the fit itself (discarded)
+                w = np.concatenate([w, np.ones((batch - n, w.shape[1]))])
+            loc = _canonical(space, local_fits(k, problem, [u0] * batch, weights=w))
+            for i in range(n):
+                cost = float(loc["cost"][i]) if loc["end_finite"][i] else np.nan
+                stops.append(lm_stop_reason(cost, int(loc["iters"][i]),
+                                            bool(loc["rule_unmet"][i]), int(lm_maxiter)))
+                natives.append(loc["native"][i])
+            if bar is not None:
+                bar.update(n)
+    finally:
+        if bar is not None:
+            bar.close()
+    stops = np.asarray(stops)
+    ok = stops != "non_finite"
+    return {"samples": np.asarray(natives, float)[ok], "requested": int(replicates),
+            "replicates": int(ok.sum()), "non_finite": int((~ok).sum()),
+            "max_iterations": int(np.sum(stops == "max_iterations")), "blocks": n_blocks,
+            "seconds": time.perf_counter() - t0}
+
+
+@functools.lru_cache(maxsize=64)
+def _residuals_at(static, loss):
+    """Residuals (loss units) at a batch of native parameter vectors (S, ndim) → (S, rows)."""
+    return jax.jit(jax.vmap(functools.partial(residuals_native, static, loss),
+                            in_axes=(0, None)))
+
+
+def posterior_draws(chain, n: int, seed: int):
+    """Indices of ``n`` of the chain's stored samples (all if fewer), chosen with a generator
+    seeded by the fit's seed, and each sample's noise scale σ_r (ones without one)."""
+    samples = chain.samples_native
+    rng = np.random.default_rng([int(seed), _PPC_STREAM])
+    idx = np.sort(rng.choice(samples.shape[0], size=min(n, samples.shape[0]), replace=False))
+    nd = len(chain.names)
+    if chain.names[-1] == "log_noise":
+        # the stored samples are emcee's get_chain(discard=burn, thin=thin, flat=True)
+        flat = chain.chain_unit[chain.burn + chain.thin - 1::chain.thin].reshape(-1, nd)
+        sigma = np.exp(flat[idx, -1])
+    else:
+        sigma = np.ones(idx.size)
+    return idx, sigma
+
+
+def predictive_check(space, data, loss, chain, block, *, seed: int,
+                     draws: int = gof.PPC_DRAWS) -> dict:
+    """Posterior predictive p-values (fitlab.fitting.goodness.posterior_predictive) from
+    ``draws`` posterior samples of ``chain`` (an MCMCResult)."""
+    idx, sigma = posterior_draws(chain, draws, seed)
+    theta = np.asarray(chain.samples_native[idx], float)
+    problem = problem_of(space, data)
+    R = np.asarray(_residuals_at(space.static, loss)(theta, problem))
+    return gof.posterior_predictive(R, sigma, block)
+
+
+def channel_misfit(m, rows, space, data, loss, ls, chain, *, bootstrap: int | None, seed: int,
+                   lm_maxiter: int = LM_MAXITER, progress: bool = False,
+                   log=lambda msg: None) -> dict:
+    """Goodness of fit and the block bootstrap of one channel (``rows``: the boolean mask of its
+    fitted rows in ``m``; ``bootstrap``: refits, None for :data:`DEFAULT_BOOTSTRAP` where there
+    are enough incidences and none otherwise, 0 for none). Returns {goodness, bootstrap (or None),
+    warnings}: the records of data_formats/fit_json.md and the sentences for the channel's
+    warnings."""
+    keys, block = gof.incidence_blocks(m.theta_i[rows], m.phi_i[rows])
+    absolute = has_absolute_noise(loss)
+    predictive = None
+    if chain is not None:
+        predictive = predictive_check(space, data, loss, chain, block, seed=seed)
+    good = gof.assess(ls.residuals, block=block, keys=keys, theta_o=m.theta_o[rows],
+                      phi_o=m.phi_o[rows], wo=m.wo[rows], n_params=space.ndim,
+                      absolute_noise=absolute, predictive=predictive)
+    warnings, boot, seconds = [], None, 0.0
+    if bootstrap is None:
+        bootstrap = DEFAULT_BOOTSTRAP if len(keys) >= MIN_BLOCKS else 0
+    if bootstrap:
+        if len(keys) < MIN_BLOCKS:
+            boot = {"method": "block bootstrap over incidence directions", "requested":
+                    int(bootstrap), "replicates": 0, "blocks": len(keys),
+                    "skipped": f"{len(keys)} fitted incidence direction(s): the bootstrap "
+                               f"resamples whole incidences and needs at least {MIN_BLOCKS}"}
+            warnings.append("no bootstrap: " + boot["skipped"])
+        else:
+            log(f"  bootstrap: refitting {bootstrap} resamples of {len(keys)} incidences")
+            res = block_bootstrap(space, data, loss, ls, block, replicates=int(bootstrap),
+                                  seed=seed, batch=len(ls.starts), lm_maxiter=lm_maxiter,
+                                  progress=progress)
+            seconds = res["seconds"]
+            boot = {"method": "block bootstrap over incidence directions (whole incidences "
+                              "resampled with replacement, each replicate refitted from the "
+                              "least-squares optimum)",
+                    "requested": res["requested"], "replicates": res["replicates"],
+                    "blocks": res["blocks"], "non_finite": res["non_finite"],
+                    "max_iterations": res["max_iterations"], "seed": int(seed)}
+            if res["replicates"] >= 2:
+                boot["parameters"] = dict(zip(space.names, gof.bootstrap_summary(res["samples"])))
+            else:
+                warnings.append("the bootstrap failed: fewer than 2 of its refits ended at "
+                                "finite values")
+            if res["blocks"] < FEW_BLOCKS:
+                warnings.append(f"the bootstrap resamples only {res['blocks']} incidence "
+                                "directions: its intervals are rough (and tend to be too "
+                                "narrow) with so few blocks")
+            if res["non_finite"]:
+                warnings.append(f"{res['non_finite']} of {res['requested']} bootstrap refits "
+                                "ended at NaN or inf and were left out")
+    sentence = gof.failure_sentence(good, has_mcmc=chain is not None,
+                                    bootstrap=bool(boot and boot.get("parameters")))
+    if sentence:
+        warnings.insert(0, sentence)
+    return {"goodness": good, "bootstrap": boot, "warnings": warnings, "seconds": seconds}
