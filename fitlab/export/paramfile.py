@@ -91,6 +91,8 @@ def _channel_record(ch, model, fixed):
         rec["mcmc"] = post
     if "diagnostics" in ch:
         rec["diagnostics"] = ch["diagnostics"]
+    if ch.get("aperture") is not None:  # only for data with an aperture (fitlab.fitting.aperture)
+        rec["aperture"] = ch["aperture"]
     return rec
 
 

@@ -39,7 +39,8 @@ def read(path, format: str | None = None):
 def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict | None = None,
         loss: str | None = None, subset=None, channels=None, mcmc: bool = False,
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
-        walter_diagnostics: bool = False, progress: bool = False):
+        walter_diagnostics: bool = False, progress: bool = False,
+        aperture_order: int | None = None):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -51,7 +52,11 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     predicted; channels: channel names to fit (default all); mcmc: also sample the posterior
     with emcee (``mcmc_steps``, ``walkers``); starts: Levenberg–Marquardt starts besides the
     global search's best; seed: every random choice; walter_diagnostics: add Walter 2007 §6.1's
-    empirical D; progress: report progress on stderr.
+    empirical D; progress: report progress on stderr; aperture_order: the quadrature order over
+    the rows' apertures (data that declare a detector cone, bin or source divergence: the fit
+    predicts the aperture-averaged model), None to choose it from the measured quadrature
+    error (see ``fitlab.fitting.aperture``; the order and the error are in the result's
+    ``diagnostics()["aperture"]``).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     import fitlab
     from fitlab.api import check_params, resolve_options
@@ -85,6 +90,14 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
             raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
     if mcmc and mcmc_steps < 100:
         raise FitlabError("mcmc_steps must be at least 100")
+    if aperture_order is not None:
+        from fitlab.aperture import MAX_ORDER, check_order
+
+        try:
+            aperture_order = check_order(aperture_order)
+        except (TypeError, ValueError):
+            raise FitlabError(f"aperture_order must be an integer from 1 to {MAX_ORDER}, got "
+                              f"{aperture_order!r}") from None
     expr = subset if isinstance(subset, str) else None
     if isinstance(subset, str):
         mask = subset_mask(subset, m)
@@ -106,7 +119,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         result = fit_measurement(m, mdl.name, options=options, fixed=fixed, free=tuple(free or ()),
                                  loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,
                                  mcmc_walkers=walkers, seed=seed, n_starts=starts,
-                                 quiet=not progress, channels=chan_ids, warn=False)
+                                 quiet=not progress, channels=chan_ids, warn=False,
+                                 aperture_order=aperture_order)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)

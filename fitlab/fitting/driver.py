@@ -156,9 +156,11 @@ def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None):
     return model, options, fixed, notes, loss, start
 
 
-def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan):
+def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
+                    aperture_order=None):
     """The fit space, the data of the fitted ``rows`` (within the channel's rows ``in_chan``) and
-    the extra start (native units)."""
+    the extra start (native units). With ``aperture_order``, the data carry the aperture
+    quadrature of that order (fitlab.fitting.aperture)."""
     scale_bounds = None
     if m.is_relative:
         s_ref = _scale_reference(model, options, start, m, rows, in_chan)
@@ -172,13 +174,17 @@ def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan):
     data = jax.device_put(FitData(np.asarray(m.wi[rows], float), np.asarray(m.wo[rows], float),
                                   np.asarray(m.value[rows], float),
                                   {k: np.asarray(v, float) for k, v in consts.items()}))
+    if aperture_order is not None:
+        from fitlab.fitting.aperture import with_nodes
+
+        data = with_nodes(data, m, rows, aperture_order)
     start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
                     for p in space.free]
     return space, data, start_native
 
 
 def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None, free=(),
-                    loss=None):
+                    loss=None, aperture_order=None):
     """What ``fit_measurement`` hands the least-squares stage for one channel (benchmarks and
     tests use it to reproduce a fit exactly): a dict with space, data, loss, start_native."""
     model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
@@ -186,20 +192,24 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
     in_chan = m.channel == channel
     rows = np.asarray(rows, dtype=bool) & in_chan
     space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
-                                                m.channel_names[channel], in_chan)
+                                                m.channel_names[channel], in_chan,
+                                                aperture_order)
     return {"space": space, "data": data, "loss": loss, "start_native": start_native,
             "fixed": fixed, "options": options, "notes": notes}
 
 
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
-                    n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True):
+                    n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
+                    aperture_order=None):
     """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
     module text); with ``warn`` (the default) each is also issued as a :class:`FitWarning`
     (the CLI, which prints the list itself, turns this off). ``lm_maxiter`` is the step limit
-    of every Levenberg–Marquardt run."""
+    of every Levenberg–Marquardt run. Rows with an aperture (``m.has_aperture``) are fitted
+    by the aperture-averaged model, of quadrature order ``aperture_order`` (None: chosen
+    automatically, fitlab.fitting.aperture)."""
     model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
                                                             fixed=fixed, free=free, loss=loss)
     rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
@@ -216,8 +226,13 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                               "0: there is nothing to fit; check the value column (and "
                               "--fit-subset)")
         t0 = time.perf_counter()
+        order = auto_order = None
+        if m.has_aperture:
+            from fitlab.fitting import aperture as _aperture
+
+            order, auto_order = _aperture.start_order(aperture_order)
         space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
-                                                    name, in_chan)
+                                                    name, in_chan, order)
         _log(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
@@ -233,6 +248,19 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         _log(quiet, "  least squares: " + ", ".join(
             f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in zip(space.names, ls.native, ls.stderr))
             + f"  ({t_ls:.2f} s)")
+        aperture = None
+        if order is not None:
+            def refit(d, start_at):
+                return fit_least_squares(space, d, loss, start_native=start_at,
+                                         n_starts=n_starts, seed=seed, lm_maxiter=lm_maxiter,
+                                         progress=not quiet)
+
+            ls, data, aperture, more = _aperture.settle_order(
+                space, ls, data, m, rows, loss, order, auto=auto_order, refit=refit,
+                log=lambda msg: _log(quiet, msg))
+            order = aperture["order"]
+            channel_warnings = least_squares_warnings(ls) + more
+            t_ls = time.perf_counter() - t0
         chain = None
         if mcmc:
             from fitlab.fitting.mcmc import run_mcmc  # emcee (and SciPy) load only when sampling
@@ -242,14 +270,18 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                              nwalkers=mcmc_walkers, progress=not quiet)
             channel_warnings += chain.warnings
         # Predictions for every row of this channel (fitted or not).
-        full = space.predict(ls.native, m.wi[in_chan], m.wo[in_chan])
+        if order is None:
+            full = space.predict(ls.native, m.wi[in_chan], m.wo[in_chan])
+        else:
+            full = _aperture.predict_rows(space, ls.native, m, in_chan, order)
         sub = m.select(in_chan)
         stats = statistics(sub, rows_fit[in_chan], full, ls,
                            None if m.sigma is None else m.sigma[in_chan], loss)
         results.append({"channel": name, "space": space, "ls": ls, "mcmc": chain,
                         "statistics": stats, "seconds_least_squares": t_ls,
                         "prediction": full, "rows": np.flatnonzero(in_chan),
-                        "warnings": channel_warnings})
+                        "warnings": channel_warnings,
+                        **({"aperture": aperture} if aperture is not None else {})})
         if warn:
             for w in channel_warnings:
                 _warnings.warn(f"channel {name}: {w}", FitWarning, stacklevel=2)

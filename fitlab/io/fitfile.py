@@ -58,6 +58,13 @@ _VALUES = Map(_OPT_NUM, max_len=MAX_PARAMETERS + 1)
 _EMPIRICAL_D = Record(optional={
     "points": Int(lo=0), "theta_m_deg": List(_NUM), "D_empirical": List(_NUM),
     "D_fitted": List(_NUM), "rms_log_ratio": _OPT_NUM, "method": Str()})
+_APERTURE = Record(optional={
+    "rows": Int(lo=0), "order": Int(lo=1), "order_choice": Str(max_len=20),
+    "nodes_per_row": Int(lo=1), "rule": Str(),
+    "quadrature_error": Record(optional={
+        "reference_order": Int(lo=1), "max_row_error": _OPT_NUM, "rms_row_error": _OPT_NUM,
+        "row_error_unit": Str(), "parameter_shift": _VALUES, "max_parameter_shift": _OPT_NUM,
+        "parameter_shift_unit": Str(), "tolerance": _OPT_NUM, "within_tolerance": Bool()})})
 _FIT = Record(
     required={"channel": _NAME,
               "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS),
@@ -73,6 +80,7 @@ _FIT = Record(
                                               "lm_stopped": Str()}), max_len=100_000),
               "starts_disagree": Optional(Record(optional={"message": Str()})),
               "diagnostics": Record(optional={"empirical_D": _EMPIRICAL_D}),
+              "aperture": _APERTURE,
               "timings_s": _VALUES})
 #: What a parameter file must hold, field by field (data_formats/fit_json.md): the fields the
 #: tools read are checked for type and finiteness before any of them is used.

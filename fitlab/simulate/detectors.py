@@ -21,12 +21,14 @@ import numpy as np
 
 class Rows(NamedTuple):
     """Output rows of one incidence: outgoing angles in degrees, the tally index of each row and
-    the cosine-weighted solid angle of its bin or cone."""
+    the cosine-weighted solid angle of its bin or cone; for hemisphere bins, each row's bin
+    edges θo_lo, θo_hi, φo_lo, φo_hi in degrees (the aperture written to the CSV)."""
 
     theta_o: np.ndarray
     phi_o: np.ndarray
     tally: np.ndarray
     cos_solid_angle: np.ndarray
+    edges: np.ndarray | None = None
 
 
 def direction(theta_deg, phi_deg):
@@ -40,7 +42,7 @@ def hemisphere_rows(theta_bins: int, phi_bins: int, sides) -> Rows:
     pedges = np.linspace(0.0, 360.0, phi_bins + 1)
     s2 = np.sin(np.radians(edges)) ** 2
     dphi = np.radians(360.0 / phi_bins)
-    th, ph, tally, cw = [], [], [], []
+    th, ph, tally, cw, ed = [], [], [], [], []
     for side_index, side in enumerate(("reflection", "transmission")):
         for tb in range(theta_bins):
             for pb in range(phi_bins):
@@ -51,12 +53,21 @@ def hemisphere_rows(theta_bins: int, phi_bins: int, sides) -> Rows:
                 ph.append(0.5 * (pedges[pb] + pedges[pb + 1]))
                 tally.append((side_index * theta_bins + tb) * phi_bins + pb)
                 cw.append(0.5 * dphi * (s2[tb + 1] - s2[tb]))
-    return Rows(np.array(th), np.array(ph), np.array(tally, dtype=int), np.array(cw))
+                lo, hi = (edges[tb], edges[tb + 1]) if side == "reflection" else \
+                    (180.0 - edges[tb + 1], 180.0 - edges[tb])
+                ed.append((lo, hi, pedges[pb], pedges[pb + 1]))
+    return Rows(np.array(th), np.array(ph), np.array(tally, dtype=int), np.array(cw),
+                np.array(ed, dtype=float).reshape(-1, 4))
 
 
 def cone_half_angle_cos(acceptance_sr: float) -> float:
     """cos γ of a cone of solid angle Ω = 2π(1 - cos γ)."""
     return 1.0 - acceptance_sr / (2.0 * np.pi)
+
+
+def cone_half_angle_deg(acceptance_sr: float) -> float:
+    """γ in degrees of a cone of solid angle Ω = 2π(1 - cos γ) (the CSV's aperture_deg)."""
+    return float(np.degrees(np.arccos(cone_half_angle_cos(acceptance_sr))))
 
 
 def cone_cos_solid_angle(d: np.ndarray, acceptance_sr: float, n_psi: int = 32,

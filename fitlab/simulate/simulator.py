@@ -54,6 +54,11 @@ class SimulationResult(NamedTuple):
     events: int  # scattering events traced in total
     truncated: int  # paths still alive after MAX_EVENTS events (dropped)
     scene: Scene
+    #: The aperture each row averages over (written to the CSV, fitted by the aperture-averaged
+    #: model): hemisphere bins' edges θo_lo, θo_hi, φo_lo, φo_hi (rows, 4) in degrees, or the
+    #: detector cones' half-angle (rows,) in degrees.
+    bin_o_deg: np.ndarray | None = None
+    aperture_deg: np.ndarray | None = None
 
     @property
     def paths_per_s(self) -> float:
@@ -107,6 +112,11 @@ class SimulationResult(NamedTuple):
         keep = (sig > 0).reshape(-1)
         rep = lambda a: np.repeat(a, C)[keep]  # noqa: E731
         ti, pi_, to, po = rep(self.theta_i), rep(self.phi_i), rep(self.theta_o), rep(self.phi_o)
+        aperture = {}
+        if self.aperture_deg is not None:
+            aperture["aperture_deg"] = rep(self.aperture_deg)
+        if self.bin_o_deg is not None:
+            aperture["bin_o_deg"] = np.repeat(self.bin_o_deg, C, axis=0)[keep]
         meta = self.metadata()
         meta.update(self._eta_metadata())
         meta["empty_bins"] = str(int((~keep).sum()))
@@ -116,7 +126,7 @@ class SimulationResult(NamedTuple):
             value=val.reshape(-1)[keep], sigma=sig.reshape(-1)[keep],
             channel=np.tile(np.arange(C), R)[keep], channel_names=names, wavelength_nm=None,
             quantity="bsdf", file_quantity="bsdf", metadata=meta,
-            lines=np.zeros(int(keep.sum()), dtype=int))
+            lines=np.zeros(int(keep.sum()), dtype=int), **aperture)
 
 
 # --------------------------------------------------------------------------------------------
@@ -325,4 +335,8 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
         energy=energy, energy_sigma=energy_sig,
         incidences=np.array([[r[0], r[1]] for r in all_rows]),
         channel_names=plan.channel_names, plan=plan, samples=int(samples), seed=int(seed),
-        time_s=elapsed, events=events, truncated=truncated, scene=scene)
+        time_s=elapsed, events=events, truncated=truncated, scene=scene,
+        bin_o_deg=(cat(lambda r: r[2].edges) if scene.detector.type == "hemisphere" else None),
+        aperture_deg=(None if scene.detector.type == "hemisphere" else np.full(
+            sum(len(r[2].tally) for r in all_rows),
+            detectors.cone_half_angle_deg(scene.detector.acceptance_sr))))
