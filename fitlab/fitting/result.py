@@ -191,19 +191,76 @@ class FitResult:
 
     # ---- using the fit ----------------------------------------------------------------
 
-    def predict(self, wi, wo, channel: str | None = None, *, scaled: bool = True) -> np.ndarray:
+    def predict(self, wi, wo, channel: str | None = None, *, scaled: bool = True,
+                aperture_deg=None, source_divergence_deg=None,
+                aperture_order: int | None = None) -> np.ndarray:
         """The fitted model at direction pairs ``wi``, ``wo`` (arrays (..., 3), unit vectors in
         the local frame): f in 1/sr, times the fitted ``scale`` of relative data unless
-        ``scaled=False`` (then the absolute model f)."""
+        ``scaled=False`` (then the absolute model f).
+
+        ``aperture_deg`` / ``source_divergence_deg`` (degrees, a number or one per pair): the
+        cosine-weighted mean over a detector cone around ``wo`` / a source cone around ``wi``
+        instead (fitlab.aperture), by the quadrature of ``aperture_order`` (default: the order
+        the fit used, else fitlab.fitting.aperture.START_ORDER). For θ/φ bins, see
+        :meth:`predict_measurement`."""
+        from fitlab.aperture import row_rule
         from fitlab.fitting.space import model_values
 
-        params = dict(self.parameters[self._fit(channel)["channel"]])
+        tag = self._fit(channel)["channel"]
+        params = dict(self.parameters[tag])
         scale = params.pop(SCALE, 1.0)
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
         shape = np.broadcast_shapes(wi.shape, wo.shape)[:-1]
         wi, wo = (np.broadcast_to(w, shape + (3,)).reshape(-1, 3) for w in (wi, wo))
-        f = model_values(self.model, tuple(sorted(self.options.items())), params, wi, wo)
+        options = tuple(sorted(self.options.items()))
+        if aperture_deg is None and source_divergence_deg is None:
+            f = model_values(self.model, options, params, wi, wo)
+        else:
+            n = wi.shape[0]
+            per_row = lambda v: None if v is None else np.broadcast_to(  # noqa: E731
+                np.asarray(v, float), shape).reshape(n)
+            ni, no, w = row_rule(wi, wo, self._aperture_order(tag, aperture_order),
+                                 aperture_deg=per_row(aperture_deg),
+                                 source_divergence_deg=per_row(source_divergence_deg))
+            f = np.sum(w * model_values(self.model, options, params, ni, no), axis=-1)
         return np.asarray(f).reshape(shape) * (scale if scaled else 1.0)
+
+    def predict_measurement(self, measurement, channel: str | None = None, *,
+                            scaled: bool = True, aperture_order: int | None = None) -> np.ndarray:
+        """The fitted model at every row of ``measurement`` (a Measurement, e.g. from
+        ``fitlab.read``), as the fit predicts that row: averaged over the row's aperture
+        (detector cone or bin, source divergence) where it declares one. Each row is predicted
+        with the fit of its own channel, or with ``channel``'s for every row. Returns (rows,)."""
+        from fitlab.aperture import row_rule
+        from fitlab.fitting.space import model_values
+
+        m = measurement
+        out = np.empty(m.n)
+        options = tuple(sorted(self.options.items()))
+        names = [channel] * len(m.channel_names) if channel is not None else m.channel_names
+        for c, name in enumerate(names):
+            rows = m.channel == c
+            if not rows.any():
+                continue
+            tag = self._fit(name)["channel"]
+            params = dict(self.parameters[tag])
+            scale = params.pop(SCALE, 1.0) if scaled else 1.0
+            pick = lambda a: None if a is None else np.asarray(a)[rows]  # noqa: E731
+            ni, no, w = row_rule(m.wi[rows], m.wo[rows], self._aperture_order(tag, aperture_order),
+                                 aperture_deg=pick(m.aperture_deg), bin_deg=pick(m.bin_o_deg),
+                                 source_divergence_deg=pick(m.source_divergence_deg))
+            f = model_values(self.model, options, params, ni, no)
+            out[rows] = scale * np.sum(w * f, axis=-1)
+        return out
+
+    def _aperture_order(self, channel: str, order: int | None) -> int:
+        from fitlab.aperture import check_order
+        from fitlab.fitting.aperture import START_ORDER
+
+        if order is not None:
+            return check_order(order)
+        ap = self._fit(channel).get("aperture")
+        return int(ap["order"]) if ap and "order" in ap else START_ORDER
 
     def to_json(self) -> str:
         """The parameter file's text (data_formats/fit_json.md), exactly as ``save`` writes it."""
