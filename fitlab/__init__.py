@@ -1,7 +1,8 @@
 """fitlab: BSDF measurement fitting and tabulation in JAX.
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
-immutable :class:`FitResult`), :func:`load_fit` (a parameter file and its chain), and
+immutable :class:`FitResult`), :func:`load_fit` (a parameter file and its chain), :func:`compare`
+(candidate models ranked by held-out error → a :class:`CompareResult`), and
 :func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in
 ``data_formats/CONVENTIONS.md``.
@@ -23,6 +24,8 @@ from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
 from fitlab.models import MODELS, get_model, register_model  # noqa: E402
 from fitlab.fitting.api import fit, read  # noqa: E402
 from fitlab.fitting.result import FitResult, load_fit  # noqa: E402
+from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E402
 
-__all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "eval_bsdf", "sample_bsdf",
+__all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
+           "Candidate", "eval_bsdf", "sample_bsdf",
            "pdf_bsdf", "MODELS", "get_model", "register_model"]
