@@ -54,6 +54,10 @@ def add_parser(sub):
                    "data_formats/measurement_csv.md); default: chosen from the measured "
                    "quadrature error, order 4 doubled until order 2N moves the fit by less "
                    "than 0.1 standard errors")
+    p.add_argument("--bootstrap", type=int, metavar="N",
+                   help="refits of the block bootstrap over incidence directions, an "
+                   "uncertainty that accounts for misfit (parameters.*.bootstrap; default: "
+                   "100 on channels with at least 3 fitted incidences, else none; 0: off)")
     p.add_argument("--walter-diagnostics", action="store_true",
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
@@ -99,7 +103,12 @@ def _print_summary(record):
             if post:
                 line += (f";  posterior median {post['median']:.6g}, 68% "
                          f"[{post['p16']:.6g}, {post['p84']:.6g}]")
+            boot = p.get("bootstrap")
+            if boot:
+                line += (f";  bootstrap ± {boot['std']:.2g}, 68% "
+                         f"[{boot['p16']:.6g}, {boot['p84']:.6g}]")
             print(line, file=sys.stderr)
+        _print_goodness(fit)
         st = fit["statistics"]
         if st.get("chi2_per_dof") is not None:
             print(f"  chi2/dof = {st['chi2_per_dof']:.3f}", file=sys.stderr)
@@ -126,8 +135,44 @@ def _print_summary(record):
             print(f"warning: channel {fit['channel']}: {w}", file=sys.stderr)
 
 
+def _p(p):
+    return "n/a" if p is None else (f"{p:.2g}" if p >= 1e-300 else "< 1e-300")
+
+
+def _print_goodness(fit):
+    """The goodness checks (fitlab.fitting.goodness) in two or three lines."""
+    g = fit.get("goodness")
+    if not g:
+        return
+    out = []
+    if g.get("chi2"):
+        out.append(f"chi2/dof {g['chi2']['chi2_per_dof']:.3g} (p {_p(g['chi2']['p_value'])})")
+    lv = g["incidence_level"]
+    stat = lv["statistic"]
+    vals = [x[stat] for x in g["per_incidence"] if x.get(stat) is not None]
+    if vals:
+        what = "chi2/dof" if stat == "chi2_per_dof" else "variance ratio"
+        out.append(f"per-incidence {what} {min(vals):.3g}-{max(vals):.3g} "
+                   f"(p {_p(lv['min_p_value_sidak'])})")
+    rt = g["runs_test"]
+    out.append(f"runs {rt['runs']} of {rt['expected_runs']:.0f} expected (p {_p(rt['p_value'])})")
+    pp = g.get("posterior_predictive")
+    if pp:
+        out.append(f"posterior predictive p {_p(pp['worst_incidence']['p_value'])} (worst "
+                   f"incidence), {_p(pp['chi2']['p_value'])} (chi2)")
+    verdict = ("passes" if g["describes_data"] else
+               "FAILS: the model does not describe the data (" + ", ".join(g["failed"]) + ")")
+    print(f"  goodness of fit {verdict}; checks at p < {g['p_fail']:g}:", file=sys.stderr)
+    print("    " + "; ".join(out), file=sys.stderr)
+    boot = fit.get("bootstrap")
+    if boot and boot.get("replicates"):
+        print(f"  bootstrap: {boot['replicates']} refits over {boot['blocks']} incidences",
+              file=sys.stderr)
+
+
 def _print_timings(timings):
-    names = {"read": "read", "least_squares": "least squares", "mcmc": "MCMC", "total": "total"}
+    names = {"read": "read", "least_squares": "least squares", "mcmc": "MCMC",
+             "bootstrap": "bootstrap", "total": "total"}
     print("time: " + ", ".join(f"{names[k]} {v:.2f} s" for k, v in timings.items()),
           file=sys.stderr)
 
@@ -152,6 +197,11 @@ def run(args):
                           "parameter file")
     if args.mcmc and args.mcmc_steps < 100:
         raise FitlabError("--mcmc-steps must be at least 100")
+    if args.bootstrap is not None and args.bootstrap != 0:
+        from fitlab.fitting.resampling import MIN_REFITS
+
+        if args.bootstrap < MIN_REFITS:
+            raise FitlabError(f"--bootstrap must be 0 (off) or at least {MIN_REFITS} refits")
     m = read(args.data, args.format)
     t_read = time.perf_counter() - t0
     result = fit(m, model, fix=fixed, free=args.free or (), options=options, loss=args.loss,
@@ -159,7 +209,7 @@ def run(args):
                  mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
                  starts=args.starts, seed=args.seed,
                  walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,
-                 aperture_order=args.aperture_order)
+                 aperture_order=args.aperture_order, bootstrap=args.bootstrap)
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)

@@ -59,6 +59,9 @@ def _channel_record(ch, model, fixed):
             rec["posterior"] = {"median": float(q[2]), "p16": float(q[1]), "p50": float(q[2]),
                                 "p84": float(q[3]), "p2_5": float(q[0]), "p97_5": float(q[4]),
                                 "mean": float(s.mean()), "std": float(s.std(ddof=1))}
+        boot = (ch.get("bootstrap") or {}).get("parameters") or {}
+        if fp.name in boot:  # block bootstrap over incidences (fitlab.fitting.resampling)
+            rec["bootstrap"] = boot[fp.name]
         params[fp.name] = rec
     # Preserve the registry order, scale last.
     order = [p.name for p in model.parameters] + [n for n in space.names if n not in
@@ -91,6 +94,10 @@ def _channel_record(ch, model, fixed):
         rec["mcmc"] = post
     if "diagnostics" in ch:
         rec["diagnostics"] = ch["diagnostics"]
+    if ch.get("goodness") is not None:  # fitlab.fitting.goodness
+        rec["goodness"] = ch["goodness"]
+    if ch.get("bootstrap") is not None:
+        rec["bootstrap"] = {k: v for k, v in ch["bootstrap"].items() if k != "parameters"}
     if ch.get("aperture") is not None:  # only for data with an aperture (fitlab.fitting.aperture)
         rec["aperture"] = ch["aperture"]
     return rec
@@ -105,6 +112,9 @@ def run_timings(result, read_s: float, total_s: float) -> dict:
     runs = [ch["mcmc"] for ch in result["channels"] if ch["mcmc"] is not None]
     if runs:
         out["mcmc"] = sum(mc.seconds for mc in runs)
+    boot = [ch.get("seconds_bootstrap") or 0.0 for ch in result["channels"]]
+    if any(boot):
+        out["bootstrap"] = sum(boot)
     out["total"] = total_s
     return out
 

@@ -40,7 +40,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         loss: str | None = None, subset=None, channels=None, mcmc: bool = False,
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
-        aperture_order: int | None = None):
+        aperture_order: int | None = None, bootstrap: int | None = None):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -56,7 +56,10 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     the rows' apertures (data that declare a detector cone, bin or source divergence: the fit
     predicts the aperture-averaged model), None to choose it from the measured quadrature
     error (see ``fitlab.fitting.aperture``; the order and the error are in the result's
-    ``diagnostics()["aperture"]``).
+    ``diagnostics()["aperture"]``); bootstrap: refits of the block bootstrap over incidence
+    directions, an uncertainty that accounts for misfit (``result.bootstrap()``; None: 100 on
+    channels with at least 3 fitted incidences, 0: off). Every fit is also checked for goodness
+    of fit (``result.goodness()``; a failed check adds a warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     import fitlab
     from fitlab.api import check_params, resolve_options
@@ -98,6 +101,13 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         except (TypeError, ValueError):
             raise FitlabError(f"aperture_order must be an integer from 1 to {MAX_ORDER}, got "
                               f"{aperture_order!r}") from None
+    if bootstrap is not None:
+        from fitlab.fitting.resampling import MIN_REFITS
+
+        if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or not (
+                bootstrap == 0 or bootstrap >= MIN_REFITS):
+            raise FitlabError(f"bootstrap must be 0 (off) or a number of refits of at least "
+                              f"{MIN_REFITS}, got {bootstrap!r}")
     expr = subset if isinstance(subset, str) else None
     if isinstance(subset, str):
         mask = subset_mask(subset, m)
@@ -120,7 +130,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                                  loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,
                                  mcmc_walkers=walkers, seed=seed, n_starts=starts,
                                  quiet=not progress, channels=chan_ids, warn=False,
-                                 aperture_order=aperture_order)
+                                 aperture_order=aperture_order,
+                                 bootstrap=None if bootstrap is None else int(bootstrap))
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)

@@ -201,13 +201,15 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
                     n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
-                    aperture_order=None):
+                    aperture_order=None, bootstrap=None):
     """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
     module text); with ``warn`` (the default) each is also issued as a :class:`FitWarning`
     (the CLI, which prints the list itself, turns this off). ``lm_maxiter`` is the step limit
-    of every Levenberg–Marquardt run. Rows with an aperture (``m.has_aperture``) are fitted
+    of every Levenberg–Marquardt run. ``bootstrap``: refits of the block bootstrap over
+    incidences (None: :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP` where a channel has
+    at least 3 fitted incidences, else none; 0: none). Rows with an aperture (``m.has_aperture``) are fitted
     by the aperture-averaged model, of quadrature order ``aperture_order`` (None: chosen
     automatically, fitlab.fitting.aperture)."""
     model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
@@ -277,8 +279,17 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         sub = m.select(in_chan)
         stats = statistics(sub, rows_fit[in_chan], full, ls,
                            None if m.sigma is None else m.sigma[in_chan], loss)
+        # Goodness of fit and the block bootstrap (fitlab.fitting.goodness, .resampling).
+        from fitlab.fitting.resampling import channel_misfit
+
+        misfit = channel_misfit(m, rows, space, data, loss, ls, chain, bootstrap=bootstrap,
+                                seed=seed, lm_maxiter=lm_maxiter, progress=not quiet,
+                                log=lambda msg: _log(quiet, msg))
+        channel_warnings += misfit["warnings"]
         results.append({"channel": name, "space": space, "ls": ls, "mcmc": chain,
                         "statistics": stats, "seconds_least_squares": t_ls,
+                        "goodness": misfit["goodness"], "bootstrap": misfit["bootstrap"],
+                        "seconds_bootstrap": misfit["seconds"],
                         "prediction": full, "rows": np.flatnonzero(in_chan),
                         "warnings": channel_warnings,
                         **({"aperture": aperture} if aperture is not None else {})})

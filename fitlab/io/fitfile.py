@@ -29,11 +29,13 @@ _TEXT_LIST = List(Str(), max_len=10_000)
 
 _POSTERIOR = Record(optional={k: _NUM for k in ("mean", "median", "std", "p2_5", "p16",
                                                     "p50", "p84", "p97_5")})
+_BOOTSTRAP_PARAMETER = Record(optional={k: _OPT_NUM for k in ("std", "p2_5", "p16", "p50",
+                                                               "p84", "p97_5")})
 _PARAMETER = Record(
     required={"value": _NUM, "fixed": Bool()},
     optional={"unit": Str(max_len=200), "bounds": List(_NUM, length=2),
               "stderr": _OPT_NUM, "at_bound": Bool(), "transform": Str(max_len=50),
-              "posterior": Optional(_POSTERIOR)})
+              "posterior": Optional(_POSTERIOR), "bootstrap": _BOOTSTRAP_PARAMETER})
 _COVARIANCE = Record(required={"parameters": List(_NAME, max_len=MAX_PARAMETERS),
                                "matrix": List(List(_OPT_NUM, max_len=MAX_PARAMETERS),
                                               max_len=MAX_PARAMETERS)},
@@ -65,6 +67,29 @@ _APERTURE = Record(optional={
         "reference_order": Int(lo=1), "max_row_error": _OPT_NUM, "rms_row_error": _OPT_NUM,
         "row_error_unit": Str(), "parameter_shift": _VALUES, "max_parameter_shift": _OPT_NUM,
         "parameter_shift_unit": Str(), "tolerance": _OPT_NUM, "within_tolerance": Bool()})})
+#: Goodness of fit (fitlab.fitting.goodness) and the block bootstrap's summary
+#: (fitlab.fitting.resampling); optional: older files have neither.
+_PPC_TEST = Record(optional={"observed_mean": _OPT_NUM, "replicated_mean": _OPT_NUM,
+                             "p_value": _OPT_NUM})
+_GOODNESS = Record(optional={
+    "p_fail": _NUM, "noise": Str(), "describes_data": Bool(),
+    "failed": List(Str(max_len=100), max_len=100),
+    "chi2": Record(optional={"chi2": _OPT_NUM, "dof": Int(), "chi2_per_dof": _OPT_NUM,
+                             "p_value": _OPT_NUM}),
+    "incidence_level": Record(optional={"statistic": Str(max_len=100), "test": Str(),
+                                        "min_p_value_sidak": _OPT_NUM}),
+    "runs_test": Record(optional={"runs": Int(lo=0), "expected_runs": _OPT_NUM, "z": _OPT_NUM,
+                                  "p_value": _OPT_NUM, "rows": Int(lo=0), "ordering": Str(),
+                                  "min_p_value_sidak": _OPT_NUM}),
+    "per_incidence": List(Record(optional={
+        "theta_i": _NUM, "phi_i": _NUM, "n": Int(lo=0), "chi2_per_dof": _OPT_NUM,
+        "variance_ratio": _OPT_NUM, "level_p_value": _OPT_NUM, "runs": Int(lo=0),
+        "expected_runs": _OPT_NUM, "runs_p_value": _OPT_NUM}), max_len=100_000),
+    "posterior_predictive": Optional(Record(optional={
+        "draws": Int(lo=0), "chi2": _PPC_TEST, "worst_incidence": _PPC_TEST}))})
+_BOOTSTRAP = Record(optional={
+    "method": Str(), "requested": Int(lo=0), "replicates": Int(lo=0), "blocks": Int(lo=0),
+    "non_finite": Int(lo=0), "max_iterations": Int(lo=0), "seed": Int(), "skipped": Str()})
 _FIT = Record(
     required={"channel": _NAME,
               "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS),
@@ -80,6 +105,7 @@ _FIT = Record(
                                               "lm_stopped": Str()}), max_len=100_000),
               "starts_disagree": Optional(Record(optional={"message": Str()})),
               "diagnostics": Record(optional={"empirical_D": _EMPIRICAL_D}),
+              "goodness": _GOODNESS, "bootstrap": _BOOTSTRAP,
               "aperture": _APERTURE,
               "timings_s": _VALUES})
 #: What a parameter file must hold, field by field (data_formats/fit_json.md): the fields the
