@@ -818,6 +818,7 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
 
     labels = [c.label for c in cands]
     warnings = list(run_warnings)
+    pareto_flagged = False
     channels = []
     for c in chan_ids:
         name = m.channel_names[c]
@@ -891,20 +892,21 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
                     warnings.append(
                         f"channel {name}: {mod['label']}: PSIS-LOO is unreliable at "
                         f"{pk['bad'] + pk['very_bad']} of {loo['rows']} rows (Pareto k > "
-                        f"{pk['good_k']:.2f}, up to {pk['max']:.2f}; most at {at}): leaving one "
-                        "of those rows out moves the posterior more than importance sampling "
-                        "can follow, so this model's ELPD is uncertain beyond its standard "
-                        "error; trust the cross-validation for it, or use a model that "
-                        "describes those rows")
+                        f"{pk['good_k']:.2f}, up to {pk['max']:.2f}; most at {at})")
+                    pareto_flagged = True
                 if mod["waic"]["warning"]:
-                    warnings.append(f"channel {name}: {mod['label']}: WAIC may be failing: the "
+                    warnings.append(f"channel {name}: {mod['label']}: WAIC may be failing (the "
                                     "posterior variance of the log predictive density exceeds "
                                     f"0.4 at {mod['waic']['rows_variance_above_0_4']} of "
-                                    f"{mod['waic']['rows']} rows (ArviZ's criterion); prefer "
+                                    f"{mod['waic']['rows']} rows, ArviZ's criterion): prefer "
                                     "PSIS-LOO")
-        for mod in models:
-            for w in mod["fit_warnings"]:
-                warnings.append(f"channel {name}: {mod['label']}: {w}")
+        for mod in models:  # the full sentences are in the candidates' fit warnings
+            heads = [re.split(r" \(|: ", w, maxsplit=1)[0].rstrip(".")
+                     for w in mod["fit_warnings"]]
+            if heads:
+                warnings.append(f"channel {name}: {mod['label']}: its fit warns: "
+                                + "; ".join(dict.fromkeys(heads))
+                                + " (in full with the candidates' fits)")
         ch["verdict"]["text"] = " ".join(ch["verdict"][k]["text"] for k in ("cv", "loo")
                                          if k in ch["verdict"])
         if cv and mcmc:
@@ -921,6 +923,11 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
     software = software_versions()
     if mcmc:
         software["arviz"] = _arviz().__version__
+    if pareto_flagged:
+        warnings.append("Rows with Pareto k above the threshold: leaving one of them out moves the "
+                        "posterior more than importance sampling can follow, so the ELPD of "
+                        "that model is uncertain beyond its standard error; trust the "
+                        "cross-validation for it, or use a model that describes those rows")
     fixed_rec = []
     for cand, res in zip(cands, fits):
         fixed = {}

@@ -56,7 +56,7 @@ def heldout_figure(ch, labels, title):
     per-row noise scale dotted."""
     incs = ch["incidences"]
     x, xlabel, ticks = _inc_axis(incs)
-    fig = new_figure(7.2, 3.9)
+    fig = new_figure(7.2, 4.2 + 0.16 * ((len(ch["models"]) + 3) // 2))
     ax = fig.subplots()
     for mod in ch["models"]:
         c = _color(labels, mod["label"])
@@ -74,7 +74,7 @@ def heldout_figure(ch, labels, title):
     if ticks:
         ax.set_xticks(x, ticks, rotation=45, ha="right")
     ax.set_title(title)
-    ax.legend(loc="upper left", fontsize=7, framealpha=0.85)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=7)
     return fig
 
 
@@ -106,7 +106,7 @@ def pareto_figure(ch, labels, good_k):
     """The largest Pareto k at each incidence's rows, per model, with ArviZ's thresholds."""
     incs = ch["incidences"]
     x, xlabel, ticks = _inc_axis(incs)
-    fig = new_figure(7.2, 3.0)
+    fig = new_figure(7.2, 3.2 + 0.16 * ((len(ch["models"]) + 3) // 2))
     ax = fig.subplots()
     for mod in ch["models"]:
         k = [np.nan if v is None else v for v in mod["loo"]["pareto_k_per_incidence"]]
@@ -119,7 +119,7 @@ def pareto_figure(ch, labels, good_k):
     ax.set_ylabel("largest Pareto k at the rows")
     if ticks:
         ax.set_xticks(x, ticks, rotation=45, ha="right")
-    ax.legend(loc="upper left", fontsize=7, framealpha=0.85)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=7)
     return fig
 
 
@@ -138,6 +138,8 @@ class _Figures:
 
 
 def _ranking_table(ch, cands):
+    """The verdict's table: the CV columns and the PSIS-LOO difference (the rest of PSIS-LOO
+    and WAIC in their own section)."""
     mods = {mod["label"]: mod for mod in ch["models"]}
     rk = ch["ranking"]
     order = rk.get("cv") or rk.get("loo")
@@ -145,8 +147,7 @@ def _ranking_table(ch, cands):
     if "cv" in rk:
         head += ["CV rank", "held-out RMS rel. error", "Δ to best ± SE", "Δ / noise scale"]
     if "loo" in rk:
-        head += ["LOO rank", "ELPD_loo ± SE", "ΔELPD_loo ± SE", "WAIC rank", "ΔELPD_waic ± SE",
-                 "rows with Pareto k > good"]
+        head += ["LOO rank", "ΔELPD_loo ± SE (nats)"]
     rows = []
     for lab in order:
         mod = mods[lab]
@@ -158,28 +159,22 @@ def _ranking_table(ch, cands):
                     f"{_fmt(cv['delta'], 3)} ± {_fmt(cv['delta_se'], 2)}",
                     "" if cv["rank"] == 1 else _fmt(cv["delta_over_noise"], 3)]
         if "loo" in rk:
-            lo, wa = mod["loo"], mod["waic"]
-            pk = lo["pareto_k"]
-            row += [lo["rank"], _pm(lo["elpd"], lo["se"]),
-                    "best" if lo["rank"] == 1 else _pm(-lo["elpd_diff"], lo["dse"]),
-                    wa["rank"], "best" if wa["rank"] == 1 else _pm(-wa["elpd_diff"], wa["dse"]),
-                    f"{pk['bad'] + pk['very_bad']} of {lo['rows']}"]
+            lo = mod["loo"]
+            row += [lo["rank"], "best" if lo["rank"] == 1 else _pm(-lo["elpd_diff"], lo["dse"])]
         rows.append(row)
     return table_html(head, rows, numeric=tuple(range(1, len(head))))
 
 
-def _incidence_table(ch, order):
+def _incidence_table(ch, order, key):
+    """RMS relative error per incidence (rows) and model (columns): held out or in-sample."""
     mods = {mod["label"]: mod for mod in ch["models"]}
-    head = ["θi (°)", "φi (°)", "rows", "counted"]
-    for lab in order:
-        head += [f"{lab}: held out", f"{lab}: in-sample"]
+    head = ["θi (°)", "φi (°)", "rows", "counted"] + list(order)
     rows = []
     for k, inc in enumerate(ch["incidences"]):
         row = [_fmt(inc["theta_i"]), _fmt(inc["phi_i"]), inc["rows"], inc["rows_counted"]]
         for lab in order:
-            cv = mods[lab].get("cv")
-            row += [_fmt(cv["per_incidence"][k], 3) if cv else "n/a",
-                    _fmt(mods[lab]["in_sample"]["per_incidence"][k], 3)]
+            block = mods[lab].get(key)
+            row.append(_fmt(block["per_incidence"][k], 3) if block else "n/a")
         rows.append(row)
     return table_html(head, rows, numeric=tuple(range(len(head))))
 
@@ -187,7 +182,7 @@ def _incidence_table(ch, order):
 def _ic_table(ch, order):
     mods = {mod["label"]: mod for mod in ch["models"]}
     head = ["model", "ELPD_loo ± SE", "p_loo", "ΔELPD_loo ± SE", "stacking weight",
-            "Pareto k ≤ good / bad / > 1", "largest k", "ELPD_waic ± SE", "p_waic",
+            "rows with Pareto k ≤ good / bad / > 1 (largest k)", "ELPD_waic ± SE", "p_waic",
             "ΔELPD_waic ± SE", "rows with var(log p) > 0.4", "posterior samples (rel. eff.)"]
     rows = []
     for lab in order:
@@ -196,7 +191,7 @@ def _ic_table(ch, order):
         rows.append([lab, _pm(lo["elpd"], lo["se"]), _fmt(lo["p"], 3),
                      "best" if lo["rank"] == 1 else _pm(-lo["elpd_diff"], lo["dse"]),
                      _fmt(lo["weight"], 3),
-                     f"{pk['good']} / {pk['bad']} / {pk['very_bad']}", _fmt(pk["max"], 3),
+                     f"{pk['good']} / {pk['bad']} / {pk['very_bad']} ({_fmt(pk['max'], 3)})",
                      _pm(wa["elpd"], wa["se"]), _fmt(wa["p"], 3),
                      "best" if wa["rank"] == 1 else _pm(-wa["elpd_diff"], wa["dse"]),
                      wa["rows_variance_above_0_4"],
@@ -346,7 +341,10 @@ def build_compare_report(result, out_dir, *, progress: bool = False) -> dict:
                 "one and near the noise scale.",
                 "Held-out and in-sample RMS relative error against incidence angle for "
                 + ", ".join(labels))
-            body += _incidence_table(ch, order)
+            body += ("<h3>Held out (fitted to every other incidence)</h3>\n"
+                     + _incidence_table(ch, order, "cv")
+                     + "<h3>In-sample (fitted to every incidence)</h3>\n"
+                     + _incidence_table(ch, order, "in_sample"))
             sections.append((f"heldout-{tag}", "Held-out error per incidence" + ctitle, body))
         if "loo" in rk:
             fig = elpd_figure(ch, labels, list(rk["loo"]))
