@@ -41,6 +41,10 @@ def add_parser(sub):
                    "to the mirror direction, to leave out a smooth coat's delta peak; + - * / %%, "
                    "comparisons, and/or/not, abs)")
     add_channel(p, "fit only this channel (default: every channel separately)")
+    p.add_argument("--share", action="append", metavar="NAME[,NAME...]",
+                   help="a parameter shared by every channel (e.g. --share alpha: one geometry, "
+                   "colour per channel); the channels are then fitted jointly, as one problem "
+                   "(data_formats/fit_json.md, 'Joint fits')")
     p.add_argument("--mcmc", action="store_true", help="sample the posterior with emcee")
     p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")
     p.add_argument("--walkers", type=int, help="number of walkers (default max(32, 4 x dim))")
@@ -91,14 +95,26 @@ def _fixed_from_cli(model, items):
     return fixed
 
 
+def _share_names(items):
+    """--share alpha --share n,k -> ("alpha", "n", "k")."""
+    return tuple(dict.fromkeys(n.strip() for item in items or () for n in item.split(",")
+                               if n.strip()))
+
+
 def _print_summary(record):
+    joint = record.get("joint")
+    if joint:
+        print(f"joint fit of channels {', '.join(joint['channels'])}: "
+              f"{', '.join(joint['shared'])} shared; {len(joint['parameters'])} free "
+              f"coordinates, {joint['n_fit']} rows", file=sys.stderr)
     for fit in record["fits"]:
         print(f"channel {fit['channel']}:", file=sys.stderr)
         for name, p in fit["parameters"].items():
             if p["fixed"]:
                 print(f"  {name:>8} = {p['value']:.6g} (fixed)", file=sys.stderr)
                 continue
-            line = f"  {name:>8} = {p['value']:.6g} ± {p['stderr'] or float('nan'):.2g} (LS)"
+            line = (f"  {name:>8} = {p['value']:.6g} ± {p['stderr'] or float('nan'):.2g} (LS"
+                    + (", shared)" if p.get("shared") else ")"))
             post = p.get("posterior")
             if post:
                 line += (f";  posterior median {post['median']:.6g}, 68% "
@@ -206,6 +222,7 @@ def run(args):
     t_read = time.perf_counter() - t0
     result = fit(m, model, fix=fixed, free=args.free or (), options=options, loss=args.loss,
                  subset=args.fit_subset, channels=[args.channel] if args.channel else None,
+                 share=_share_names(args.share),
                  mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
                  starts=args.starts, seed=args.seed,
                  walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,

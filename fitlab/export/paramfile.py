@@ -53,6 +53,8 @@ def _channel_record(ch, model, fixed):
                "bounds": [fp.lower, fp.upper], "stderr": _num(ls.stderr[k]),
                "at_bound": fp.name in ls.at_bound,
                "transform": "log" if fp.log else "linear"}
+        if fp.name in ch.get("shared", ()):  # one value for every channel (fitting/joint.py)
+            rec["shared"] = True
         if mc is not None:
             s = mc.samples_native[:, k]
             q = np.percentile(s, [2.5, 16, 50, 84, 97.5])
@@ -140,6 +142,8 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
         "fits": [_channel_record(ch, model, result["fixed"]) for ch in result["channels"]],
         "software": software_versions(),
     }
+    if result.get("joint") is not None:  # parameters shared across channels (fitting/joint.py)
+        record["joint"] = result["joint"]
     if timings is not None:
         record["timings_s"] = timings
     return record

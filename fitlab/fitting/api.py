@@ -37,7 +37,7 @@ def read(path, format: str | None = None):
 
 
 def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict | None = None,
-        loss: str | None = None, subset=None, channels=None, mcmc: bool = False,
+        loss: str | None = None, subset=None, channels=None, share=(), mcmc: bool = False,
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
         aperture_order: int | None = None, bootstrap: int | None = None):
@@ -49,7 +49,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     (``eta`` from its indices); options: model options (``{"distribution": "beckmann"}``);
     loss: ``chi2`` (default with sigma), ``relative`` (default without), ``log``, ``cos_l2``;
     subset: rows to fit (an expression such as ``"theta_i == 0"`` or a boolean mask), the rest
-    predicted; channels: channel names to fit (default all); mcmc: also sample the posterior
+    predicted; channels: channel names to fit (default all); share: parameters shared by every
+    channel (``["alpha"]``: one geometry, the rest per channel; the channels are then fitted
+    as one problem, see ``fitlab.fitting.joint``); mcmc: also sample the posterior
     with emcee (``mcmc_steps``, ``walkers``); starts: Levenberg–Marquardt starts besides the
     global search's best; seed: every random choice; walter_diagnostics: add Walter 2007 §6.1's
     empirical D; progress: report progress on stderr; aperture_order: the quadrature order over
@@ -93,6 +95,14 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
             raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
     if mcmc and mcmc_steps < 100:
         raise FitlabError("mcmc_steps must be at least 100")
+    share = (share,) if isinstance(share, str) else tuple(share or ())
+    if share:
+        from fitlab.fitting.joint import check_share
+
+        try:
+            share = check_share(mdl, share, fixed)
+        except ValueError as exc:
+            raise FitlabError(str(exc)) from None
     if aperture_order is not None:
         from fitlab.aperture import MAX_ORDER, check_order
 
@@ -128,7 +138,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     try:
         result = fit_measurement(m, mdl.name, options=options, fixed=fixed, free=tuple(free or ()),
                                  loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,
-                                 mcmc_walkers=walkers, seed=seed, n_starts=starts,
+                                 mcmc_walkers=walkers, seed=seed, n_starts=starts, share=share,
                                  quiet=not progress, channels=chan_ids, warn=False,
                                  aperture_order=aperture_order,
                                  bootstrap=None if bootstrap is None else int(bootstrap))

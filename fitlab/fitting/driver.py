@@ -1,7 +1,8 @@
 """One fit, end to end: a Measurement and a model in, a FitResult (plain data) out.
 
-Channels are fitted independently (every model parameter per channel); the result holds one
-entry per channel. Rows outside ``--fit-subset`` are not fitted but are predicted, and the
+Channels are fitted independently (every model parameter per channel), unless parameters are
+shared across channels (``share``: one joint problem, fitlab/fitting/joint.py); the result holds
+one entry per channel. Rows outside ``--fit-subset`` are not fitted but are predicted, and the
 statistics report both (Walter's protocol: fit at normal incidence, predict the others).
 
 A fit that did not go as planned says so: each channel's ``warnings`` (a list of sentences)
@@ -201,7 +202,7 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
                     n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
-                    aperture_order=None, bootstrap=None):
+                    aperture_order=None, bootstrap=None, share=()):
     """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
@@ -216,6 +217,25 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                                                             fixed=fixed, free=free, loss=loss)
     rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
     chan_ids = range(len(m.channel_names)) if channels is None else channels
+    fitted = [c for c in chan_ids if np.any((m.channel == c) & rows_fit)]
+    if share and len(fitted) > 1:  # one problem over the channels (fitlab/fitting/joint.py)
+        from fitlab.fitting.joint import fit_joint
+
+        results, joint = fit_joint(
+            m, model, options, fixed, loss, start, rows_fit, fitted, share,
+            channel_problem=channel_problem, statistics=statistics,
+            least_squares_warnings=least_squares_warnings, mcmc=mcmc, mcmc_steps=mcmc_steps,
+            mcmc_walkers=mcmc_walkers, seed=seed, n_starts=n_starts, quiet=quiet,
+            lm_maxiter=lm_maxiter, aperture_order=aperture_order, bootstrap=bootstrap)
+        for ch in results if warn else ():
+            for w in ch["warnings"]:
+                _warnings.warn(f"channel {ch['channel']}: {w}", FitWarning, stacklevel=2)
+        return {"model": model, "options": options, "fixed": fixed, "loss": loss,
+                "notes": notes, "seed": seed, "subset_rows": rows_fit, "channels": results,
+                "joint": joint}
+    if share:
+        notes.append(f"share {', '.join(share)}: only one channel is fitted, so there is "
+                     "nothing to share across channels (an independent fit)")
     results = []
     for c in chan_ids:
         name = m.channel_names[c]

@@ -135,6 +135,21 @@ class FitResult:
         m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
         return tuple(cov["parameters"]), _frozen(m)
 
+    @property
+    def shared(self) -> tuple[str, ...]:
+        """Parameters shared by every channel (a joint fit, ``share=``); () otherwise."""
+        return tuple((self.record.get("joint") or {}).get("shared", ()))
+
+    def joint_covariance(self) -> tuple[tuple[str, ...], np.ndarray] | None:
+        """(coordinates, covariance) of a joint fit's whole problem: each shared parameter
+        once, the others per channel as ``name[channel]``; None without shared parameters."""
+        joint = self.record.get("joint")
+        if not joint or not joint.get("covariance"):
+            return None
+        cov = joint["covariance"]
+        m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
+        return tuple(cov["parameters"]), _frozen(m)
+
     def covariance(self, channel: str | None = None) -> tuple[tuple[str, ...], np.ndarray]:
         """(free parameter names, covariance matrix in native units) of a channel."""
         cov = self._fit(channel)["covariance"]

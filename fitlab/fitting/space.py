@@ -130,6 +130,9 @@ def to_native(static: StaticSpace, u, lo, hi):
 
 def predict(static: StaticSpace, theta, fixed: dict, wi, wo):
     """Model prediction scale · f(wi, wo) for one native parameter vector ``theta``."""
+    if hasattr(static, "row_parameters"):  # one problem over channels (fitting/joint.py)
+        params, scale = static.row_parameters(theta, fixed, wi)
+        return scale * static.model.eval(params, wi, wo, **dict(static.options))
     params = dict(fixed)
     scale = 1.0
     for k, name in enumerate(static.names):

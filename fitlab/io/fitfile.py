@@ -35,6 +35,7 @@ _PARAMETER = Record(
     required={"value": _NUM, "fixed": Bool()},
     optional={"unit": Str(max_len=200), "bounds": List(_NUM, length=2),
               "stderr": _OPT_NUM, "at_bound": Bool(), "transform": Str(max_len=50),
+              "shared": Bool(),
               "posterior": Optional(_POSTERIOR), "bootstrap": _BOOTSTRAP_PARAMETER})
 _COVARIANCE = Record(required={"parameters": List(_NAME, max_len=MAX_PARAMETERS),
                                "matrix": List(List(_OPT_NUM, max_len=MAX_PARAMETERS),
@@ -108,6 +109,26 @@ _FIT = Record(
               "goodness": _GOODNESS, "bootstrap": _BOOTSTRAP,
               "aperture": _APERTURE,
               "timings_s": _VALUES})
+#: Most coordinates of a joint fit over channels (shared parameters once, the others per channel).
+MAX_JOINT = 4096
+_JOINT_NAMES = List(_NAME, max_len=MAX_JOINT)
+#: A joint fit over channels (fitlab/fitting/joint.py; data_formats/fit_json.md, "Joint fits").
+_JOINT = Record(
+    required={"shared": List(_NAME, min_len=1, max_len=MAX_PARAMETERS),
+              "parameters": _JOINT_NAMES},
+    optional={"channels": List(_NAME, max_len=MAX_CHANNELS),
+              "value": List(_NUM, max_len=MAX_JOINT), "stderr": List(_OPT_NUM, max_len=MAX_JOINT),
+              "covariance": Record(required={"parameters": _JOINT_NAMES,
+                                             "matrix": List(List(_OPT_NUM, max_len=MAX_JOINT),
+                                                            max_len=MAX_JOINT)},
+                                   optional={"source": Str()}),
+              "n_fit": Int(lo=0), "cost": _OPT_NUM, "dof": Int(),
+              "residual_noise_scale": _OPT_NUM,
+              "mcmc": Record(optional={
+                  "coordinates": List(_NAME, max_len=MAX_JOINT + 1),
+                  "autocorrelation_time": List(_OPT_NUM, max_len=MAX_JOINT + 1),
+                  "correlation": List(List(_OPT_NUM, max_len=MAX_JOINT + 1),
+                                      max_len=MAX_JOINT + 1)})})
 #: What a parameter file must hold, field by field (data_formats/fit_json.md): the fields the
 #: tools read are checked for type and finiteness before any of them is used.
 FIT_SCHEMA = Record(
@@ -126,7 +147,7 @@ FIT_SCHEMA = Record(
         "fits": List(_FIT, min_len=1, max_len=MAX_CHANNELS),
         "loss": Str(max_len=100),
     },
-    optional={"seed": Optional(Int()), "notes": _TEXT_LIST,
+    optional={"seed": Optional(Int()), "notes": _TEXT_LIST, "joint": _JOINT,
               "conventions": Map(Str()), "software": Map(Str()), "timings_s": _VALUES,
               "created_utc": Str(), "chain": Record(required={"path": Str(max_len=10_000)},
                                                     optional={"sha256": Str(max_len=64)})})
@@ -155,6 +176,18 @@ def check_fit_record(path, record) -> dict:
         if len(matrix) != len(names) or any(len(row) != len(names) for row in matrix):
             raise InputFileError(path, f"field fits[{k}].covariance.matrix is not "
                                  f"{len(names)} x {len(names)}", hint=hint)
+    joint = record.get("joint")
+    if joint:
+        n = len(joint["parameters"])
+        for key in ("value", "stderr"):
+            if key in joint and len(joint[key]) != n:
+                raise InputFileError(path, f"field joint.{key} has {len(joint[key])} entries "
+                                     f"for {n} joint.parameters", hint=hint)
+        cov = joint.get("covariance")
+        if cov and (len(cov["matrix"]) != len(cov["parameters"])
+                    or any(len(row) != len(cov["parameters"]) for row in cov["matrix"])):
+            raise InputFileError(path, "field joint.covariance.matrix is not "
+                                 f"{len(cov['parameters'])} x {len(cov['parameters'])}", hint=hint)
     return record
 
 
