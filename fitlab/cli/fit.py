@@ -182,8 +182,8 @@ def _print_goodness(fit):
     print("    " + "; ".join(out), file=sys.stderr)
     boot = fit.get("bootstrap")
     if boot and boot.get("replicates"):
-        print(f"  bootstrap: {boot['replicates']} refits over {boot['blocks']} incidences",
-              file=sys.stderr)
+        print(f"  bootstrap: {boot['replicates']} refits over {boot['blocks']} incidences"
+              + (f" ({boot['note']})" if boot.get("note") else ""), file=sys.stderr)
 
 
 def _print_timings(timings):

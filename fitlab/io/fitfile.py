@@ -90,7 +90,8 @@ _GOODNESS = Record(optional={
         "draws": Int(lo=0), "chi2": _PPC_TEST, "worst_incidence": _PPC_TEST}))})
 _BOOTSTRAP = Record(optional={
     "method": Str(), "requested": Int(lo=0), "replicates": Int(lo=0), "blocks": Int(lo=0),
-    "non_finite": Int(lo=0), "max_iterations": Int(lo=0), "seed": Int(), "skipped": Str()})
+    "non_finite": Int(lo=0), "max_iterations": Int(lo=0), "seed": Int(), "skipped": Str(),
+    "note": Str(), "at_bound": Map(Int(lo=0), max_len=MAX_PARAMETERS + 1)})
 _FIT = Record(
     required={"channel": _NAME,
               "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS),

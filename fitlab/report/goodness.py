@@ -157,7 +157,8 @@ def goodness_section(rep, ch, tag) -> str | None:
             "incidences, so a misfit's correlated residuals stay together) and refitted from "
             "the least-squares optimum. Its spread is the parameters' sensitivity to which "
             "incidences were measured: it accounts for misfit, where the least-squares errors "
-            "and the MCMC posterior assume the model is right.")
+            "and the MCMC posterior assume the model is right."
+            + (f" Note: {boot['note']}." if boot.get("note") else ""))
     ivals = intervals(fit, ch.free)
     if any(len(iv) > 1 for _, _, iv in ivals):
         fig = interval_figure(ivals, f"channel {ch.name}: 68% intervals")
