@@ -48,8 +48,15 @@ _D = {name: jax.jit(d.D) for name, d in DISTRIBUTIONS.items()}
 _G1 = {name: jax.jit(d.G1) for name, d in DISTRIBUTIONS.items()}
 
 
+@functools.lru_cache(maxsize=None)
+def _leggauss(n):
+    """Gauss-Legendre nodes and weights on [-1, 1], computed once per order (an eigenvalue
+    problem of size n: 57 of them made the Smith test take 8 s per α)."""
+    return np.polynomial.legendre.leggauss(n)
+
+
 def _gauss(a, b, n):
-    x, w = np.polynomial.legendre.leggauss(n)
+    x, w = _leggauss(n)
     return 0.5 * (b - a) * x + 0.5 * (b + a), 0.5 * (b - a) * w
 
 
