@@ -9,8 +9,9 @@ predicts them. Score: the RMS relative error (model − data)/data of the held-o
 incidence and pooled over every held-out row (rows below 1% of their incidence's maximum are not
 counted, as in the fit statistics). A fold keeps the data's shape: the rows it leaves out get a
 zero residual through a row mask (``least_squares.ROW_MASK``), so one compilation serves every
-fold of a model (brown vinyl: 0.3-0.4 s a fold after one compile of about 15-20 s; a new shape
-per fold would compile every time).
+fold of a model (brown vinyl, Lambert + GGX dielectric: 0.3-0.4 s a fold after one compile of
+about 15-20 s, where a new shape per fold compiled for about 15 s each time; over five models
+on the shared 2-core machine 1-11 s a fold).
 
 PSIS-LOO and WAIC (ArviZ) from the MCMC posterior. The pointwise log-likelihood of a posterior
 sample is the fit's own likelihood (fitlab/fitting/mcmc.py) row by row, written as a density of
