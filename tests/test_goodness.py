@@ -331,6 +331,34 @@ def test_older_files_without_the_fields_load(misfit, tmp_path, capsys):
     assert "bootstrap" not in build._parameter_table(ch)
 
 
+@pytest.mark.parametrize("path, value", [
+    (("goodness", "runs_test", "expected_runs"), None),
+    (("goodness", "per_incidence", 0, "theta_i"), "15"),
+    (("goodness", "describes_data"), "no"),
+    (("bootstrap", "replicates"), -1),
+    (("parameters", "alpha", "bootstrap", "p84"), float("inf")),
+])
+def test_malformed_goodness_fields_refused(misfit, tmp_path, capsys, path, value):
+    """A parameter file whose goodness or bootstrap fields the report would read are missing or
+    of the wrong type is refused (exit 2, the field named), never a traceback."""
+    rec = json.loads(misfit["out"].read_text())
+    rec.pop("chain")
+    rec["data"]["path"] = str(misfit["data"])
+    obj = rec["fits"][0]
+    for key in path[:-1]:
+        obj = obj[key]
+    if value is None:
+        del obj[path[-1]]
+    else:
+        obj[path[-1]] = value
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(rec).replace("Infinity", "1e999"))
+    assert main(["report", str(bad), "--out", str(tmp_path / "rep"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert ".".join(str(k) for k in path[:2]) in err.replace("[0]", ".0").replace("..", ".")
+    assert "Traceback" not in err and not (tmp_path / "rep").exists()
+
+
 @pytest.mark.slow
 def test_older_files_without_the_fields_report(misfit, tmp_path):
     old, _ = _older(misfit, tmp_path)

@@ -310,25 +310,31 @@ def failure_sentence(goodness: dict, *, has_mcmc: bool, bootstrap: bool) -> str 
         return None
     parts = []
     per = goodness.get("per_incidence") or []
-    if "chi2" in failed:
-        c = goodness["chi2"]
+    # Each part only where its record is there (a file read back is checked field by field,
+    # not for agreement between ``failed`` and the records).
+    c = goodness.get("chi2")
+    if "chi2" in failed and c:
         parts.append(f"chi2/dof = {c['chi2_per_dof']:.3g} (p = {_p(c['p_value'])})")
-    if "incidence_level" in failed:
-        stat = goodness["incidence_level"]["statistic"]
-        worst = max((x for x in per if x.get(stat) is not None), key=lambda x: x[stat])
+    lv = goodness.get("incidence_level") or {}
+    stat = lv.get("statistic")
+    levels = [x for x in per if x.get(stat) is not None]
+    if "incidence_level" in failed and levels:
+        worst = max(levels, key=lambda x: x[stat])
         what = "chi2/dof" if stat == "chi2_per_dof" else "residual variance / overall noise scale"
         parts.append(f"per incidence {what} up to {worst[stat]:.3g} at theta_i = "
                      f"{worst['theta_i']:g} deg (Sidak-corrected p = "
-                     f"{_p(goodness['incidence_level']['min_p_value_sidak'])})")
-    if "runs_test" in failed:
-        rt = goodness["runs_test"]
+                     f"{_p(lv.get('min_p_value_sidak'))})")
+    rt = goodness.get("runs_test")
+    if "runs_test" in failed and rt:
         parts.append(f"residual signs form {rt['runs']} runs along the scans where "
                      f"{rt['expected_runs']:.0f} are expected for noise (runs test p = "
                      f"{_p(rt['p_value'])}): the residuals are structured")
-    if "posterior_predictive" in failed:
-        pp = goodness["posterior_predictive"]
+    pp = goodness.get("posterior_predictive")
+    if "posterior_predictive" in failed and pp:
         parts.append(f"posterior predictive p = {_p(pp['worst_incidence']['p_value'])} "
                      f"(worst incidence), {_p(pp['chi2']['p_value'])} (chi2)")
+    if not parts:
+        parts.append(", ".join(str(f) for f in failed))
     then = ("the least-squares standard errors"
             + (" and the MCMC intervals are" if has_mcmc else " are")
             + " conditional on the model and understate the uncertainty of its parameters; ")

@@ -29,8 +29,8 @@ _TEXT_LIST = List(Str(), max_len=10_000)
 
 _POSTERIOR = Record(optional={k: _NUM for k in ("mean", "median", "std", "p2_5", "p16",
                                                     "p50", "p84", "p97_5")})
-_BOOTSTRAP_PARAMETER = Record(optional={k: _OPT_NUM for k in ("std", "p2_5", "p16", "p50",
-                                                               "p84", "p97_5")})
+_BOOTSTRAP_PARAMETER = Record(required={k: _NUM for k in ("std", "p2_5", "p16", "p50", "p84",
+                                                           "p97_5")})
 _PARAMETER = Record(
     required={"value": _NUM, "fixed": Bool()},
     optional={"unit": Str(max_len=200), "bounds": List(_NUM, length=2),
@@ -69,29 +69,36 @@ _APERTURE = Record(optional={
         "row_error_unit": Str(), "parameter_shift": _VALUES, "max_parameter_shift": _OPT_NUM,
         "parameter_shift_unit": Str(), "tolerance": _OPT_NUM, "within_tolerance": Bool()})})
 #: Goodness of fit (fitlab.fitting.goodness) and the block bootstrap's summary
-#: (fitlab.fitting.resampling); optional: older files have neither.
-_PPC_TEST = Record(optional={"observed_mean": _OPT_NUM, "replicated_mean": _OPT_NUM,
-                             "p_value": _OPT_NUM})
-_GOODNESS = Record(optional={
-    "p_fail": _NUM, "noise": Str(), "describes_data": Bool(),
-    "failed": List(Str(max_len=100), max_len=100),
-    "chi2": Record(optional={"chi2": _OPT_NUM, "dof": Int(), "chi2_per_dof": _OPT_NUM,
-                             "p_value": _OPT_NUM}),
-    "incidence_level": Record(optional={"statistic": Str(max_len=100), "test": Str(),
-                                        "min_p_value_sidak": _OPT_NUM}),
-    "runs_test": Record(optional={"runs": Int(lo=0), "expected_runs": _OPT_NUM, "z": _OPT_NUM,
-                                  "p_value": _OPT_NUM, "rows": Int(lo=0), "ordering": Str(),
-                                  "min_p_value_sidak": _OPT_NUM}),
-    "per_incidence": List(Record(optional={
-        "theta_i": _NUM, "phi_i": _NUM, "n": Int(lo=0), "chi2_per_dof": _OPT_NUM,
-        "variance_ratio": _OPT_NUM, "level_p_value": _OPT_NUM, "runs": Int(lo=0),
-        "expected_runs": _OPT_NUM, "runs_p_value": _OPT_NUM}), max_len=100_000),
-    "posterior_predictive": Optional(Record(optional={
-        "draws": Int(lo=0), "chi2": _PPC_TEST, "worst_incidence": _PPC_TEST}))})
-_BOOTSTRAP = Record(optional={
-    "method": Str(), "requested": Int(lo=0), "replicates": Int(lo=0), "blocks": Int(lo=0),
-    "non_finite": Int(lo=0), "max_iterations": Int(lo=0), "seed": Int(), "skipped": Str(),
-    "note": Str(), "at_bound": Map(Int(lo=0), max_len=MAX_PARAMETERS + 1)})
+#: (fitlab.fitting.resampling): optional (older files have neither); where present, every field
+#: the report reads is required.
+_PPC_TEST = Record(required={"observed_mean": _NUM, "replicated_mean": _NUM,
+                             "p_value": _NUM})
+_GOODNESS = Record(
+    required={
+        "p_fail": _NUM, "noise": Str(), "describes_data": Bool(),
+        "failed": List(Str(max_len=100), max_len=100),
+        "incidence_level": Record(required={"statistic": Str(max_len=100),
+                                            "min_p_value_sidak": _OPT_NUM},
+                                  optional={"test": Str()}),
+        "runs_test": Record(required={"runs": Int(lo=0), "expected_runs": _NUM,
+                                      "p_value": _OPT_NUM, "ordering": Str()},
+                            optional={"z": _OPT_NUM, "rows": Int(lo=0),
+                                      "min_p_value_sidak": _OPT_NUM}),
+        "per_incidence": List(Record(
+            required={"theta_i": _NUM, "phi_i": _NUM, "n": Int(lo=0),
+                      "level_p_value": _OPT_NUM, "runs": Int(lo=0), "expected_runs": _NUM,
+                      "runs_p_value": _OPT_NUM},
+            optional={"chi2_per_dof": _OPT_NUM, "variance_ratio": _OPT_NUM}),
+            max_len=100_000),
+        "posterior_predictive": Optional(Record(required={
+            "draws": Int(lo=0), "chi2": _PPC_TEST, "worst_incidence": _PPC_TEST}))},
+    optional={"chi2": Record(required={"chi2": _NUM, "dof": Int(), "chi2_per_dof": _NUM,
+                                       "p_value": _NUM})})
+_BOOTSTRAP = Record(
+    required={"requested": Int(lo=0), "replicates": Int(lo=0), "blocks": Int(lo=0)},
+    optional={"method": Str(), "non_finite": Int(lo=0), "max_iterations": Int(lo=0),
+              "seed": Int(), "skipped": Str(), "note": Str(),
+              "at_bound": Map(Int(lo=0), max_len=MAX_PARAMETERS + 1)})
 _FIT = Record(
     required={"channel": _NAME,
               "parameters": Map(_PARAMETER, min_len=1, max_len=MAX_PARAMETERS),

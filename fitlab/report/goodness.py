@@ -103,7 +103,7 @@ def goodness_section(rep, ch, tag) -> str | None:
     lv, rt, pp = g["incidence_level"], g["runs_test"], g.get("posterior_predictive")
     stat = lv["statistic"]
     rows = []
-    if g.get("chi2"):
+    if g.get("chi2"):  # with the chi2 loss
         c = g["chi2"]
         rows.append(["χ² (all fitted rows)", f"χ²/dof = {_g(c['chi2_per_dof'])} (dof "
                      f"{c['dof']})", _p(c["p_value"]), "fails" if "chi2" in g["failed"]
