@@ -47,16 +47,14 @@ def _clear_lru_caches(module) -> None:
             value.cache_clear()
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _release_compiled_code(request):
-    """After each test module: drop JAX's compiled executables and traces, the kernel caches of
-    fitlab and of the module itself, and hand the freed heap back to the system. Without this
-    the process kept every kernel any test had compiled (5.7 GB by the end of the quick tier).
-    Derived models (fitlab.models: sums, layered models) stay cached: they are small, and the
-    registry's caches are keyed on their identity."""
-    yield
+def _release_compiled_code(test_module=None) -> None:
+    """Drop JAX's compiled executables and traces, the kernel caches of fitlab and of the test
+    module, and hand the freed heap back to the system. Derived models (fitlab.models: sums,
+    layered models) stay cached: they are small, and the registry's caches are keyed on their
+    identity. What is dropped is compiled again when needed (loaded from the session cache)."""
     jax.clear_caches()
-    _clear_lru_caches(request.module)
+    if test_module is not None:
+        _clear_lru_caches(test_module)
     for name, module in list(sys.modules.items()):
         if (name == "fitlab" or name.startswith("fitlab.")) and not name.startswith("fitlab.models"):
             _clear_lru_caches(module)
@@ -65,6 +63,35 @@ def _release_compiled_code(request):
         ctypes.CDLL(None).malloc_trim(0)  # glibc: return freed arenas to the system
     except (OSError, AttributeError):
         pass
+
+
+#: A test process whose resident memory is above this after a test releases its compiled code
+#: there and then (a module that compiles many models would otherwise hold them all).
+RELEASE_ABOVE_BYTES = 1024 * 2**20
+
+
+def _resident_bytes() -> int:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_after_module(request):
+    """After each test module, release its compiled code: without this the process kept every
+    kernel any test had compiled (5.7 GB by the end of the quick tier)."""
+    yield
+    _release_compiled_code(request.module)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    yield
+    if _resident_bytes() > RELEASE_ABOVE_BYTES:
+        _release_compiled_code(item.module)
+
 
 #: Set by .ci/run: a test that would skip for a missing system package fails instead.
 STRICT_ENV = "FITLAB_REQUIRE_ALL"
