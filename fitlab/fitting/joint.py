@@ -375,10 +375,9 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
         else:
             warnings.append("the bootstrap failed: fewer than 2 of its refits ended at finite "
                             "values")
-        if boot["blocks"] < FEW_BLOCKS:
-            warnings.append(f"the bootstrap resamples only {boot['blocks']} incidence directions:"
-                            " its intervals are rough (and tend to be too narrow) with so few "
-                            "blocks")
+        if boot["blocks"] < FEW_BLOCKS:  # a caveat kept with the record, as for one channel
+            rec["note"] = (f"only {boot['blocks']} incidence directions to resample: the "
+                           "bootstrap intervals are rough and tend to be too narrow")
         if rec.get("at_bound"):
             warnings.append("bootstrap refits ended at a bound of " + ", ".join(
                 f"{k} ({v} of {boot['replicates']})" for k, v in rec["at_bound"].items())
