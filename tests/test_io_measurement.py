@@ -87,6 +87,13 @@ def test_select_keeps_provenance():
         ("measurement_mixed_delimiters.csv", 4, None, "tab"),
         ("measurement_empty.csv", None, None, "is empty"),
         ("measurement_header_only.csv", None, None, "no data rows"),
+        ("measurement_aperture_out_of_range.csv", 4, "aperture_deg",
+         "95° is not a cone half-angle in [0°, 90°)"),
+        ("measurement_bad_aperture_line.csv", 2, None, "'# aperture_deg:' is -2"),
+        ("measurement_bin_partial.csv", 2, None, "but not phi_o_lo, phi_o_hi"),
+        ("measurement_outside_bin.csv", 4, "theta_o", "θo = 35° lies outside its bin [20°, 30°]"),
+        ("measurement_bin_crosses_horizon.csv", 3, "theta_o_hi", "crosses the surface plane"),
+        ("measurement_cone_and_bin.csv", 4, "aperture_deg", "both a detector cone and a bin"),
     ],
 )
 def test_invalid(name, line, column, fragment):
