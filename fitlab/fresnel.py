@@ -79,7 +79,12 @@ def fresnel_conductor_exact(cos_i, n, k):
     s2 = 1.0 - c2
     t0 = n * n - k * k - s2
     a2b2 = safe_sqrt(t0 * t0 + 4.0 * n * n * k * k)  # a² + b²
-    a = safe_sqrt(0.5 * (a2b2 + t0))
+    # a² = (a2b2 + t0)/2, rationalized where t0 < 0 (a2b2 ≈ -t0 there: below the critical
+    # angle of n < 1 with small k the sum cancels to rounding noise, and XLA's differently
+    # rounded copies of it inside safe_sqrt's two where's once disagreed on its sign, giving
+    # a = 1 and F = 0 instead of F = 1): (a2b2² - t0²) / (2 (a2b2 - t0)) = 2 n²k² / (a2b2 - t0)
+    a2 = jnp.where(t0 >= 0, 0.5 * (a2b2 + t0), safe_div(2.0 * n * n * k * k, a2b2 - t0))
+    a = safe_sqrt(a2)
     t1 = a2b2 + c2
     t2 = 2.0 * c * a
     Rs = safe_div(t1 - t2, t1 + t2, 1.0)

@@ -276,3 +276,52 @@ def test_agrees_with_mitsuba(mitsuba_scalar):
             assert ct == pytest.approx(cos_t, abs=2e-6 + tol), (c, eta)
             assert it == pytest.approx(eta_it, rel=1e-6) and ti == pytest.approx(eta_ti,
                                                                                rel=1e-6)
+
+
+# ----------------------------------------------------------------------------------------------
+# Conductor Fresnel with n < 1 (fitlab.fresnel.fresnel_conductor_exact)
+# ----------------------------------------------------------------------------------------------
+
+
+def _conductor_reference(c, n, k):
+    """Textbook complex-index amplitudes (Born & Wolf 13.2) in NumPy complex128:
+    F = (|r_s|² + |r_p|²)/2 with η = n + ik, cos θt = sqrt(1 - sin²θi/η²)."""
+    eta = n + 1j * k
+    ct = np.sqrt(1 - (1 - c * c) / eta**2 + 0j)
+    rs = (c - eta * ct) / (c + eta * ct)
+    rp = (eta * c - ct) / (eta * c + ct)
+    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+
+
+def test_conductor_below_the_critical_angle_of_n_below_one():
+    """n < 1 with small k: below the critical angle a = Re sqrt(η² - sin²θi) is nearly 0 and
+    was the difference of two nearly equal numbers. Under jit with the half vector computed in
+    the same graph, XLA's copies of it inside safe_sqrt's two where's once disagreed on its
+    sign (F = 0 instead of 1 on the rows below, from a fit that strayed to n = 0.013, k = 0).
+    Reference: the complex amplitude coefficients."""
+    from fitlab.fresnel import fresnel_conductor_exact
+    from fitlab.frame import dot, normalize
+
+    wi = np.array([[0.8660254037844387, 0.0, 0.5], [0.8660254037844387, 0.0, 0.5],
+                   [0.5, 0.0, 0.8660254037844387]])
+    wo = np.array([[-0.6946583704589973, 8.507111497940214e-17, 0.7193398003386512],
+                   [-0.6691306063588582, 8.194486549419928e-17, 0.7431448254773942],
+                   [-0.7431448254773942, 9.100899319900706e-17, 0.6691306063588582]])
+
+    def F(n, wi, wo):
+        return fresnel_conductor_exact(dot(wi, normalize(wi + wo)), n, 0.0)
+
+    def value_and_jacobian(n, wi, wo):
+        return jax.jvp(lambda x: F(x, wi, wo), (n,), (jnp.ones_like(n),))
+
+    n = jnp.float64(0.0132307957)
+    np.testing.assert_array_equal(np.asarray(jax.jit(value_and_jacobian)(n, wi, wo)[0]), 1.0)
+    np.testing.assert_array_equal(np.asarray(jax.jit(F)(n, wi, wo)), 1.0)
+    c = np.linspace(0.0, 1.0, 201)
+    for nn in (0.0132, 0.2, 0.5, 0.9, 1.0, 1.5):
+        for k in (0.0, 1e-3, 0.05, 0.5, 3.9):
+            got = np.asarray(jax.jit(fresnel_conductor_exact)(c, nn, k))
+            want = _conductor_reference(c, nn, k)
+            ok = np.isfinite(want)  # the amplitudes are 0/0 at grazing incidence for η = 1
+            np.testing.assert_allclose(got[ok], want[ok], rtol=1e-9, atol=1e-12,
+                                       err_msg=f"n={nn}, k={k}")
