@@ -422,3 +422,15 @@ def test_coverage_over_simulated_datasets():
     z_point, chi2_point, _ = _simulated_fit(CASES[0], 0, point=True)
     print(f"control, case 0 at the bin centres: z = {z_point:+.2f}, chi2/dof = {chi2_point:.3f}")
     assert abs(z_point) > 5 and chi2_point > 2
+
+
+def test_fit_subset_names_sigma():
+    """'sigma < 0.1 * value' keeps the rows a simulation measured with at least ~100 paths (a
+    row's Monte Carlo sigma from few paths is itself noisy and correlated with its value)."""
+    from fitlab.fitting.subset import subset_mask
+
+    m = read_measurement(EXAMPLES / "measurement_bins.csv")
+    np.testing.assert_array_equal(subset_mask("sigma < 0.0197 * value", m),
+                                  m.sigma < 0.0197 * m.value)
+    with pytest.raises(fitlab.errors.FitlabError, match="unknown name 'sigma'"):
+        subset_mask("sigma < 1", read_measurement(EXAMPLES / "walter_rough_glass.csv"))

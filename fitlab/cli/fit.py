@@ -37,8 +37,9 @@ def add_parser(sub):
     p.add_argument("--fit-subset", metavar="EXPR",
                    help="fit only these rows, predict the rest, e.g. 'theta_i == 0', "
                    "'value > 0.01 and theta_o < 80', 'row %% 8 == 0', 'specular_deg > 3' (names: "
-                   "theta_i, phi_i, theta_o, phi_o, value, channel, row, specular_deg = angle "
-                   "to the mirror direction, to leave out a smooth coat's delta peak; + - * / %%, "
+                   "theta_i, phi_i, theta_o, phi_o, value, sigma (when given), channel, row, "
+                   "specular_deg = angle to the mirror direction, to leave out a smooth coat's "
+                   "delta peak; + - * / %%, "
                    "comparisons, and/or/not, abs)")
     add_channel(p, "fit only this channel (default: every channel separately)")
     p.add_argument("--share", action="append", metavar="NAME[,NAME...]",

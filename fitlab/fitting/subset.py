@@ -61,6 +61,8 @@ def _evaluate(expr: str, measurement, source: str) -> np.ndarray:
     names = {"theta_i": m.theta_i, "phi_i": m.phi_i, "theta_o": m.theta_o, "phi_o": m.phi_o,
              "value": m.value, "channel": np.asarray(m.channel_names, dtype=object)[m.channel],
              "row": np.arange(m.n), "specular_deg": _specular_deg(m.wi, m.wo)}
+    if m.sigma is not None:
+        names["sigma"] = m.sigma  # e.g. 'sigma < 0.2 * value': rows of a well-measured value
 
     def ev(node):
         if isinstance(node, ast.Expression):
