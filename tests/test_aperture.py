@@ -266,7 +266,7 @@ def test_fit_recovers_the_truth_of_aperture_averaged_data(tmp_path):
     data fitted as points do not; the parameter file keeps the quadrature and its error; the
     result predicts the rows as the fit did."""
     path = _synthetic(tmp_path)
-    r = fitlab.fit(path, "rough_dielectric", starts=2)
+    r = fitlab.fit(path, "rough_dielectric", starts=2, bootstrap=0)
     # exact data: the fit is off only by the quadrature's own error, within its tolerance
     # (0.1 standard errors, against the order-12 rule that made the data)
     assert abs(r.parameters["Y"]["alpha"] - 0.25) <= 0.1 * r.stderr["Y"]["alpha"]
@@ -278,7 +278,8 @@ def test_fit_recovers_the_truth_of_aperture_averaged_data(tmp_path):
     assert rec["quadrature_error"]["reference_order"] == 2 * rec["order"]
     # the same data read as points: a biased fit
     m = fitlab.read(path)
-    p = fitlab.fit(m._replace(aperture_deg=None, bin_o_deg=None), "rough_dielectric", starts=2)
+    p = fitlab.fit(m._replace(aperture_deg=None, bin_o_deg=None), "rough_dielectric", starts=2,
+                   bootstrap=0)
     assert abs(p.parameters["Y"]["alpha"] - 0.25) > 20 * p.stderr["Y"]["alpha"]
     assert "aperture" not in p.record["fits"][0]
     # the parameter file round trip (schema), and predictions as the fit made them
@@ -308,7 +309,7 @@ def test_given_order_is_recorded_and_a_too_low_order_warns(tmp_path):
     path = _synthetic(tmp_path)
     m = fitlab.read(path)
     m = m.select(m.aperture_deg == 0)  # the bins and the points
-    r = fitlab.fit(m, "rough_dielectric", starts=1, aperture_order=1)
+    r = fitlab.fit(m, "rough_dielectric", starts=1, bootstrap=0, aperture_order=1)
     rec = r.record["fits"][0]["aperture"]
     assert rec["order"] == 1 and rec["order_choice"] == "given" and rec["nodes_per_row"] == 1
     assert not rec["quadrature_error"]["within_tolerance"]
@@ -388,10 +389,10 @@ def _simulated_fit(case, seed, *, point=False):
         m = m._replace(aperture_deg=None, bin_o_deg=None)
     rho = m.sigma**2 * SAMPLES * lam / m.value
     options = {"distribution": dist}
-    first = fitlab.fit(m, "rough_dielectric", options=options, starts=2)
+    first = fitlab.fit(m, "rough_dielectric", options=options, starts=2, bootstrap=0)
     expected = first.predict_measurement(m) if not point else first.predict(m.wi, m.wo)
     m = m._replace(sigma=np.sqrt(rho * np.maximum(expected, 1e-300) / (SAMPLES * lam)))
-    r = fitlab.fit(m, "rough_dielectric", options=options, starts=2)
+    r = fitlab.fit(m, "rough_dielectric", options=options, starts=2, bootstrap=0)
     z = (r.parameters["Y"]["alpha"] - alpha) / r.stderr["Y"]["alpha"]
     return z, r.statistics()["chi2_per_dof"], m.n
 
