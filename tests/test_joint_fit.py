@@ -197,3 +197,10 @@ def test_coat_lobe_over_a_rough_inner_lobe_rgb_shared_geometry(tmp_path):
     assert main(["lut", "model", "--from-fit", str(out), "--size", "16x16",
                  "--dtype", "float", "--out", str(tmp_path / "coated.exr"), "--quiet"]) == 0
     assert main(["convert", str(out), str(tmp_path / "coated.binary")]) == 0
+
+
+def test_joint_fit_same_inputs_same_bytes(rgb):
+    """A joint fit is reproduced byte for byte (tests/test_determinism.py's rule)."""
+    runs = [fitlab.fit(rgb, MODEL, fix={"k": 0.0}, share=["alpha"], starts=2, bootstrap=10,
+                       seed=3).to_json() for _ in range(2)]
+    assert runs[0] == runs[1] and '"shared": true' in runs[0]

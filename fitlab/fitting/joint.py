@@ -303,7 +303,7 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
                            None if m.sigma is None else m.sigma[in_chan], loss)
         good, boot_c, more = channel_misfit(m, rows_c, space_c, datas[k], loss, ls_c, mc_c,
                                             boot, joint, idx, seed=seed)
-        warnings = more[:1] + warnings + more[1:]  # the failure sentence first, as the driver
+        warnings += more
         results.append({"channel": name, "space": space_c, "ls": ls_c, "mcmc": mc_c,
                         "statistics": stats, "seconds_least_squares": t_ls / len(names),
                         "goodness": good, "bootstrap": boot_c,
