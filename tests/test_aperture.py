@@ -435,3 +435,19 @@ def test_fit_subset_names_sigma():
                                   m.sigma < 0.0197 * m.value)
     with pytest.raises(fitlab.errors.FitlabError, match="unknown name 'sigma'"):
         subset_mask("sigma < 1", read_measurement(EXAMPLES / "walter_rough_glass.csv"))
+
+
+@pytest.mark.slow
+def test_report_compares_rows_with_the_aperture_averaged_model(tmp_path):
+    """The report's residuals use the fit's own aperture-averaged predictions and say so."""
+    from fitlab.report.inputs import data_prediction, load_inputs
+
+    path = _synthetic(tmp_path)
+    r = fitlab.fit(path, "rough_dielectric", starts=1, bootstrap=0).save(tmp_path / "fit.json")
+    inp = load_inputs(r.path, path, None)
+    (ch,) = inp.channels
+    m = fitlab.read(path)
+    np.testing.assert_allclose(data_prediction(inp, ch), r.predict_measurement(m), rtol=1e-12)
+    summary = r.report(tmp_path / "report")
+    html = Path(summary["index"]).read_text()
+    assert "16 rows average over their aperture" in html

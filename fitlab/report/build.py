@@ -18,7 +18,8 @@ from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
 from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,
                                 table_html, warning_html)
-from fitlab.report.inputs import BAND_SAMPLES, load_inputs, predictive_band, prediction, model_f
+from fitlab.report.inputs import (BAND_SAMPLES, data_prediction, load_inputs, model_f,
+                                  prediction, predictive_band)
 from fitlab.report.style import render
 
 #: At most this many incidence directions get an in-plane scan figure per channel.
@@ -220,6 +221,18 @@ def _error_tables(inp, ch, preds):
                 f" ({st['n_fit']} of {st['n_total']} rows fitted). Relative errors use rows whose "
                 f"|value| is at least {st['relative_error_floor']:g} × the maximum of their "
                 "incidence.")
+    ap = ch.fit.get("aperture")
+    if ap:
+        err = ap.get("quadrature_error", {})
+        shift = err.get("max_parameter_shift")
+        head.append(
+            f"{ap.get('rows')} rows average over their aperture (detector cone or bin, source "
+            "divergence): the fit and these errors compare them with the model averaged over it "
+            f"by a quadrature of order {ap.get('order')} ({ap.get('order_choice')}, "
+            f"{ap.get('nodes_per_row')} nodes per row); against order "
+            f"{err.get('reference_order')} it moves the parameters by {_fmt(shift, 2)} standard "
+            f"errors and the rows by {_fmt(err.get('max_row_error'), 2)} noise at most. The "
+            "scans' model curves are f itself, not averaged.")
     body = paragraph(" ".join(head))
     body += table_html(["θi (°)", "φi (°)", "role", "rows", "fitted", "RMS rel. error",
                         "max |rel. error|"], rows, numeric=(0, 1, 3, 4, 5, 6))
@@ -596,7 +609,6 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
     inp = load_inputs(fit_path, data_path, chain_path, progress=say)
     tables = _lut_tables(fit_path, luts, discover_luts)
     rep = _Report(say)
-    m = inp.measurement
     meta = inp.record["data"].get("metadata", {})
     title = f"Fit report: {inp.model.name} on {meta.get('sample') or Path(inp.data_path).name}"
     sections = [("warnings", None, _warnings(inp)),
@@ -605,7 +617,7 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         tag = ch.name
         ctitle = f" (channel {ch.name})" if len(inp.channels) > 1 else ""
         say(f"report: channel {ch.name}: predictions and bands ({BAND_SAMPLES} samples at most)")
-        preds = prediction(inp, ch, m.wi[ch.rows], m.wo[ch.rows])
+        preds = data_prediction(inp, ch)  # aperture-averaged where the fit averaged
         body = _parameter_table(ch) + _correlation(rep, ch, tag)
         sections.append((f"parameters-{tag}", "Parameters" + ctitle, body))
         sections.append((f"errors-{tag}", "Errors per incidence" + ctitle,

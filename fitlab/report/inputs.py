@@ -317,6 +317,23 @@ def prediction(inputs: ReportInputs, ch: ChannelInputs, wi, wo) -> np.ndarray:
     return ch.scale * model_f(inputs, ch.params, wi, wo)
 
 
+def data_prediction(inputs: ReportInputs, ch: ChannelInputs) -> np.ndarray:
+    """What the fit predicts for the channel's rows: scale · f at the best fit, averaged over
+    each row's aperture as the fit did (``fits[k].aperture``, fitlab.fitting.aperture) where
+    the fit records one, else at the rows' directions."""
+    m = inputs.measurement
+    rec = ch.fit.get("aperture")
+    if not rec or not m.has_aperture:
+        return prediction(inputs, ch, m.wi[ch.rows], m.wo[ch.rows])
+    from fitlab.aperture import row_rule
+
+    pick = lambda a: None if a is None else np.asarray(a)[ch.rows]  # noqa: E731
+    wi, wo, w = row_rule(m.wi[ch.rows], m.wo[ch.rows], int(rec["order"]),
+                         aperture_deg=pick(m.aperture_deg), bin_deg=pick(m.bin_o_deg),
+                         source_divergence_deg=pick(m.source_divergence_deg))
+    return ch.scale * np.sum(w * model_f(inputs, ch.params, wi, wo), axis=-1)
+
+
 def sample_params(ch: ChannelInputs):
     """(params, scale) with a leading sample axis of shape (S, 1), from the thinned samples."""
     params = {k: np.full((ch.samples.shape[0], 1), v) for k, v in ch.params.items()}
