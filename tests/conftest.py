@@ -67,7 +67,7 @@ def _release_compiled_code(test_module=None) -> None:
 
 #: A test process whose resident memory is above this after a test releases its compiled code
 #: there and then (a module that compiles many models would otherwise hold them all).
-RELEASE_ABOVE_BYTES = 1024 * 2**20
+RELEASE_ABOVE_BYTES = 768 * 2**20
 
 
 def _resident_bytes() -> int:
