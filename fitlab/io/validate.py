@@ -49,7 +49,9 @@ def quote(text, limit: int = QUOTE_CHARS) -> str:
     """``repr`` of a short, one-line excerpt of ``text`` (bytes are shown as text with escapes)."""
     if isinstance(text, (bytes, bytearray)):
         text = bytes(text[: 4 * limit]).decode("utf-8", errors="backslashreplace")
-    text = str(text)
+    if not isinstance(text, str):  # a number, list... from a parsed file: shown as Python shows it
+        shown = repr(text)
+        return shown if len(shown) <= limit else shown[:limit] + f"... ({len(shown)} characters)"
     if len(text) > limit:
         return repr(text[:limit]) + f"... ({len(text)} characters)"
     return repr(text)
@@ -277,7 +279,7 @@ def load_toml(path, raw: bytes, *, what: str, hint: str | None = None) -> dict:
     try:
         obj = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputFileError(path, f"is not valid TOML ({quote(str(exc), 120)})", hint=hint) from None
+        raise InputFileError(path, f"is not valid TOML ({str(exc)[:200]})", hint=hint) from None
     except RecursionError:
         raise _nesting_too_deep(path, what, hint) from None
     if nesting_depth(obj) > MAX_DEPTH:
