@@ -54,7 +54,7 @@ def nan_where_albedo_above(monkeypatch):
 def _no_global_search(monkeypatch, u):
     """Replace the global search by a fixed, poor start (so that every LM start has work left)."""
 
-    def fixed_start(ndim, value_and_grad, problem, seed, maxeval, value=None):
+    def fixed_start(ndim, value_and_grad, problem, seed, maxeval, value=None, on_eval=None):
         return np.full(ndim, u), {"algorithm": "test stub", "evaluations": 0, "non_finite": 0,
                                   "status": "skipped", "best_cost": None}
 
