@@ -34,6 +34,11 @@ def thaw(obj):
     return obj
 
 
+def _matrix(rows) -> np.ndarray:
+    """A read-only float matrix from a record's nested lists (null entries as NaN)."""
+    return _frozen(np.array([[np.nan if v is None else v for v in row] for row in rows], float))
+
+
 def _frozen(a):
     a = np.array(a, copy=True)
     a.setflags(write=False)
@@ -132,29 +137,13 @@ class FitResult:
         if not joint or not joint.get("covariance"):
             return None
         cov = joint["covariance"]
-        m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
-        return tuple(cov["parameters"]), _frozen(m)
+        return tuple(cov["parameters"]), _matrix(cov["matrix"])
 
-    @property
-    def shared(self) -> tuple[str, ...]:
-        """Parameters shared by every channel (a joint fit, ``share=``); () otherwise."""
-        return tuple((self.record.get("joint") or {}).get("shared", ()))
-
-    def joint_covariance(self) -> tuple[tuple[str, ...], np.ndarray] | None:
-        """(coordinates, covariance) of a joint fit's whole problem: each shared parameter
-        once, the others per channel as ``name[channel]``; None without shared parameters."""
-        joint = self.record.get("joint")
-        if not joint or not joint.get("covariance"):
-            return None
-        cov = joint["covariance"]
-        m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
-        return tuple(cov["parameters"]), _frozen(m)
 
     def covariance(self, channel: str | None = None) -> tuple[tuple[str, ...], np.ndarray]:
         """(free parameter names, covariance matrix in native units) of a channel."""
         cov = self._fit(channel)["covariance"]
-        m = np.array([[np.nan if v is None else v for v in row] for row in cov["matrix"]], float)
-        return tuple(cov["parameters"]), _frozen(m)
+        return tuple(cov["parameters"]), _matrix(cov["matrix"])
 
     def posterior(self, channel: str | None = None) -> dict | None:
         """{parameter: {median, p16, p84, p2_5, p97_5, mean, std}} from MCMC, or None."""
@@ -352,7 +341,6 @@ def load_fit(path) -> FitResult:
                                      hint="give the chain written together with the fit")
             chains = read_npz(chain_path, what="fitlab MCMC chain")
     return FitResult.from_record(record, chains, path)
-
 
 
 
