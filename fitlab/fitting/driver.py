@@ -134,6 +134,21 @@ def statistics(m, rows_fit, pred, ls, data_sigma, loss):
     return stats
 
 
+def fitted_rows(m, c, rows_fit):
+    """(name, rows of channel ``c``, its rows to fit) — rows None when none is to be fitted; a
+    channel whose fitted values are all 0 is an error naming the file."""
+    name = m.channel_names[c]
+    in_chan = m.channel == c
+    rows = in_chan & rows_fit
+    if rows.sum() == 0:
+        return name, in_chan, None
+    if not np.any(m.value[rows] != 0):
+        raise FitlabError(f"{m.path}: every value of channel {name} that would be fitted is "
+                          "0: there is nothing to fit; check the value column (and "
+                          "--fit-subset)")
+    return name, in_chan, rows
+
+
 def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None):
     """The model, its options, the fixed parameters (eta from the data file unless freed), notes
     for the user, the loss and the start point: everything channels share."""
@@ -238,15 +253,9 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                      "nothing to share across channels (an independent fit)")
     results = []
     for c in chan_ids:
-        name = m.channel_names[c]
-        in_chan = m.channel == c
-        rows = in_chan & rows_fit
-        if rows.sum() == 0:
+        name, in_chan, rows = fitted_rows(m, c, rows_fit)
+        if rows is None:
             continue
-        if not np.any(m.value[rows] != 0):
-            raise FitlabError(f"{m.path}: every value of channel {name} that would be fitted is "
-                              "0: there is nothing to fit; check the value column (and "
-                              "--fit-subset)")
         t0 = time.perf_counter()
         order = auto_order = None
         if m.has_aperture:

@@ -41,7 +41,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData, fit_least_squares
-from fitlab.fitting.space import SCALE, FitSpace, FreeParameter
+from fitlab.fitting.space import SCALE, FitSpace
 from fitlab.models import Model
 
 
@@ -225,17 +225,13 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
         order, auto = _aperture.start_order(aperture_order)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
+    from fitlab.fitting.driver import fitted_rows  # driver imports this module
+
     names, spaces, datas, starts, masks = [], [], [], [], []
     for c in chan_ids:
-        name = m.channel_names[c]
-        in_chan = m.channel == c
-        rows = in_chan & rows_fit
-        if rows.sum() == 0:
+        name, in_chan, rows = fitted_rows(m, c, rows_fit)
+        if rows is None:
             continue
-        if not np.any(m.value[rows] != 0):
-            raise FitlabError(f"{m.path}: every value of channel {name} that would be fitted is "
-                              "0: there is nothing to fit; check the value column (and "
-                              "--fit-subset)")
         space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
                                                     name, in_chan, order)
         names.append(name)
