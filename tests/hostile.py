@@ -318,7 +318,14 @@ def run_contract(argv, case_file: Path, out_dir: Path, *, allocation=False,
             o.problems.append(f"wrote {written[:5]} on failure")
     elif status == 0:
         for p in (out_dir.rglob("*") if out_dir.exists() else []):
-            if p.is_file() and p.suffix in (".csv", ".json", ".bsdf", ".txt"):
+            if p.is_file() and p.suffix == ".json":  # numbers only: text fields may say "nan"
+                def refuse(name):
+                    raise ValueError(name)
+                try:
+                    json.loads(p.read_text(errors="replace"), parse_constant=refuse)
+                except ValueError as exc:
+                    o.problems.append(f"exit 0 but {p.name} holds {exc}")
+            elif p.is_file() and p.suffix in (".csv", ".bsdf", ".txt"):
                 text = p.read_text(errors="replace")
                 body = "\n".join(l for l in text.splitlines() if not l.lstrip().startswith("#"))
                 m = NONFINITE.search(body)

@@ -224,7 +224,7 @@ COMMANDS = {
     "simulate": lambda s, o: ["simulate", s, "--samples", "32", "--quiet", "--out", o / "s.csv"],
 }
 #: Commands that build a whole report or simulation on success: run on a sample even in CI.
-COSTLY = {"report": 4, "report_chain": 1, "report_lut": 2, "simulate": 1, "fit": 6,
+COSTLY = {"report": 25, "report_chain": 1, "report_lut": 2, "simulate": 1, "fit": 6,
           "convert_fit": 4}
 #: Formats whose seed is large (MB): every n-th case even in the whole suite.
 LARGE = {"klems": 3, "pgii": 2}
