@@ -134,6 +134,15 @@ def statistics(m, rows_fit, pred, ls, data_sigma, loss):
     return stats
 
 
+def non_finite_fit(where: str, n_starts: int) -> FitlabError:
+    """The error of a fit whose every Levenberg-Marquardt start ended at NaN or inf."""
+    return FitlabError(
+        f"{where}: the fit did not reach finite values from any of its {n_starts} starts "
+        "(every Levenberg-Marquardt run ended at NaN or inf); nothing was written. Check the "
+        "data (zero or negative values with the log loss, zero sigma), the fixed parameters "
+        "and the model's options")
+
+
 def fitted_rows(m, c, rows_fit):
     """(name, rows of channel ``c``, its rows to fit) — rows None when none is to be fitted; a
     channel whose fitted values are all 0 is an error naming the file."""
@@ -270,11 +279,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
                                seed=seed, lm_maxiter=lm_maxiter, progress=not quiet)
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == "non_finite":
-            raise FitlabError(
-                f"{m.path}: channel {name}: the fit did not reach finite values from any of its "
-                f"{len(ls.starts)} starts (every Levenberg-Marquardt run ended at NaN or inf); "
-                "nothing was written. Check the data (zero or negative values with the log "
-                "loss, zero sigma), the fixed parameters and the model's options")
+            raise non_finite_fit(f"{m.path}: channel {name}", len(ls.starts))
         channel_warnings = least_squares_warnings(ls)
         _log(quiet, "  least squares: " + ", ".join(
             f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in zip(space.names, ls.native, ls.stderr))

@@ -39,7 +39,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData, fit_least_squares
 from fitlab.fitting.space import SCALE, FitSpace
 from fitlab.models import Model
@@ -257,11 +256,9 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
                            seed=seed, progress=not quiet, **kw)
     t_ls = time.perf_counter() - t0
     if ls.solver["stopped"] == "non_finite":
-        raise FitlabError(
-            f"{m.path}: channels {', '.join(names)} (joint fit): the fit did not reach finite "
-            f"values from any of its {len(ls.starts)} starts (every Levenberg-Marquardt run "
-            "ended at NaN or inf); nothing was written. Check the data (zero or negative values "
-            "with the log loss, zero sigma), the fixed parameters and the model's options")
+        from fitlab.fitting.driver import non_finite_fit
+
+        raise non_finite_fit(f"{m.path}: channels {', '.join(names)} (joint fit)", len(ls.starts))
     log("  least squares: " + ", ".join(f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in
                                         zip(joint.names, ls.native, ls.stderr))
         + f"  ({t_ls:.2f} s)")
