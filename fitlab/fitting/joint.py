@@ -339,7 +339,7 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
     bootstrap record or None, warnings with the failure sentence, if any, first)."""
     from fitlab.fitting import goodness as gof
     from fitlab.fitting.losses import has_absolute_noise
-    from fitlab.fitting.resampling import FEW_BLOCKS, predictive_check
+    from fitlab.fitting.resampling import bootstrap_caveats, predictive_check
 
     keys, block = gof.incidence_blocks(m.theta_i[rows_c], m.phi_i[rows_c])
     predictive = None if mc_c is None else predictive_check(space_c, data_c, loss, mc_c, block,
@@ -365,20 +365,11 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
         if boot["replicates"] >= 2:
             rec["parameters"] = dict(zip(space_c.names,
                                          gof.bootstrap_summary(boot["samples"][:, idx])))
-        else:
-            warnings.append("the bootstrap failed: fewer than 2 of its refits ended at finite "
-                            "values")
-        if boot["blocks"] < FEW_BLOCKS:  # a caveat kept with the record, as for one channel
-            rec["note"] = (f"only {boot['blocks']} incidence directions to resample: the "
-                           "bootstrap intervals are rough and tend to be too narrow")
-        if rec.get("at_bound"):
-            warnings.append("bootstrap refits ended at a bound of " + ", ".join(
-                f"{k} ({v} of {boot['replicates']})" for k, v in rec["at_bound"].items())
-                + ": the data without some incidences do not hold these parameters inside "
-                "their range; their bootstrap intervals reach the bound")
-        if boot["non_finite"]:
-            warnings.append(f"{boot['non_finite']} of {boot['requested']} bootstrap refits ended "
-                            "at NaN or inf and were left out")
+        note, more = bootstrap_caveats(boot["blocks"], boot["replicates"], boot["requested"],
+                                       boot["non_finite"], rec.get("at_bound"))
+        if note:  # a caveat kept with the record, as for one channel
+            rec["note"] = note
+        warnings += more
     sentence = gof.failure_sentence(good, has_mcmc=mc_c is not None,
                                     bootstrap=bool(rec and rec.get("parameters")))
     return good, rec, ([sentence] if sentence else []) + warnings

@@ -61,6 +61,26 @@ def resample_counts(n_blocks: int, n_replicates: int, seed: int) -> np.ndarray:
     return np.stack([np.bincount(d, minlength=n_blocks) for d in draws])
 
 
+def bootstrap_caveats(blocks, replicates, requested, non_finite, at_bound):
+    """(note or None, warnings) of a bootstrap run: too few incidences to resample is a caveat
+    kept with the record; a failed bootstrap, refits at a bound and non-finite refits are
+    warnings."""
+    warnings = []
+    if replicates < 2:
+        warnings.append("the bootstrap failed: fewer than 2 of its refits ended at finite values")
+    note = (f"only {blocks} incidence directions to resample: the bootstrap intervals are "
+            "rough and tend to be too narrow") if blocks < FEW_BLOCKS else None
+    if at_bound:
+        warnings.append("bootstrap refits ended at a bound of " + ", ".join(
+            f"{k} ({v} of {replicates})" for k, v in at_bound.items())
+            + ": the data without some incidences do not hold these parameters inside "
+            "their range; their bootstrap intervals reach the bound")
+    if non_finite:
+        warnings.append(f"{non_finite} of {requested} bootstrap refits ended at NaN or inf and "
+                        "were left out")
+    return note, warnings
+
+
 def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int, batch: int,
                     lm_maxiter: int = LM_MAXITER, progress: bool = False) -> dict:
     """``replicates`` refits of the channel on incidence-resampled data (``block``: the block
@@ -182,20 +202,11 @@ def channel_misfit(m, rows, space, data, loss, ls, chain, *, bootstrap: int | No
                     "seed": int(seed)}
             if res["replicates"] >= 2:
                 boot["parameters"] = dict(zip(space.names, gof.bootstrap_summary(res["samples"])))
-            else:
-                warnings.append("the bootstrap failed: fewer than 2 of its refits ended at "
-                                "finite values")
-            if res["blocks"] < FEW_BLOCKS:  # a caveat, not a failure: kept with the record
-                boot["note"] = (f"only {res['blocks']} incidence directions to resample: the "
-                                "bootstrap intervals are rough and tend to be too narrow")
-            if res["at_bound"]:
-                warnings.append("bootstrap refits ended at a bound of " + ", ".join(
-                    f"{k} ({v} of {res['replicates']})" for k, v in res["at_bound"].items())
-                    + ": the data without some incidences do not hold these parameters inside "
-                    "their range; their bootstrap intervals reach the bound")
-            if res["non_finite"]:
-                warnings.append(f"{res['non_finite']} of {res['requested']} bootstrap refits "
-                                "ended at NaN or inf and were left out")
+            note, more = bootstrap_caveats(res["blocks"], res["replicates"], res["requested"],
+                                           res["non_finite"], res["at_bound"])
+            if note:
+                boot["note"] = note
+            warnings += more
     sentence = gof.failure_sentence(good, has_mcmc=chain is not None,
                                     bootstrap=bool(boot and boot.get("parameters")))
     if sentence:
