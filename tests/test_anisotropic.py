@@ -105,6 +105,7 @@ def test_merl_and_model_lut_refuse_anisotropic_models(tmp_path, capsys):
     assert not exr.exists()
 
 
+@pytest.mark.slow
 def test_fit_recovers_both_widths_from_a_tabulated_file(tmp_path, capsys):
     """fitlab fit on an Asymmetrical Zemax file of a brushed conductor: α_x, α_y recovered."""
     path = tmp_path / "brushed.bsdf"

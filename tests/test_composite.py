@@ -112,6 +112,7 @@ def test_mixture_weight_is_f_cos_over_pdf():
                                rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_fit_a_sum(tmp_path):
     from test_fit import synthetic
 

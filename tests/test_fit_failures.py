@@ -66,6 +66,7 @@ def _no_global_search(monkeypatch, u):
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_lm_iteration_limit_is_recorded_and_warned(oren_nayar_data, monkeypatch):
     m = oren_nayar_data
     _no_global_search(monkeypatch, 0.05)
@@ -239,6 +240,7 @@ def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
     assert "non-finite cost" in err
 
 
+@pytest.mark.slow
 def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
     """Beckmann data (issue 13: simulated Beckmann interfaces crashed the fit-file writer):
     starts at α ≲ 1e-3 see a model that is exactly 0 at every measured direction (Beckmann's D

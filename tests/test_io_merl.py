@@ -266,6 +266,7 @@ def test_cli_reports_broken_file(tmp_path, lambert_file, capsys):
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_info_convert_and_fit(tmp_path, lambert_file, capsys):
     assert main(["info", str(lambert_file), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)

@@ -180,6 +180,7 @@ def test_detection_does_not_claim_other_files(tmp_path):
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_info_convert_fit(tmp_path, capsys):
     path = _write(tmp_path, pgii_text(_rows("[uA]", 2e-3), kind="[uA]"))
     assert main(["info", str(path), "--json"]) == 0

@@ -98,6 +98,7 @@ def test_joint_fit_recovers_shared_alpha_and_colours(joint):
         assert joint.diagnostics(c)["bootstrap"]["replicates"] >= 18
 
 
+@pytest.mark.slow
 def test_shared_alpha_is_better_constrained_than_independent_fits(rgb, joint):
     """Each independent fit constrains α from one channel; the joint fit from all three."""
     independent = []
@@ -120,6 +121,7 @@ def test_share_checks_its_names(rgb):
         fitlab.fit(rgb, MODEL, share=["scale"])
 
 
+@pytest.mark.slow
 def test_share_on_one_channel_is_an_independent_fit(rgb):
     r = fitlab.fit(rgb, MODEL, fix={"k": 0.0}, share=["alpha"], channels=["G"], starts=2,
                    bootstrap=0)
@@ -127,6 +129,7 @@ def test_share_on_one_channel_is_an_independent_fit(rgb):
     assert any("only one channel" in n for n in r.notes)
 
 
+@pytest.mark.slow
 def test_joint_fit_of_data_with_an_aperture(rgb):
     """Rows that average over a 0.5° detector cone: the joint problem carries every channel's
     aperture nodes, and each channel records the quadrature and its measured error."""
@@ -142,6 +145,7 @@ def test_joint_fit_of_data_with_an_aperture(rgb):
     assert r.record["joint"]["n_fit"] == rgb.n
 
 
+@pytest.mark.slow
 def test_parameter_file_round_trip_through_every_reader(rgb, tmp_path, capsys):
     """fitlab fit --share writes one fits[k] per channel; load_fit, report, lut --from-fit,
     convert (Zemax one channel, MERL RGB) and info read it."""
@@ -173,6 +177,7 @@ def test_parameter_file_round_trip_through_every_reader(rgb, tmp_path, capsys):
 COATED = "coated(lambertian+rough_conductor,specular=lobe)"
 
 
+@pytest.mark.slow
 def test_coat_lobe_over_a_rough_inner_lobe_rgb_shared_geometry(tmp_path):
     """Item 3 of the issue: a narrow coat lobe (coat_alpha) over a Lambertian base with a rough
     GGX lobe (alpha) under the coat, on RGB data, both widths shared (--share coat_alpha,alpha),

@@ -69,6 +69,7 @@ def test_presets_are_valid_parameter_sets():
             fitlab.api.check_params(fitlab.get_model(preset.model), preset_params(name, ch))
 
 
+@pytest.mark.slow
 def test_fit_coated_model_recovers_synthetic_parameters(tmp_path, capsys):
     """Synthetic coated(lambertian,specular=lobe) data; the fit (coat index fixed) recovers
     the albedo and the lobe width; a fit of the delta variant with the specular cone left out

@@ -86,7 +86,11 @@ THETAS = (0.0, 30.0, 60.0, 85.0, 89.9, 120.0)
 PER_CONFIG = 64
 
 
-@pytest.mark.parametrize("name", list(WEIGHT_GRIDS))
+#: The Weidlich–Wilkie grids are the costliest to compile: whole suite only (the registry-wide
+#: contract, tests/test_model_contract.py, checks their sampling weights in the quick tier).
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow)
+                                  if n.startswith("weidlich_wilkie") else n
+                                  for n in WEIGHT_GRIDS])
 def test_sample_weight_and_pdf_consistent(name):
     grid, options = WEIGHT_GRIDS[name]
     opts = {**get_model(name).default_options(), **options}

@@ -198,6 +198,7 @@ def test_fresnel_tables():
     assert np.all(d.values[0, :, 0] < d.values[0, :, 1] + 1e-12)
 
 
+@pytest.mark.slow
 def test_albedo_tables_are_finite_and_store_their_accuracy():
     t = lut.bake(lut.make_spec("albedo_conductor", size=(6, 5), orders=SMALL), "float",
                  check_points=16)

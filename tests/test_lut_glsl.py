@@ -146,8 +146,14 @@ N_DIRECT = {"albedo_conductor": 64, "dfg": 128, "albedo_dielectric": 12}
 _DIRECT, _BAKED = {}, {}
 
 
+#: The dielectric albedo table (three axes, a quadrature per texel) is the costliest to bake and
+#: to evaluate directly: whole suite only; its GLSL path is the same 3D one as model_phi_d's.
+SLOW_TABLES = {"albedo_dielectric"}
+
+
 @pytest.mark.parametrize("texelfetch", [False, True], ids=["hw_bilinear", "texelfetch"])
-@pytest.mark.parametrize("name", list(TABLES))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TABLES
+                                  else n for n in TABLES])
 def test_glsl_reproduces_direct_evaluation(gl, tmp_path, name, texelfetch, record_property):
     if name not in _BAKED:  # the same table for both filtering paths
         spec = TABLES[name]()

@@ -94,6 +94,7 @@ def test_fit_recovers_both_lobes(two_lobe_data):
     assert 0.7 < ch["statistics"]["chi2_per_dof"] < 1.3
 
 
+@pytest.mark.slow
 def test_mcmc_stays_in_the_ordered_labelling(two_lobe_data):
     from fitlab.fitting.driver import fit_measurement
 

@@ -190,6 +190,7 @@ def test_report_content_matches_the_fit(made):
     assert "No MCMC run for this fit" in text["nochain"]
 
 
+@pytest.mark.slow
 def test_report_is_deterministic(made):
     fit, chain = made["fits"]["walter"]
     # beside the first report: the page names the fit, data and chain relative to its folder
@@ -201,6 +202,7 @@ def test_report_is_deterministic(made):
         assert (again / p.name).read_bytes() == p.read_bytes(), p.name
 
 
+@pytest.mark.slow
 def test_chain_found_through_the_fit_file(made, tmp_path, capsys):
     """`fitlab fit --chain` records the chain's path and hash; the report finds it alone and
     refuses a chain whose hash differs."""
@@ -299,6 +301,7 @@ def test_fit_with_report_in_one_go(tmp_path, capsys):
     assert "--report needs --out" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_rebuild_removes_only_stale_figures(made, tmp_path):
     fit, chain = made["fits"]["walter"]
     out = tmp_path / "r"
@@ -481,6 +484,7 @@ def test_replicated_data_follow_the_loss_noise_model(loss):
         assert np.std(r) == pytest.approx(0.03, rel=0.05), (loss, k)
 
 
+@pytest.mark.slow
 def test_lookup_tables_of_the_fit_are_previewed(made, tmp_path, capsys):
     """Tables baked from the fit are found beside it (header names the fit) or given with
     --lut; their accuracy figures are shown; a table of another fit is refused."""

@@ -214,7 +214,13 @@ def test_same_seed_same_numbers_other_seed_other_numbers():
     np.testing.assert_allclose(a.by_order.sum(0), a.value, rtol=1e-12, atol=1e-15)
 
 
-@pytest.mark.parametrize("path", sorted(SCENES.glob("*.toml")), ids=lambda p: p.name)
+#: Examples whose float32 walk compiles kernels no other quick test needs: whole suite only.
+SLOW_FLOAT32_SCENES = {"sggx_fiber_layer.toml", "measurement_directions.toml"}
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow)
+                                  if p.name in SLOW_FLOAT32_SCENES else p
+                                  for p in sorted(SCENES.glob("*.toml"))], ids=lambda p: p.name)
 def test_float32_walk_is_finite_on_every_example(path):
     r = simulate(load_scene(path), 2048, seed=0, batch_size=2048)
     assert np.all(np.isfinite(r.value)) and np.all(np.isfinite(r.sigma))
@@ -312,6 +318,7 @@ def test_walk_uniforms_are_uniform_and_independent():
     assert np.max(np.abs(off)) < 5 / np.sqrt(20000)
 
 
+@pytest.mark.slow
 def test_eta_metadata_only_for_a_single_interface():
     one = simulate(scene_from_dict(_base()), 256, seed=0).to_measurement()
     assert one.eta() == pytest.approx(1.5)
