@@ -5,7 +5,8 @@ compile again what an earlier one compiled (JAX's persistent compilation cache).
 ``$XDG_CACHE_HOME/fitlab/xla``, else ``~/.cache/fitlab/xla``; ``FITLAB_NO_CACHE=1`` turns it off.
 An entry is keyed by the computation, the JAX/jaxlib version, the XLA flags and the CPU, so a
 stale entry is never used; the first fit of a given structure (model, options, free parameters,
-loss, number of rows) still compiles, later ones load. The directory can be deleted at any time.
+loss, and the row count rounded up to a ladder of sizes 2^(1/4) apart: least_squares.padded_size)
+still compiles, later ones load. The directory can be deleted at any time.
 Library users can call :func:`enable_compilation_cache` themselves before their first fit.
 """
 

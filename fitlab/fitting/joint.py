@@ -68,6 +68,10 @@ class JointStatic(NamedTuple):
     def model_name(self) -> str:
         return self.model.name
 
+    #: The kernels' rows are the channels' rows in order (``counts``): never padded
+    #: (least_squares.pad_rows).
+    rows_fixed = True
+
     def coordinates(self, name: str) -> tuple:
         """The coordinate of parameter ``name`` in each channel (Nones if it is fixed)."""
         for n, idx in self.layout:

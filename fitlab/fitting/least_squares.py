@@ -5,13 +5,15 @@ Three compiled kernels per fit structure: the cost, and the cost with its gradie
 global search), and the local stage (Levenberg–Marquardt from every start at once, batched,
 then each end's cost, residuals and Jacobian in native units). They are cached by the fit's
 static structure (model, options, free names, transforms, loss): data, bounds and fixed values
-are arguments, so refitting new data of the same size reuses the compilation (and ``fitlab
-fit`` keeps it on disk, see fitlab.fitting.cache).
+are arguments, and the rows are padded to a ladder of sizes (``padded_size``; the extra rows are
+masked out), so refitting new data of a similar size reuses the compilation (and ``fitlab fit``
+keeps it on disk, see fitlab.fitting.cache).
 """
 
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -93,6 +95,49 @@ def problem_of(space: FitSpace, data: FitData) -> dict:
 #: (their residual is 0) while the data keep their shape, so every fold of a cross-validation
 #: reuses one compilation (fitlab.fitting.compare). Only the least-squares stage honours it.
 ROW_MASK = "row_mask"
+
+
+#: The smallest padded row count, and the ladder's ratio: 2^(1/4), so at most 19% more rows.
+PAD_MIN_ROWS = 64
+PAD_STEPS_PER_DOUBLING = 4
+
+
+def padded_size(n: int) -> int:
+    """The row count the least-squares kernels of ``n`` rows are compiled for: the smallest
+    size ≥ n on the ladder 64 · 2^(k/4) (rounded up to a multiple of 8). Fits of one structure
+    whose row counts fall on the same rung share one compilation, in a process and through the
+    on-disk cache: two files of the same instrument rarely keep exactly as many rows."""
+    n = int(n)
+    if n <= PAD_MIN_ROWS:
+        return PAD_MIN_ROWS
+    k = max(math.floor(PAD_STEPS_PER_DOUBLING * math.log2(n / PAD_MIN_ROWS)) - 1, 0)
+    while True:
+        size = 8 * math.ceil(PAD_MIN_ROWS * 2 ** (k / PAD_STEPS_PER_DOUBLING) / 8)
+        if size >= n:
+            return size
+        k += 1
+
+
+def pad_rows(static, data: FitData) -> FitData:
+    """``data`` padded to ``padded_size`` rows with copies of its last row that the row mask
+    (``ROW_MASK``, added when absent) leaves out: their residuals and Jacobian rows are exactly
+    0, so the cost, the gradient and JᵀJ are those of the rows given. A structure whose kernels
+    depend on the row count itself (``static.rows_fixed``: a joint fit's rows per channel) is
+    returned unpadded."""
+    if getattr(static, "rows_fixed", False):
+        return data
+    host = jax.tree.map(np.asarray, data)
+    n = int(host.value.shape[0])
+    extra = padded_size(n) - n
+
+    def grow(x):
+        return np.concatenate([x, np.repeat(x[-1:], extra, axis=0)]) if extra else x
+
+    mask = np.asarray(host.consts.get(ROW_MASK, np.ones(n)), dtype=np.float64)
+    consts = {k: grow(v) for k, v in host.consts.items() if k != ROW_MASK}
+    consts[ROW_MASK] = np.concatenate([mask, np.zeros(extra)])
+    return FitData(grow(host.wi), grow(host.wo), grow(host.value), consts,
+                   None if host.weights is None else grow(host.weights))
 
 
 def predict_data(static: StaticSpace, theta, fixed: dict, d: FitData):
@@ -317,6 +362,8 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     ``lm_maxiter`` is each LM run's step limit; ``progress`` shows a bar with an estimate of the
     time left for the global search, then the Levenberg–Marquardt stage, on stderr."""
     k = kernels(space.static, loss, int(lm_maxiter))
+    n_rows = int(data.value.shape[0])
+    data = pad_rows(space.static, data)
     problem = problem_of(space, data)
     d = space.ndim
     n_local = 1 + n_starts + (start_native is not None)
@@ -360,11 +407,11 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     best = min(runs, key=lambda r: r["cost"])
     ib = best["index"]
     theta = loc["native"][ib]
-    r = loc["residuals"][ib]
+    r = loc["residuals"][ib][:n_rows]  # the padding's rows are 0 (pad_rows)
     cost = 0.5 * float(r @ r)
     dof = max(r.size - d, 1)
     noise = 1.0 if has_absolute_noise(loss) else float(np.sqrt(2 * cost / dof))
-    J = loc["jacobian"][ib]
+    J = loc["jacobian"][ib][:n_rows]
     cov = noise**2 * np.linalg.pinv(J.T @ J)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
     at_bound = tuple(p.name for p, u in zip(space.free, best["u"]) if u < 1e-6 or u > 1 - 1e-6)

@@ -23,7 +23,7 @@ import numpy as np
 
 from fitlab.fitting import goodness as gof
 from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_stop_reason,
-                                          problem_of, progress_bar, residuals_native)
+                                          pad_rows, problem_of, progress_bar, residuals_native)
 from fitlab.fitting.losses import has_absolute_noise
 
 #: The bootstrap needs at least this many fitted incidence directions (blocks).
@@ -90,11 +90,13 @@ def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int,
     ended at a bound}), seconds}."""
     t0 = time.perf_counter()
     k = kernels(space.static, loss, int(lm_maxiter))
-    problem = problem_of(space, data)
+    padded = pad_rows(space.static, data)  # the fit's own padded rows (and compilation)
+    problem = problem_of(space, padded)
     block = np.asarray(block)
     n_blocks = int(block.max()) + 1
     counts = resample_counts(n_blocks, replicates, seed)
     weights = np.sqrt(counts[:, block].astype(float))  # (replicates, rows)
+    weights = np.pad(weights, ((0, 0), (0, padded.value.shape[0] - weights.shape[1])))
     u0 = space.to_unit(np.asarray(ls.native, float))
     bar = progress_bar(progress, replicates, "  bootstrap", "refit")
     natives, stops = [], []
