@@ -28,7 +28,7 @@ import functools
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.exchange import canonical, order_keys, ordered
-from fitlab.fitting.least_squares import FitData, problem_of, residuals_unit
+from fitlab.fitting.least_squares import ROW_MASK, FitData, pad_rows, problem_of, residuals_unit
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.space import FitSpace, StaticSpace
 
@@ -76,7 +76,8 @@ def log_posterior_fn(static: StaticSpace, loss: str, order: tuple = ()):
 
     def one(x, problem):
         u = x[:ndim]
-        n = problem["data"].value.shape[0]
+        d = problem["data"]  # rows left out by the row mask (least_squares.pad_rows) do not count
+        n = jnp.sum(d.consts[ROW_MASK]) if ROW_MASK in d.consts else d.value.shape[0]
         # the prior's support: the unit box, lobes of a repeated component in order (exchange.py)
         inside = jnp.all((u >= 0) & (u <= 1)) & ordered(order, u)
         u_safe = jnp.where(inside, u, 0.5)
@@ -100,7 +101,7 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
     and whether a noise scale is sampled (``nuisance``). Walkers start in a small ball around
     the least-squares optimum."""
     logp, nuisance = log_posterior_fn(space.static, loss, order_keys(space))
-    problem = problem_of(space, data)
+    problem = problem_of(space, pad_rows(space.static, data))  # least squares' row ladder
     names = space.names + (("log_noise",) if nuisance else ())
     ndim = len(names)
     nwalkers = nwalkers or max(32, 4 * ndim)
