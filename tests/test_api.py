@@ -98,3 +98,6 @@ def test_errors_say_what_to_do():
         fitlab.fit(m, "rough_dielectric", subset=np.ones(3, bool))
     with pytest.raises(FitlabError, match="see `fitlab models`"):
         fitlab.fit(m, "no_such_model")
+    for bad in (0, True, 2.5, 10**9):
+        with pytest.raises(FitlabError, match="lm_maxiter must be an integer from 1"):
+            fitlab.fit(m, "rough_dielectric", lm_maxiter=bad)

@@ -89,6 +89,7 @@ def test_fit_to_stdout_without_mcmc(capsys):
         (["--model", "rough_dielectric", "--loss", "chi2"], "needs a sigma column"),
         (["--model", "rough_dielectric", "--option", "distribution=x"], "must be one of"),
         (["--model", "rough_dielectric", "--channel", "R"], "has channels Y"),
+        (["--model", "rough_dielectric", "--lm-maxiter", "0"], "--lm-maxiter must be from 1"),
     ],
 )
 def test_fit_bad_arguments_write_nothing(tmp_path, capsys, monkeypatch, extra, fragment):
@@ -144,3 +145,16 @@ def test_least_squares_shows_progress_unless_quiet(tmp_path, capsys):
     assert "global search" in err and "eval" in err and "Levenberg-Marquardt from 4 starts" in err
     assert main(args + ["--quiet"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_lm_step_limit_from_the_command_line(tmp_path, capsys):
+    """--lm-maxiter sets each Levenberg-Marquardt run's step limit, and the file records it (the
+    warning that names the option: tests/test_fit_failures.py)."""
+    out = tmp_path / "fit.json"
+    assert main(["fit", WALTER, "--model", "rough_dielectric", "--fit-subset", "theta_i == 30",
+                 "--lm-maxiter", "1", "--starts", "2", "--bootstrap", "0", "--quiet",
+                 "--out", str(out)]) == 0
+    (fit,) = read_fit(out)["fits"]
+    assert fit["solver"]["max_iterations"] == 1
+    assert all(s["lm_iterations"] <= 1 for s in fit["starts"])
+    assert any(s["lm_stopped"] == "max_iterations" for s in fit["starts"])

@@ -53,6 +53,10 @@ def add_parser(sub):
                    help="low-discrepancy Levenberg-Marquardt starts besides the global search "
                    "(default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    p.add_argument("--lm-maxiter", type=int, metavar="N",
+                   help="step limit of each Levenberg-Marquardt run (default 200); raise it when "
+                   "the fit warns that its run stopped at the limit (solver.stopped = "
+                   "max_iterations in the parameter file)")
     p.add_argument("--aperture-order", type=int, metavar="N",
                    help="quadrature order over each row's aperture (data with a detector cone, "
                    "bin or source divergence are fitted by the aperture-averaged model; "
@@ -219,6 +223,11 @@ def run(args):
 
         if args.bootstrap < MIN_REFITS:
             raise FitlabError(f"--bootstrap must be 0 (off) or at least {MIN_REFITS} refits")
+    if args.lm_maxiter is not None:
+        from fitlab.fitting.least_squares import MAX_LM_MAXITER
+
+        if not 1 <= args.lm_maxiter <= MAX_LM_MAXITER:
+            raise FitlabError(f"--lm-maxiter must be from 1 to {MAX_LM_MAXITER}")
     m = read(args.data, args.format)
     t_read = time.perf_counter() - t0
     result = fit(m, model, fix=fixed, free=args.free or (), options=options, loss=args.loss,
@@ -227,7 +236,8 @@ def run(args):
                  mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
                  starts=args.starts, seed=args.seed,
                  walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,
-                 aperture_order=args.aperture_order, bootstrap=args.bootstrap)
+                 aperture_order=args.aperture_order, bootstrap=args.bootstrap,
+                 lm_maxiter=args.lm_maxiter)
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)

@@ -40,7 +40,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         loss: str | None = None, subset=None, channels=None, share=(), mcmc: bool = False,
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
-        aperture_order: int | None = None, bootstrap: int | None = None):
+        aperture_order: int | None = None, bootstrap: int | None = None,
+        lm_maxiter: int | None = None):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -60,8 +61,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     error (see ``fitlab.fitting.aperture``; the order and the error are in the result's
     ``diagnostics()["aperture"]``); bootstrap: refits of the block bootstrap over incidence
     directions, an uncertainty that accounts for misfit (``result.bootstrap()``; None: 100 on
-    channels with at least 3 fitted incidences, 0: off). Every fit is also checked for goodness
-    of fit (``result.goodness()``; a failed check adds a warning).
+    channels with at least 3 fitted incidences, 0: off); lm_maxiter: each Levenberg–Marquardt
+    run's step limit (None: 200; raise it when a fit warns that its run stopped at the limit).
+    Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     import fitlab
     from fitlab.api import check_params, resolve_options
@@ -118,6 +120,13 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                 bootstrap == 0 or bootstrap >= MIN_REFITS):
             raise FitlabError(f"bootstrap must be 0 (off) or a number of refits of at least "
                               f"{MIN_REFITS}, got {bootstrap!r}")
+    from fitlab.fitting.least_squares import LM_MAXITER, MAX_LM_MAXITER
+
+    lm_maxiter = LM_MAXITER if lm_maxiter is None else lm_maxiter
+    if isinstance(lm_maxiter, bool) or not isinstance(lm_maxiter, (int, np.integer)) or \
+            not 1 <= lm_maxiter <= MAX_LM_MAXITER:
+        raise FitlabError(f"lm_maxiter must be an integer from 1 to {MAX_LM_MAXITER}, got "
+                          f"{lm_maxiter!r}")
     expr = subset if isinstance(subset, str) else None
     if isinstance(subset, str):
         mask = subset_mask(subset, m)
@@ -141,7 +150,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                                  mcmc_walkers=walkers, seed=seed, n_starts=starts, share=share,
                                  quiet=not progress, channels=chan_ids, warn=False,
                                  aperture_order=aperture_order,
-                                 bootstrap=None if bootstrap is None else int(bootstrap))
+                                 bootstrap=None if bootstrap is None else int(bootstrap),
+                                 lm_maxiter=int(lm_maxiter))
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)

@@ -46,7 +46,7 @@ def least_squares_warnings(ls) -> list[str]:
         out.append(f"Levenberg-Marquardt stopped at its iteration limit ({sol['max_iterations']} "
                    "iterations) before its stopping rule was met: the optimum may not be "
                    "reached; check the parameters, or refit with more iterations "
-                   "(lm_maxiter) or a better start")
+                   "(--lm-maxiter, or lm_maxiter in Python) or a better start")
     elif sol["stopped"] == "non_finite":
         out.append("Levenberg-Marquardt ended with a non-finite cost (NaN or inf) from every "
                    "start: the model or the loss is not finite for these data; check the data "

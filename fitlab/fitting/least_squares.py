@@ -31,6 +31,8 @@ from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit
 #: jaxopt Levenberg–Marquardt settings: step limit, Madsen–Nielsen tolerances on the step and
 #: the gradient, and the initial damping relative to the largest diagonal element of JᵀJ.
 LM_MAXITER = 200
+#: The largest step limit a user may ask for (each step solves a small linear system per start).
+MAX_LM_MAXITER = 100_000
 LM_XTOL = 1e-10
 LM_GTOL = 1e-10
 LM_DAMPING = 1e-6
