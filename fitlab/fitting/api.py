@@ -63,7 +63,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     directions, an uncertainty that accounts for misfit (``result.bootstrap()``; None: 100 on
     channels with at least 3 fitted incidences, 0: off); lm_maxiter: each Levenberg–Marquardt
     run's step limit (None: 200; raise it when a fit warns that its run stopped at the limit).
-    Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a warning).
+    Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
+    warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     import fitlab
     from fitlab.api import check_params, resolve_options

@@ -126,7 +126,7 @@ def pad_rows(static, data: FitData) -> FitData:
     0, so the cost, the gradient and JᵀJ are those of the rows given. A structure whose kernels
     depend on the row count itself (``static.rows_fixed``: a joint fit's rows per channel) is
     returned unpadded."""
-    if getattr(static, "rows_fixed", False):
+    if static.rows_fixed:
         return data
     host = jax.tree.map(np.asarray, data)
     n = int(host.value.shape[0])

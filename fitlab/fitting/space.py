@@ -49,6 +49,9 @@ class StaticSpace(NamedTuple):
     def model_name(self) -> str:
         return self.model.name
 
+    #: The kernels take any number of rows (least_squares.pad_rows pads them to a ladder).
+    rows_fixed = False
+
 
 class FitSpace(NamedTuple):
     static: StaticSpace
