@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import erf, erfc, erfinv
 
+from fitlab import vmf
 from fitlab.frame import dot
 from fitlab.numerics import clamp_alpha, safe_div, safe_rsqrt, safe_sqrt
 
@@ -401,14 +402,8 @@ def vmf_kappa(alpha):
 
 
 def vmf_A3(kappa):
-    """Mean resultant length A3(κ) = coth κ - 1/κ (paper eq. 6)."""
-    e = jnp.exp(-2.0 * kappa)
-    return (1.0 + e) / (1.0 - e) - 1.0 / kappa
-
-
-def _vmf_kI(kappa):
-    """κ I(κ), I(κ) = ∫_0^1 μ e^{κ(μ-1)} dμ = (1 - e^{-κ})/κ - (1 - e^{-κ}(1+κ))/κ²."""
-    return -jnp.expm1(-kappa) - (1.0 - jnp.exp(-kappa) * (1.0 + kappa)) / kappa
+    """Mean resultant length A3(κ) = coth κ - 1/κ (paper eq. 6; fitlab.vmf.A3)."""
+    return vmf.A3(kappa)
 
 
 def D_vMF(m, alpha, alpha_y=None):
@@ -416,48 +411,24 @@ def D_vMF(m, alpha, alpha_y=None):
 
     The paper normalizes by 1/A3(κ) over the whole sphere (eq. 6) and notes that D ≈ M for
     κ > 100; here Z = 2π I(κ) normalizes exactly over the upper hemisphere, ∫ D cos θm dω = 1,
-    so that the microfacet BSDFs and their sampling stay consistent for every κ ≥ 2.
-    1 - cos θm = sin²/(|m|(|m| + m_z)) keeps the narrow lobes exact in float32."""
+    so that the microfacet BSDFs and their sampling stay consistent for every κ (fitlab.vmf.D)."""
     _isotropic_only("vmf", alpha_y)
-    kappa = vmf_kappa(alpha)
-    s2, c2 = _sin2_cos2(m)
-    ok = m[..., 2] > 0
-    r = jnp.sqrt(jnp.where(ok, s2 + c2, 1.0))
-    one_minus_mu = jnp.where(ok, s2, 0.0) / (r * (r + jnp.where(ok, m[..., 2], 1.0)))
-    val = kappa * jnp.exp(-kappa * one_minus_mu) / (2.0 * jnp.pi * _vmf_kI(kappa))
-    return jnp.where(ok, val, 0.0)
+    return vmf.D(m, vmf_kappa(alpha))
 
 
 def G1_vMF(v, alpha, alpha_y=None):
     """vMF masking, paper eqs 7-8: G1 = A3(κ) cos θv / (a cos(b θv)), a = (A3 + 1)²/4,
     b = A3^{1/3}, clamped to [0, 1] (the approximation of the clamped-cosine integral is the
     paper's; it is not derived from D_vMF by Smith's Λ, so a vMF interface is not exactly
-    energy-consistent)."""
+    energy-consistent; fitlab.vmf.G1_approx)."""
     _isotropic_only("vmf", alpha_y)
-    A3 = vmf_A3(vmf_kappa(alpha))
-    a = 0.25 * (A3 + 1.0) ** 2
-    b = jnp.cbrt(A3)
-    s2, _ = _sin2_cos2(v)
-    cz = jnp.abs(v[..., 2])
-    theta = jnp.arctan2(safe_sqrt(s2), cz)
-    return jnp.clip(safe_div(A3 * cz, a * jnp.cos(b * theta)), 0.0, 1.0)
+    return vmf.G1_approx(v, vmf_kappa(alpha))
 
 
 def sample_m_vMF(u1, u2, alpha, alpha_y=None):
-    """Sample D_vMF(m) cos θm: t = 1 - cos θm has density ∝ (1 - t) e^{-κt} on [0, 1] with CDF
-    G(t) = (1 - e^{-κt} - (1 - e^{-κt}(1 + κt))/κ) / (κ I(κ)); solved by Newton's method from
-    the truncated-exponential guess (G is concave, so the iteration converges monotonically)."""
+    """Sample D_vMF(m) cos θm (fitlab.vmf.sample_m)."""
     _isotropic_only("vmf", alpha_y)
-    kappa = vmf_kappa(alpha)
-    kI = _vmf_kI(kappa)
-    t = -jnp.log1p(-u1 * (-jnp.expm1(-kappa))) / kappa
-    for _ in range(8):
-        x = kappa * t
-        e = jnp.exp(-x)
-        G = (-jnp.expm1(-x) - (1.0 - e * (1.0 + x)) / kappa) / kI
-        g = kappa * (1.0 - t) * e / kI
-        t = jnp.clip(t - (G - u1) / jnp.maximum(g, 1e-30), 0.0, 1.0)
-    return _normal_from_cos2((1.0 - t) ** 2, t * (2.0 - t), u2)
+    return vmf.sample_m(u1, u2, vmf_kappa(alpha))
 
 
 # --------------------------------------------------------------------------------------------
