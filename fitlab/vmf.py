@@ -39,6 +39,8 @@ _SMALL = 1.0
 _TERMS = 18
 #: Above this κ, A3(κ) = 1 - 1/κ to within 2e^{-2κ} < 1e-17.
 _LARGE = 20.0
+#: Smallest A3 that A3⁻¹ resolves (κ = 3e-8, far below KAPPA_MIN): a broader lobe is uniform.
+_R_MIN = 1e-8
 #: Newton steps of A3⁻¹ from Banerjee's start (its error is a few % at most; 6 steps reach
 #: float64 round-off).
 _NEWTON_STEPS = 6
@@ -79,15 +81,23 @@ def A3(kappa):
     return jnp.where(small, series, closed)
 
 
-def kappa2_dA3(kappa):
-    """κ² A3'(κ) = 1 - κ²/sinh²κ (→ 1 for large κ); below κ = 1 as
-    (sinh κ - κ)(sinh κ + κ)/sinh²κ with the series of sinh κ - κ."""
+def dA3(kappa):
+    """A3'(κ) = 1/κ² - 1/sinh²κ; below κ = 1 as ((sinh κ - κ)/κ³)((sinh κ + κ)/κ)(κ/sinh κ)²
+    with the series of the first factor (→ 1/3; no intermediate under- or overflows)."""
     small, ks, kb = _where_small(kappa)
     sh = jnp.sinh(ks)
-    series = ks**3 * _poly(ks * ks, _SINH_TAIL) * (sh + ks) / (sh * sh)
+    series = _poly(ks * ks, _SINH_TAIL) * ((sh + ks) / ks) * (ks / sh) ** 2
+    e = jnp.exp(-2.0 * jnp.minimum(kb, 350.0))
+    closed = 1.0 / (kb * kb) - 4.0 * e / (1.0 - e) ** 2
+    return jnp.where(small, series, closed)
+
+
+def kappa2_dA3(kappa):
+    """κ² A3'(κ) = 1 - κ²/sinh²κ (→ 1 for large κ, κ²/3 for small)."""
+    small, ks, kb = _where_small(kappa)
     e = jnp.exp(-2.0 * jnp.minimum(kb, 350.0))
     closed = 1.0 - 4.0 * kb * kb * e / (1.0 - e) ** 2
-    return jnp.where(small, series, closed)
+    return jnp.where(small, ks * ks * dA3(ks), closed)
 
 
 def log_A3_of_nu(nu):
@@ -101,11 +111,10 @@ def log_A3_of_nu(nu):
 
 def _kappa_newton(R):
     """κ with A3(κ) = R for R in (0, 1 - 1/20]: Banerjee's start, then Newton."""
-    R = jnp.clip(R, 1e-30, 1.0 - 1.0 / _LARGE)
+    R = jnp.clip(R, _R_MIN, 1.0 - 1.0 / _LARGE)
     kappa = R * (3.0 - R * R) / (1.0 - R * R)
     for _ in range(_NEWTON_STEPS):
-        step = (A3(kappa) - R) * kappa * kappa / kappa2_dA3(kappa)
-        kappa = jnp.maximum(kappa - step, 0.5 * kappa)
+        kappa = jnp.maximum(kappa - (A3(kappa) - R) / dA3(kappa), 0.5 * kappa)
     return kappa
 
 
@@ -195,8 +204,11 @@ def projected_area(v, kappa):
     cos_v = jnp.abs(v[..., 2])[..., None]
     a = cos_v * mu
     b = sin_v * safe_sqrt(1.0 - mu * mu)
-    phi_c = jnp.arccos(jnp.clip(safe_div(-a, b, fallback=-1.0), -1.0, 1.0))
-    phi_c = jnp.where(b > 0, phi_c, jnp.where(a > 0, jnp.pi, 0.0))
+    # cos φc = -a/b only where |a| < b (no division by a tiny b, and arccos' is infinite at ±1:
+    # double where); elsewhere the clamped cosine is a + b cos φ ≥ 0 throughout (a > 0) or 0
+    inside = b > jnp.abs(a)
+    r = -a / jnp.where(inside, b, 1.0)
+    phi_c = jnp.where(inside, jnp.arccos(jnp.where(inside, r, 0.0)), jnp.where(a > 0, jnp.pi, 0.0))
     azimuthal = 2.0 * (a * phi_c + b * jnp.sin(phi_c))
     # ∫_0^1 A(μ) κ e^{κ(μ-1)} dμ / (2π κI) with κ e^{-κt} dt = span du
     return jnp.sum(wq * azimuthal, axis=-1) * span[..., 0] / (2.0 * jnp.pi * kappa_I(kappa[..., 0]))

@@ -21,6 +21,7 @@ from typing import Callable, NamedTuple
 #: What a parameter is, for code that needs to know (clamps, exporters, renderers, reports).
 ROLES = {
     "roughness": "microfacet width α (or α_x, α_y), on the shared α axis of fitlab.microfacet",
+    "concentration": "vMF concentration κ of an NDF (sharper as it grows; κ = 2/α² on the α axis)",
     "index": "real refractive index (relative to the medium above)",
     "extinction": "imaginary part k of a complex index",
     "albedo": "reflectance or single-scattering albedo in [0, 1]",
