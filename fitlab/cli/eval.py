@@ -25,7 +25,8 @@ def add_parser(sub):
         "data_formats/examples/directions_inplane.csv",
     )
     p.add_argument("model", nargs="?", help="model name (see `fitlab models`); layered models "
-                   "as coated(INNER) or weidlich_wilkie(BASE[,layers=K]); optional with --preset")
+                   "as coated(INNER), weidlich_wilkie(BASE[,layers=K]) or thin_layer(BOTTOM); "
+                   "optional with --preset")
     add_param(p, "a model parameter; give every parameter of the model (with --preset: "
               "overrides the preset's value)")
     p.add_argument("--preset", metavar="NAME",

@@ -61,8 +61,9 @@ def run(args):
         print("Layered models take a model as argument: coated(INNER) puts any model (sums "
               "too) under a smooth dielectric coat, coated(INNER,specular=lobe) adds a narrow "
               "coat lobe; weidlich_wilkie(BASE[,layers=K]) stacks K-1 microfacet interfaces "
-              "over any BRDF base (lambertian, oren_nayar, rough_conductor ...) "
-              "(data_formats/layered_models.md).\n")
+              "over any BRDF base (lambertian, oren_nayar, rough_conductor ...); "
+              "thin_layer(rough_conductor|rough_dielectric) is a transparent layer between two "
+              "rough vMF boundaries (Guo et al. 2015) (data_formats/layered_models.md).\n")
     for m in models:
         print(f"{m.name}: {m.summary}  [{_capabilities_text(m.capabilities)}]")
         for p in m.parameters:
