@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from fitlab.numerics import ALPHA_MIN, safe_div, safe_sqrt
+from fitlab.quadrature import gauss_legendre
 
 #: Largest concentration a lobe is evaluated with: κ = 2/α² at fitlab's smallest width α.
 KAPPA_MAX = 2.0 / ALPHA_MIN**2
@@ -180,8 +181,9 @@ def G1_approx(v, kappa):
     return jnp.clip(safe_div(a3 * cz, a * jnp.cos(b * theta)), 0.0, 1.0)
 
 
-#: Gauss–Legendre nodes of the exact masking integral (in the variable that flattens e^{-κt}).
-_GL_NODES = 48
+#: Gauss–Legendre nodes of the exact masking integral (in the variable that flattens e^{-κt}):
+#: relative error ≤ 5e-4 against 400 nodes over κ 1e-2 – 1e6 and θ up to 89.99° (48: 5e-5).
+_GL_NODES = 16
 
 
 def projected_area(v, kappa):
@@ -189,12 +191,10 @@ def projected_area(v, kappa):
     Gauss–Legendre quadrature in μ = cos θm after the substitution that makes the weight
     e^{κ(μ-1)} uniform; the azimuthal integral of the clamped cosine is closed:
     ∫ max(0, a + b cos φ) dφ = 2(a φc + b sin φc), cos φc = clip(-a/b, -1, 1)."""
-    import numpy as np
-
-    x, w = np.polynomial.legendre.leggauss(_GL_NODES)
+    x, w = gauss_legendre(_GL_NODES, 0.0, 1.0)
     dt = v.dtype if hasattr(v, "dtype") else jnp.float64
-    u = jnp.asarray(0.5 * (x + 1.0), dt)
-    wq = jnp.asarray(0.5 * w, dt)
+    u = jnp.asarray(x, dt)
+    wq = jnp.asarray(w, dt)
     kappa = jnp.asarray(kappa, dt)[..., None]
     span = -jnp.expm1(-kappa)  # 1 - e^{-κ}
     t = -jnp.log1p(-u * span) / kappa  # 1 - μ, density ∝ e^{-κt} → uniform in u

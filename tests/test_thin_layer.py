@@ -69,7 +69,8 @@ def test_exact_masking_integral_against_brute_force():
             mc = np.mean(np.maximum(m @ v, 0.0) * d) * 2.0 * np.pi
             got = float(vmf.projected_area(jnp.asarray(v), kappa))
             assert got == pytest.approx(mc, rel=0.02), (kappa, theta)
-    assert float(vmf.G1_exact(jnp.asarray([0.0, 0.0, 1.0]), 100.0)) == pytest.approx(1.0, abs=1e-5)
+    # the quadrature's own error is stated as at most 5e-4 (fitlab/vmf.py, _GL_NODES)
+    assert float(vmf.G1_exact(jnp.asarray([0.0, 0.0, 1.0]), 100.0)) == pytest.approx(1.0, abs=5e-4)
 
 
 # ----------------------------------------------------------------------------------------------
