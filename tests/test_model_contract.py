@@ -182,9 +182,10 @@ def _fn(name, which, options=()):
 #: one of each constructor, all of them in the whole suite.
 QUICK_FLOAT32_LAYERED = {"coated(rough_conductor)", "weidlich_wilkie(rough_conductor)"}
 
-#: Models whose every contract case runs in the whole suite only: a second bottom of the thin
-#: layer compiles the same tree again (thin_layer(rough_conductor) stays in the quick tier).
-SLOW_MODELS = {"thin_layer(rough_dielectric)"}
+#: Models whose every contract case runs in the whole suite only: the thin layer's kernels (its
+#: masking integral in every crossing) take 10-20 s each to compile; tests/test_thin_layer.py
+#: keeps its quick checks.
+SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)"}
 
 
 def _marks(name, slow=False):
