@@ -144,3 +144,16 @@ class Model(NamedTuple):
 
     def default_options(self) -> dict:
         return {o.name: o.default for o in self.options}
+
+
+def sample_result(wo, f, pdf, valid):
+    """What ``sample`` returns for directions ``wo`` drawn with density ``pdf``: (wo, weight,
+    pdf) with weight = f|cos θo|/pdf (Walter eq. 37), and weight = pdf = 0 where ``valid`` is
+    False or the pdf is 0 (the model's own draws that failed)."""
+    import jax.numpy as jnp
+
+    from fitlab.numerics import safe_div
+
+    valid = valid & (pdf > 0)
+    weight = safe_div(f * jnp.abs(wo[..., 2]), pdf)
+    return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, pdf, 0.0)

@@ -36,7 +36,7 @@ from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refract_down,
                               refract_up, solid_angle_compression, transmittance)
 from fitlab.models import rough_conductor
-from fitlab.models.base import Capabilities, Model, Option, Parameter
+from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -173,9 +173,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
             valid = jnp.where(choose_lobe, p_l > 0, valid)
         p = pdf(params, wi, wo, **opts)
         f = eval(params, wi, wo, **opts)
-        valid = valid & (p > 0) & (wi[..., 2] > 0)
-        weight = safe_div(f * jnp.abs(wo[..., 2]), p)
-        return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
+        return sample_result(wo, f, p, valid & (wi[..., 2] > 0))
 
     name = canonical_name(inner.name, specular)
     lobe_note = ("; narrow coat lobe: Walter eq. 20 with GGX (eq. 33) and the coat's dielectric "

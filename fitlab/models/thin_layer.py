@@ -62,7 +62,7 @@ from fitlab.fresnel import (CONDUCTOR_FRESNEL_METHODS, fresnel_dielectric,
                             fresnel_dielectric_Walter2007)
 from fitlab.frame import dot, normalize, reflect
 from fitlab.interface import beer_lambert, refract_down, transmittance
-from fitlab.models.base import Capabilities, Model, Option, Parameter
+from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -337,9 +337,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         wo = reflect(wi, m)
         p = pdf(params, wi, wo, **opts)
         f = eval(params, wi, wo, **opts)
-        valid = (wi[..., 2] > 0) & (wo[..., 2] > 0) & (p > 0)
-        weight = safe_div(f * jnp.abs(wo[..., 2]), p)
-        return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
+        return sample_result(wo, f, p, (wi[..., 2] > 0) & (wo[..., 2] > 0))
 
     r_note = "" if roughness == "kappa" else ", widths α with κ = 2/α²"
     return Model(

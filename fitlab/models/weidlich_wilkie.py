@@ -43,7 +43,7 @@ from fitlab.frame import dot, normalize
 from fitlab.interface import beer_lambert, refract_down, refract_up
 from fitlab import microfacet
 from fitlab.models import rough_conductor
-from fitlab.models.base import Capabilities, Model, Option, Parameter
+from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -234,9 +234,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
             valid = jnp.where(chosen, ok, valid)
         p = pdf(params, wi, wo, **opts)
         f = eval(params, wi, wo, **opts)
-        valid = valid & (p > 0)
-        weight = safe_div(f * jnp.abs(wo[..., 2]), p)
-        return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
+        return sample_result(wo, f, p, valid)
 
     return Model(
         name=canonical_name(base.name, layers),
