@@ -220,19 +220,14 @@ def test_orders_agree_with_the_simulator(k1, k2, tol1):
     m = get_model(MODEL)
     p = {"kappa1": k1, "eta": 1.5, "tau": 0.0, "kappa2": k2, "n2": 3.18, "k2": 4.41}
     # the model averaged over each detector cone with cos θo weights, as the simulator tallies
-    beta = np.arccos(1.0 - acceptance / (2 * np.pi))
-    u = (np.arange(10) + 0.5) / 10
-    cb, ph = np.meshgrid(1 - u * (1 - np.cos(beta)), 2 * np.pi * u, indexing="ij")
-    sb = np.sqrt(1 - cb**2)
-    local = np.stack([sb * np.cos(ph), sb * np.sin(ph), cb], -1).reshape(-1, 3)
+    # (fitlab.aperture's cone rule, the one the aperture-averaged fits use)
+    from fitlab.aperture import cone_rule
+
     t = np.radians(np.abs(arc))
     f = np.where(arc < 0, 0.0, np.pi)
     axis = np.stack([np.sin(t) * np.cos(f), np.sin(t) * np.sin(f), np.cos(t)], -1)
-    e2 = np.stack([-np.sin(f), np.cos(f), 0 * f], -1)
-    e1 = np.cross(e2, axis)
-    pts = (local[None, :, :1] * e1[:, None] + local[None, :, 1:2] * e2[:, None]
-           + local[None, :, 2:] * axis[:, None])
-    w = np.maximum(pts[..., 2], 0)
+    gamma = np.degrees(np.arccos(1.0 - acceptance / (2 * np.pi)))
+    pts, w = cone_rule(axis, np.full(len(arc), gamma), 6)
     wi = jnp.asarray(np.broadcast_to(_dir(30.0), pts.shape))
     for order, comp, tol in ((0, "surface", 0.10), (1, "1", tol1)):
         sim, sig = r.by_order[order][:, 0], r.sigma_by_order[order][:, 0]
