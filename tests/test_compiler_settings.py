@@ -1,0 +1,46 @@
+"""The suite compiles with fast-compile XLA settings (tests/conftest.py: TEST_XLA_FLAGS); users
+get XLA's defaults. This runs the numerics that depend most on code generation — the registry
+contract (values and gradients on the hard cases in float32 and float64, sampling weights and
+pdfs, reciprocity, white furnace), the hard-case tests and the sampling tests — again in a child
+session under XLA's defaults, so that both configurations are tested."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import TEST_XLA_FLAGS, XLA_DEFAULTS_ENV
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: The modules run again under XLA's defaults (their quick cases).
+MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py", "tests/test_sampling.py")
+
+
+def _default_flags(flags: str) -> str:
+    """XLA_FLAGS without the settings conftest added (a user's own settings stay)."""
+    return " ".join(f for f in flags.split()
+                    if not any(f.startswith(f"--{k}=") for k in TEST_XLA_FLAGS))
+
+
+def test_default_flags_strip_only_the_test_settings():
+    flags = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=0"
+    assert _default_flags(flags) == "--xla_force_host_platform_device_count=2"
+    if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):  # this session's own settings
+        assert all(f"--{k}=" in os.environ["XLA_FLAGS"] for k in TEST_XLA_FLAGS)
+
+
+@pytest.mark.slow
+def test_contract_holds_under_xla_default_settings():
+    env = dict(os.environ, XLA_FLAGS=_default_flags(os.environ.get("XLA_FLAGS", "")))
+    env[XLA_DEFAULTS_ENV] = "1"
+    cmd = [sys.executable, "-m", "pytest", *MODULES, "-m", "not slow", "-n", "0", "-q",
+           "-p", "no:cacheprovider", "-o", "addopts="]
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)
+    tail = "\n".join(proc.stdout.splitlines()[-30:])
+    assert proc.returncode == 0, f"under XLA's default settings:\n{tail}\n{proc.stderr[-2000:]}"
+    assert " passed" in tail and "failed" not in tail, tail
