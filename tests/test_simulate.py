@@ -272,7 +272,7 @@ def test_cli_simulate_writes_measurement_csv_that_fitlab_fit_reads(tmp_path, cap
     # fitlab fit on the simulated file recovers the interface's roughness
     fit_out = tmp_path / "fit.json"
     assert main(["fit", str(out), "--model", "rough_dielectric", "--starts", "2", "--quiet",
-                 "--fit-subset", "value > 0.05", "--out", str(fit_out)]) == 0
+                 "--fit-subset", "value > 0.05", "--bootstrap", "0", "--out", str(fit_out)]) == 0
     rec = json.loads(fit_out.read_text())
     alpha = rec["fits"][0]["parameters"]["alpha"]["value"]
     assert alpha == pytest.approx(0.3, rel=0.1)
