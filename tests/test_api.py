@@ -101,3 +101,47 @@ def test_errors_say_what_to_do():
     for bad in (0, True, 2.5, 10**9):
         with pytest.raises(FitlabError, match="lm_maxiter must be an integer from 1"):
             fitlab.fit(m, "rough_dielectric", lm_maxiter=bad)
+
+
+def test_start_adds_one_levenberg_marquardt_start_at_the_given_values(result):
+    m = fitlab.read(WALTER)
+    res = fitlab.fit(m, "rough_dielectric", subset="theta_i == 0", starts=2,
+                     start={"alpha": 0.05})
+    starts = res.record["fits"][0]["starts"]
+    assert len(starts) == len(result.record["fits"][0]["starts"])  # the extra start replaced
+    assert starts[-1]["start"] == {"alpha": 0.05}  # eta is fixed from the file
+    assert result.record["fits"][0]["starts"][-1]["start"]["alpha"] != 0.05
+    # the same optimum as without it (the extra start does not change a well-posed fit)
+    assert res.parameters["alpha"] == pytest.approx(result.parameters["alpha"], rel=1e-6)
+
+
+def test_start_errors_name_the_parameter_and_what_to_do(tmp_path, capsys):
+    m = fitlab.read(WALTER)
+    with pytest.raises(FitlabError, match="start gamma: model 'rough_dielectric' has no "):
+        fitlab.fit(m, "rough_dielectric", start={"gamma": 1})
+    with pytest.raises(FitlabError, match="outside its bounds"):
+        fitlab.fit(m, "rough_dielectric", start={"alpha": 50})
+    with pytest.raises(FitlabError, match="eta is fixed from the data file .--free eta"):
+        fitlab.fit(m, "rough_dielectric", start={"eta": 1.4})
+    with pytest.raises(FitlabError, match="start alpha: the parameter is also fixed"):
+        fitlab.fit(m, "rough_dielectric", fix={"alpha": 0.1}, start={"alpha": 0.2})
+    out = tmp_path / "fit.json"
+    for bad, says in ((["--start", "alpha"], "must look like NAME=VALUE"),
+                      (["--start", "alpha=x"], "--start alpha='x': the value must be a number"),
+                      (["--start", "alpha=0.1", "--start", "alpha=0.2"], "given twice")):
+        assert main(["fit", str(WALTER), "--model", "rough_dielectric", *bad, "--out",
+                     str(out)]) == 2
+        assert says in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_compare_candidates_take_their_own_start():
+    from fitlab.fitting.compare import parse_candidate, resolve_candidates
+
+    cand = parse_candidate("lambertian+rough_conductor --fix k=0 --start alpha=0.05")
+    assert cand.start == {"alpha": "0.05"}
+    (a, b) = resolve_candidates([cand, "lambertian"])
+    assert a.start == {"alpha": 0.05} and b.start == {}
+    assert a.spec.endswith("--start alpha=0.05")
+    with pytest.raises(FitlabError, match="--start alpha: .*outside its bounds"):
+        resolve_candidates(["rough_conductor --start alpha=7", "lambertian"])

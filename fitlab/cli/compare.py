@@ -29,10 +29,11 @@ def add_parser(sub):
     )
     p.add_argument("data", help="measurement file (any format `fitlab info` knows)")
     p.add_argument("--model", action="append", metavar="'NAME [--fix P=V] [--option O=V] "
-                   "[--free P] [--label TEXT]'",
+                   "[--free P] [--start P=V] [--label TEXT]'",
                    help="a candidate (give two or more): a model name (see `fitlab models`), "
                    "optionally followed, inside the same quoted argument, by its own --fix, "
-                   "--option, --free and --label (e.g. --model 'coated(lambertian,"
+                   "--option, --free, --start (one more Levenberg-Marquardt start, as for "
+                   "`fitlab fit`) and --label (e.g. --model 'coated(lambertian,"
                    "specular=lobe) --option interreflection=closed_form --fix coat_eta=1.5')")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="hold a parameter at a value in every candidate that has it")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import sys
 
-import fitlab
 from fitlab.assignments import parse_assignments
 from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
                                get_model, model_options)
@@ -30,6 +29,10 @@ def add_parser(sub):
     add_option(p, help="a model option")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="hold a parameter at a value (e.g. --fix eta=1.51)")
+    p.add_argument("--start", action="append", metavar="NAME=VALUE",
+                   help="one more Levenberg-Marquardt start at these values (the model's "
+                   "defaults elsewhere), for a basin the global search may miss (e.g. "
+                   "--start kappa1=3000: a thin layer's sharp coat)")
     p.add_argument("--free", action="append", metavar="NAME",
                    help="fit a parameter the data file would fix (eta from # eta_inside/outside)")
     p.add_argument("--loss", choices=list(LOSSES),
@@ -83,21 +86,12 @@ def add_parser(sub):
     return p
 
 
-def _fixed_from_cli(model, items):
-    fixed = {}
-    for name, text in parse_assignments(items, "fix").items():
-        if name not in model.parameter_names:
-            raise FitlabError(f"--fix {name}: model {model.name!r} has no parameter {name!r} "
-                              f"(its parameters: {', '.join(model.parameter_names)})")
-        try:
-            fixed[name] = float(text)
-        except ValueError:
-            raise FitlabError(f"--fix {name}={text!r}: the value must be a number") from None
-    try:
-        fitlab.api.check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
-    except ValueError as exc:
-        raise FitlabError(str(exc)) from None
-    return fixed
+def _values_from_cli(model, items, flag):
+    """--fix/--start NAME=VALUE items, checked before the data are read (the checks of
+    fitlab.fit's ``fix`` and ``start``)."""
+    from fitlab.fitting.api import parameter_values
+
+    return parameter_values(model, parse_assignments(items, flag), f"--{flag}")
 
 
 def _share_names(items):
@@ -210,7 +204,8 @@ def run(args):
     t0 = time.perf_counter()
     model = get_model(args.model)
     options = model_options(model, args.option)
-    fixed = _fixed_from_cli(model, args.fix)
+    fixed = _values_from_cli(model, args.fix, "fix")
+    start = _values_from_cli(model, args.start, "start")
     if args.chain and not args.mcmc:
         raise FitlabError("--chain needs --mcmc: there is no chain to write")
     if args.report and not args.out:
@@ -237,7 +232,7 @@ def run(args):
                  starts=args.starts, seed=args.seed,
                  walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,
                  aperture_order=args.aperture_order, bootstrap=args.bootstrap,
-                 lm_maxiter=args.lm_maxiter)
+                 lm_maxiter=args.lm_maxiter, start=start)
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)

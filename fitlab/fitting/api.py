@@ -41,7 +41,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
         aperture_order: int | None = None, bootstrap: int | None = None,
-        lm_maxiter: int | None = None):
+        lm_maxiter: int | None = None, start: dict | None = None):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -62,12 +62,15 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     ``diagnostics()["aperture"]``); bootstrap: refits of the block bootstrap over incidence
     directions, an uncertainty that accounts for misfit (``result.bootstrap()``; None: 100 on
     channels with at least 3 fitted incidences, 0: off); lm_maxiter: each Levenberg–Marquardt
-    run's step limit (None: 200; raise it when a fit warns that its run stopped at the limit).
+    run's step limit (None: 200; raise it when a fit warns that its run stopped at the limit);
+    start: {parameter: value} for one more Levenberg–Marquardt start, at these values and the
+    model's defaults elsewhere (a basin the global search may miss: ``{"kappa1": 3000}`` starts
+    a thin layer with a sharp coat; every start is in ``result.record["fits"][c]["starts"]``).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     import fitlab
-    from fitlab.api import check_params, resolve_options
+    from fitlab.api import resolve_options
     from fitlab.export.paramfile import build_record, chains_payload, run_timings
     from fitlab.fitting.driver import fit_measurement
     from fitlab.fitting.result import FitResult
@@ -80,19 +83,12 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         options = resolve_options(mdl, options or {})
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models`)") from None
-    fixed = {}
-    for name, value in (fix or {}).items():
-        if name not in mdl.parameter_names:
-            raise FitlabError(f"fix {name}: model {mdl.name!r} has no parameter {name!r} "
-                              f"(its parameters: {', '.join(mdl.parameter_names)})")
-        try:
-            fixed[name] = float(value)
-        except (TypeError, ValueError):
-            raise FitlabError(f"fix {name}={value!r}: the value must be a number") from None
-    try:
-        check_params(mdl, {**{p.name: p.default for p in mdl.parameters}, **fixed})
-    except ValueError as exc:
-        raise FitlabError(str(exc)) from None
+    fixed = parameter_values(mdl, fix, "fix")
+    start = parameter_values(mdl, start, "start")
+    both = sorted(set(fixed) & set(start))
+    if both:
+        raise FitlabError(f"start {both[0]}: the parameter is also fixed; a start is for a "
+                          "parameter the fit moves (drop one of the two)")
     for name in free or ():
         if name not in mdl.parameter_names:
             raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
@@ -152,7 +148,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                                  quiet=not progress, channels=chan_ids, warn=False,
                                  aperture_order=aperture_order,
                                  bootstrap=None if bootstrap is None else int(bootstrap),
-                                 lm_maxiter=int(lm_maxiter))
+                                 lm_maxiter=int(lm_maxiter), start=start)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)
@@ -164,6 +160,28 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     chains = chains_payload(result) if mcmc else {}
     seconds = {k: v for k, v in run_timings(result, 0.0, 0.0).items() if k not in ("read", "total")}
     return FitResult.from_record(record, chains, None, m, seconds)
+
+
+def parameter_values(model, values, what: str) -> dict:
+    """``values`` ({parameter: number}, or None) checked against ``model``: known names, finite
+    numbers inside the bounds; a :class:`FitlabError` names the first that is not (``what``:
+    "fix" or "start", as the message calls it)."""
+    from fitlab.api import check_params
+
+    out = {}
+    for name, value in (values or {}).items():
+        if name not in model.parameter_names:
+            raise FitlabError(f"{what} {name}: model {model.name!r} has no parameter {name!r} "
+                              f"(its parameters: {', '.join(model.parameter_names)})")
+        try:
+            out[name] = float(value)
+        except (TypeError, ValueError):
+            raise FitlabError(f"{what} {name}={value!r}: the value must be a number") from None
+    try:
+        check_params(model, {**{p.name: p.default for p in model.parameters}, **out})
+    except ValueError as exc:
+        raise FitlabError(f"{what}: {exc}") from None
+    return out
 
 
 __all__ = ["read", "fit"]

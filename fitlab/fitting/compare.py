@@ -85,7 +85,7 @@ LOGLIK_CHUNK = 256
 #: The files ``CompareResult.save`` writes into the output folder (the report adds index.html).
 TABLE_JSON, TABLE_CSV, INCIDENCE_CSV, FITS_DIR = ("compare.json", "compare.csv",
                                                   "compare_incidences.csv", "fits")
-CANDIDATE_FLAGS = ("--fix", "--option", "--free", "--label")
+CANDIDATE_FLAGS = ("--fix", "--option", "--free", "--start", "--label")
 
 
 # --------------------------------------------------------------------------------------------
@@ -104,11 +104,12 @@ class Candidate(NamedTuple):
     options: dict | None = None
     free: tuple = ()
     label: str | None = None
+    start: dict | None = None
 
 
 def parse_candidate(text: str) -> Candidate:
     """A candidate written as on the command line: ``NAME [--fix P=V]... [--option O=V]...
-    [--free P]... [--label TEXT]`` (shell quoting), e.g. ``"coated(lambertian,specular=lobe)
+    [--free P]... [--start P=V]... [--label TEXT]`` (shell quoting), e.g. ``"coated(lambertian,specular=lobe)
     --option interreflection=closed_form --fix coat_eta=1.5"``."""
     from fitlab.assignments import parse_assignments
 
@@ -148,7 +149,8 @@ def parse_candidate(text: str) -> Candidate:
             raise FitlabError(f"{where}: --fix {pname}={v!r}: the value must be a number") \
                 from None
     return Candidate(name, fix, parse_assignments(got["--option"], "option"),
-                     tuple(got["--free"]), got["--label"][0] if got["--label"] else None)
+                     tuple(got["--free"]), got["--label"][0] if got["--label"] else None,
+                     parse_assignments(got["--start"], "start"))
 
 
 class Resolved(NamedTuple):
@@ -158,11 +160,13 @@ class Resolved(NamedTuple):
     fix: dict  # its own fixed values and the global ones that apply to it
     options: dict  # resolved (defaults filled in)
     free: tuple
+    start: dict  # its extra Levenberg–Marquardt start (fitlab.fit's ``start``)
 
 
-def _spec(name, fix, options, free) -> str:
+def _spec(name, fix, options, free, start) -> str:
     parts = [name] + [f"--option {k}={v}" for k, v in options.items()]
     parts += [f"--fix {k}={v:g}" for k, v in fix.items()] + [f"--free {p}" for p in free]
+    parts += [f"--start {k}={v:g}" for k, v in start.items()]
     return " ".join(parts)
 
 
@@ -172,6 +176,7 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
     parameter or option (a candidate's own settings win), and each must apply to one at least."""
     import fitlab
     from fitlab.api import check_params, resolve_options
+    from fitlab.fitting.api import parameter_values
 
     fix, options, free = dict(fix or {}), dict(options or {}), tuple(free or ())
     if isinstance(models, (str, Candidate)):
@@ -222,8 +227,12 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
         except ValueError as exc:
             raise FitlabError(f"{where}: {exc} (see `fitlab models`)") from None
         freed = tuple(dict.fromkeys(tuple(c.free or ()) + glob_free))
-        out.append(Resolved(c.label, _spec(mdl.name, own_fix, own_opt, tuple(c.free or ())),
-                            mdl, fixed, opts, freed))
+        try:
+            start = parameter_values(mdl, c.start, "--start")
+        except FitlabError as exc:
+            raise FitlabError(f"{where}: {exc}") from None
+        out.append(Resolved(c.label, _spec(mdl.name, own_fix, own_opt, tuple(c.free or ()),
+                                           start), mdl, fixed, opts, freed, start))
     for what, given, used in (("--fix", fix, used_fix), ("--option", options, used_opt),
                               ("--free", free, used_free)):
         unused = [k for k in given if k not in used]
@@ -339,7 +348,8 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     from fitlab.fitting.driver import resolve_fit
 
     mdl, options, fixed, _, loss, start = resolve_fit(m, cand.model.name, options=cand.options,
-                                                      fixed=cand.fix, free=cand.free, loss=loss)
+                                                      fixed=cand.fix, free=cand.free, loss=loss,
+                                                      start=cand.start)
     base = {"model": mdl, "options": options, "fixed": fixed, "loss": loss, "start": start,
             "channel": channel, "in_chan": m.channel == channel, "order": order}
     space, data, start_native = _channel_problem(m, base, rows, order)
@@ -615,7 +625,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             if bar is not None:
                 bar.set_postfix_str(f"{cand.label}: fit" + (" + MCMC" if mcmc else ""))
             try:
-                res = fitlab.fit(m, cand.model, fix=cand.fix, free=cand.free,
+                res = fitlab.fit(m, cand.model, fix=cand.fix, free=cand.free, start=cand.start,
                                  options=cand.options, loss=loss, subset=rows_fit,
                                  channels=[m.channel_names[c] for c in chan_ids], mcmc=mcmc,
                                  mcmc_steps=mcmc_steps, walkers=walkers, starts=starts,

@@ -158,9 +158,10 @@ def fitted_rows(m, c, rows_fit):
     return name, in_chan, rows
 
 
-def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None):
+def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None, start=None):
     """The model, its options, the fixed parameters (eta from the data file unless freed), notes
-    for the user, the loss and the start point: everything channels share."""
+    for the user, the loss and the extra start point (the model's defaults, overridden by
+    ``start``): everything channels share."""
     model = get_model(model_name)
     options = resolve_options(model, options)
     fixed = dict(fixed or {})
@@ -177,7 +178,15 @@ def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None):
                              f"(its parameters: {', '.join(model.parameter_names)})")
     check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
     loss = loss or ("chi2" if m.sigma is not None else "relative")
-    start = {p.name: fixed.get(p.name, p.default) for p in model.parameters}
+    start = dict(start or {})
+    for name in start:
+        if name in fixed:
+            raise ValueError(f"--start {name}: {name} is fixed"
+                             + (" from the data file (--free eta to fit it)"
+                                if name == "eta" and eta_file is not None else "")
+                             + "; a start is for a parameter the fit moves")
+    check_params(model, {**{p.name: p.default for p in model.parameters}, **start, **fixed})
+    start = {p.name: fixed.get(p.name, start.get(p.name, p.default)) for p in model.parameters}
     return model, options, fixed, notes, loss, start
 
 
@@ -226,7 +235,7 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
                     n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
-                    aperture_order=None, bootstrap=None, share=()):
+                    aperture_order=None, bootstrap=None, share=(), start=None):
     """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
@@ -236,9 +245,11 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
     incidences (None: :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP` where a channel has
     at least 3 fitted incidences, else none; 0: none). Rows with an aperture (``m.has_aperture``) are fitted
     by the aperture-averaged model, of quadrature order ``aperture_order`` (None: chosen
-    automatically, fitlab.fitting.aperture)."""
+    automatically, fitlab.fitting.aperture). ``start``: values for the extra
+    Levenberg–Marquardt start (the model's defaults elsewhere)."""
     model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
-                                                            fixed=fixed, free=free, loss=loss)
+                                                            fixed=fixed, free=free, loss=loss,
+                                                            start=start)
     rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
     chan_ids = range(len(m.channel_names)) if channels is None else channels
     fitted = [c for c in chan_ids if np.any((m.channel == c) & rows_fit)]
