@@ -27,6 +27,22 @@ if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):
                if not any(f.startswith(f"--{k}=") for f in _flags)]
     os.environ["XLA_FLAGS"] = " ".join(_flags)
 
+
+
+def xla_default_flags(flags: str) -> str:
+    """XLA_FLAGS without the settings above (a user's own settings stay)."""
+    return " ".join(f for f in flags.split()
+                    if not any(f.startswith(f"--{k}=") for k in TEST_XLA_FLAGS))
+
+
+def user_environment() -> dict:
+    """This process's environment as a user's shell has it: XLA's default settings. A test that
+    compares a command's output with committed bytes (made by that command under the defaults)
+    runs it in a child process with this environment: compiled at other settings, a value's
+    last digit can differ."""
+    return dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
+
+
 import jax  # noqa: E402  (after XLA_FLAGS)
 import pytest  # noqa: E402
 

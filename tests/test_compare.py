@@ -12,11 +12,13 @@ import csv
 import io
 import json
 import os
+import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import user_environment
 
 import fitlab
 from fitlab.cli import main
@@ -380,14 +382,17 @@ def test_loo_and_waic_pick_the_true_model(synthetic, tmp_path):
 
 @pytest.mark.slow
 def test_example_reproduced_by_its_command(tmp_path):
-    """data_formats/compare.md's example command gives the committed bytes."""
+    """data_formats/compare.md's example command gives the committed bytes (run as a user runs
+    it: a `fitlab` process under XLA's default settings, conftest.user_environment)."""
     out = tmp_path / "compare"
-    code, _, err = run_cli([
+    proc = subprocess.run([
+        sys.executable, "-m", "fitlab.cli",
         "compare", str(ROOT / "data_formats/examples/walter_rough_glass.csv"), "--model",
         "rough_dielectric", "--model", "rough_dielectric --option distribution=beckmann "
         "--label beckmann", "--mcmc-steps", "2000", "--starts", "2", "--no-report",
-        "--no-fits", "--out", str(out), "--quiet"])
-    assert code == 0, err
+        "--no-fits", "--out", str(out), "--quiet"], env=user_environment(),
+        capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
     for name in ("compare.csv", "compare_incidences.csv"):
         assert (out / name).read_bytes() == (EXAMPLE / name).read_bytes(), name
     got = json.loads((out / "compare.json").read_text(encoding="utf-8"))

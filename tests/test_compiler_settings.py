@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import TEST_XLA_FLAGS, XLA_DEFAULTS_ENV
+from conftest import TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, user_environment, xla_default_flags
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -21,23 +21,16 @@ ROOT = Path(__file__).resolve().parent.parent
 MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py", "tests/test_sampling.py")
 
 
-def _default_flags(flags: str) -> str:
-    """XLA_FLAGS without the settings conftest added (a user's own settings stay)."""
-    return " ".join(f for f in flags.split()
-                    if not any(f.startswith(f"--{k}=") for k in TEST_XLA_FLAGS))
-
-
 def test_default_flags_strip_only_the_test_settings():
     flags = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=0"
-    assert _default_flags(flags) == "--xla_force_host_platform_device_count=2"
+    assert xla_default_flags(flags) == "--xla_force_host_platform_device_count=2"
     if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):  # this session's own settings
         assert all(f"--{k}=" in os.environ["XLA_FLAGS"] for k in TEST_XLA_FLAGS)
 
 
 @pytest.mark.slow
 def test_contract_holds_under_xla_default_settings():
-    env = dict(os.environ, XLA_FLAGS=_default_flags(os.environ.get("XLA_FLAGS", "")))
-    env[XLA_DEFAULTS_ENV] = "1"
+    env = {**user_environment(), XLA_DEFAULTS_ENV: "1"}
     cmd = [sys.executable, "-m", "pytest", *MODULES, "-m", "not slow", "-n", "0", "-q",
            "-p", "no:cacheprovider", "-o", "addopts="]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)
