@@ -102,10 +102,10 @@ def cone_points(theta_o, phi_o, k=12):
     return pts, w
 
 
-def cone_average(model_name, params, options, theta_o, phi_o):
+def cone_average(model_name, params, options, theta_o, phi_o, theta_i=THETA_I):
     m = get_model(model_name)
     pts, w = cone_points(theta_o, phi_o)
-    ti = np.radians(THETA_I)
+    ti = np.radians(theta_i)
     wi = np.broadcast_to([np.sin(ti), 0.0, np.cos(ti)], pts.shape)
     f = np.asarray(jax.jit(lambda p, a, b: m.eval(p, a, b, **options))(
         {k: jnp.float64(v) for k, v in params.items()}, jnp.asarray(wi), jnp.asarray(pts)))

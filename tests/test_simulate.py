@@ -119,6 +119,13 @@ def test_vmf_kappa_maps_to_alpha():
     d = _base()
     d["stack"][0] = {"type": "interface", "distribution": "vmf", "kappa": 200.0}
     assert scene_from_dict(d).boundaries[0].alpha == pytest.approx(0.1)
+    # down to the thin layer's bound (κ < 2 is wider than α = 1), and no further
+    d["stack"][0]["kappa"] = 1.0
+    assert scene_from_dict(d).boundaries[0].alpha == pytest.approx(np.sqrt(2.0))
+    for bad in (5e-3, 2e7):
+        d["stack"][0]["kappa"] = bad
+        with pytest.raises(InputFileError, match=r"stack\[0\]\.kappa: .* out of range"):
+            scene_from_dict(d)
 
 
 # --------------------------------------------------------------------------------------------

@@ -270,8 +270,9 @@ def _roughness(ctx, table, field):
         if "alpha" in table:
             ctx.fail(f"{field}.kappa", "give either alpha or kappa, not both",
                      "kappa = 2/alpha^2 (fitlab/microfacet.py)")
-        kappa = _number(ctx, table, field, "kappa", lo=2.0,
-                        hint="the vMF concentration must be >= 2 (alpha <= 1)")
+        kappa = _number(ctx, table, field, "kappa", lo=1e-2, hi=1e7,
+                        hint="the vMF concentration must lie in [1e-2, 1e7] (the thin "
+                        "layer's range; kappa < 2 is wider than alpha = 1)")
         return dist, math.sqrt(2.0 / kappa), None
     if "kappa" in table:
         ctx.fail(f"{field}.kappa", "only a vmf distribution has a concentration kappa",
