@@ -150,7 +150,7 @@ def parse_candidate(text: str) -> Candidate:
                 from None
     return Candidate(name, fix, parse_assignments(got["--option"], "option"),
                      tuple(got["--free"]), got["--label"][0] if got["--label"] else None,
-                     parse_assignments(got["--start"], "start"))
+                     parse_assignments(got["--start"], "start") or None)
 
 
 class Resolved(NamedTuple):
