@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from conftest import TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, user_environment, xla_default_flags
+from conftest import (TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, _release_compiled_code, user_environment,
+                      xla_default_flags)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -30,6 +31,9 @@ def test_default_flags_strip_only_the_test_settings():
 
 @pytest.mark.slow
 def test_contract_holds_under_xla_default_settings():
+    # this worker waits for the child session: it gives back its compiled code first, so the
+    # two sessions' memory does not add up (the suite's 3 GB budget)
+    _release_compiled_code()
     env = {**user_environment(), XLA_DEFAULTS_ENV: "1"}
     cmd = [sys.executable, "-m", "pytest", *MODULES, "-m", "not slow", "-n", "0", "-q",
            "-p", "no:cacheprovider", "-o", "addopts="]
