@@ -16,6 +16,11 @@ follow: RMS(d)/2 is the RMS relative error that any mirror-symmetric (isotropic)
 on these rows (it can at best predict the pair's mean), and RMS(d)/√2 is the per-row noise if
 the two readings' errors are independent.
 
+Normal incidence rings (RGL film). At θi = 0 an isotropic BRDF depends on θo alone, so the
+readings on a ring of fixed θo repeat one value. Per ring, the best constant in the relative
+sense, c = Σ f⁻¹ / Σ f⁻², leaves the least RMS relative error any isotropic model can leave
+there; pooled over the rows a statistic counts it is the isotropic-model floor at θi = 0.
+
 Brown vinyl (Zemax, PlaneSymmetrical): the file stores azimuths 0–180° only (fitlab mirrors
 them), so there are no mirrored readings, and radial 0 is one value repeated for every azimuth
 (a repeat of the number, not a repeated measurement). What can be measured:
@@ -237,6 +242,49 @@ def film_peak_sensitivity(path, shift_deg=0.5):
                          f"{base.phi_o[i]:g}", f"{base.value[i]:.4g}"]
                         + [f"{v[i] / base.value[i] - 1:+.2f}" for v in shifted.values()])
     return rows, list(shifted)
+
+
+def normal_incidence_rings(m, channel: int):
+    """At normal incidence an isotropic BRDF depends on θo alone, so every reading on a ring of
+    fixed θo measures the same value. Per ring: the constant c that minimises the rows' squared
+    relative error Σ ((c − f)/f)² (c = Σ f⁻¹ / Σ f⁻²; the best any isotropic model can
+    predict there), the ring's max/min and the RMS relative error c leaves. Returns the ring
+    table and the relative errors with the rows' values, for pooling over the counted rows."""
+    sel = (m.channel == channel) & (np.abs(m.theta_i) < 1e-9)
+    theta_o, v = m.theta_o[sel], m.value[sel]
+    rings, rel, vals = [], [], []
+    for to in np.unique(np.round(theta_o, 6)):
+        f = v[np.abs(theta_o - to) < 1e-6]
+        if f.size < 2 or np.any(f <= 0):
+            continue
+        c = float(np.sum(1.0 / f) / np.sum(1.0 / f ** 2))
+        r = c / f - 1.0
+        rings.append((float(to), f.size, float(np.max(f) / np.min(f)), rms(r), float(np.mean(f))))
+        rel.append(r)
+        vals.append(f)
+    return rings, np.concatenate(rel), np.concatenate(vals), float(np.max(v))
+
+
+def report_normal_incidence(m, channels=None):
+    chans = range(len(m.channel_names)) if channels is None else channels
+    print("\n### Normal incidence: the readings around each ring of fixed θo (an isotropic model "
+          "predicts one value per ring)\n")
+    pooled, ring_rows = [], []
+    for c in chans:
+        rings, rel, vals, vmax_i = normal_incidence_rings(m, c)
+        vmax_c = float(np.max(m.value[m.channel == c]))
+        inc, chan = vals >= FLOOR * vmax_i, vals >= FLOOR * vmax_c
+        pooled.append([m.channel_names[c], int(inc.sum()), f3(rms(rel[inc])),
+                       int(chan.sum()), f3(rms(rel[chan]) if chan.any() else float("nan"))])
+        for to, n, ratio, e, mean in rings:
+            if c == chans[0]:
+                ring_rows.append([m.channel_names[c], f"{to:g}", n, f"{mean:.4g}",
+                                  f"{ratio:.3f}", f3(e)])
+    print(table(["channel", "θo", "readings", "mean f (1/sr)", "max/min", "RMS relative error "
+                 "of the best constant"], ring_rows))
+    print("\nPooled over the rows a statistic counts (the isotropic-model floor at θi = 0):\n")
+    print(table(["channel", "rows >= 1% of the incidence max (compare)", "floor",
+                 "rows >= 1% of the channel max (overall)", "floor"], pooled))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -625,6 +673,7 @@ def main(argv=None):
             m = fitlab.read(FILM)
             report_mirror(f"RGL Aurora White ({FILM.name}, fitlab's default read grid)", m,
                           1e-6 if args.tol is None else args.tol)
+            report_normal_incidence(m)
             rows, cols = film_peak_sensitivity(FILM)
             print("\n### The rows a parameter file's overall error counts (>= 1% of the channel "
                   "max) and the file's BRDF 0.5° away\n")
