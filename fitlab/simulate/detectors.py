@@ -10,6 +10,10 @@ BTDF, data_formats/scene_toml.md "Output").
 - Cones (in-plane arcs, measurement directions): all directions within the half angle γ of d,
   Ω = 2π(1 - cos γ); ∫ |cos θ| dω over the part of the cone on d's side of the surface by
   quadrature (exact π sin²γ |d_z| when the cone does not cross the horizon).
+- Points (``estimator = "point"``): the walk estimates the flux fraction per unit solid angle
+  leaving along each exact direction d by next-event estimation (walk.py, "Point estimates");
+  dividing by |cos θ| of d gives f itself, so a point row's "cosine-weighted solid angle" is
+  |d_z|.
 """
 
 from __future__ import annotations
@@ -58,6 +62,51 @@ def hemisphere_rows(theta_bins: int, phi_bins: int, sides) -> Rows:
                 ed.append((lo, hi, pedges[pb], pedges[pb + 1]))
     return Rows(np.array(th), np.array(ph), np.array(tally, dtype=int), np.array(cw),
                 np.array(ed, dtype=float).reshape(-1, 4))
+
+
+def point_rows(theta_o, phi_o, tally=None) -> tuple[Rows, np.ndarray]:
+    """Point estimates at exact outgoing directions (degrees; θo > 90° is the transmission side):
+    the rows, with |cos θo| as the divisor that turns a flux density per steradian into f, and
+    the unit directions (R, 3)."""
+    d = direction(np.asarray(theta_o, float), np.asarray(phi_o, float))
+    idx = np.arange(d.shape[0]) if tally is None else np.asarray(tally, dtype=int)
+    return Rows(np.asarray(theta_o, float), np.asarray(phi_o, float), idx, np.abs(d[:, 2])), d
+
+
+#: Boundary classes for point estimates: what a boundary does to a path crossing it.
+PASS, SMOOTH, ROUGH = "pass", "smooth", "rough"
+
+
+def point_connections(classes) -> tuple[tuple[int, str | None], tuple[int, str | None]]:
+    """Where next-event estimation connects a path to a requested direction, per side.
+
+    ``classes``: per boundary 0..M, ``PASS`` (no index change), ``SMOOTH`` (a specular
+    dielectric or conductor) or ``ROUGH`` (rough dielectric or conductor, Lambertian). Returns
+    ``((k_up, why_not), (k_down, why_not))``: the reflection side connects at the first
+    non-specular boundary k_up from the top (M + 1 if none: volume events only) and the
+    transmission side at the last one from the bottom (-1 if none); ``why_not`` is None when
+    the estimate is complete, else the reason it would miss light.
+
+    Completeness: every exiting path has a last non-specular event; the estimate connects that
+    event to the exit through the specular boundaries between it and the outside (deterministic
+    refraction), so it must be the only way out. A specular boundary that can reflect a path back
+    toward the exit side between k and the exit (an index change or a mirror strictly between
+    the top and k_up, or between k_down and the bottom) would let light leave after a specular
+    bounce that no connection follows."""
+    M = len(classes) - 1
+    rough = [j for j, c in enumerate(classes) if c == ROUGH]
+    k_up = rough[0] if rough else M + 1
+    k_down = rough[-1] if rough else -1
+    between_up = [j for j in range(1, min(k_up, M + 1)) if classes[j] != PASS]
+    between_down = [j for j in range(max(k_down + 1, 0), M) if classes[j] != PASS]
+    why_up = why_down = None
+    if between_up:
+        why_up = (f"boundary {between_up[0]} is specular and lies between the top and the first "
+                  "rough boundary: light reflected upward there would be missed")
+    if between_down:
+        why_down = (f"boundary {between_down[0]} is specular and lies between the last rough "
+                    "boundary and the bottom: light reflected downward there would be missed")
+    return (k_up, why_up), (k_down, why_down)
 
 
 def cone_half_angle_cos(acceptance_sr: float) -> float:

@@ -115,6 +115,15 @@ def derive_effects(scene: Scene) -> EffectPlan:
         sim.append(("delta", "unscattered transmission and specular reflection included"))
     else:
         skip.append(("delta", "delta = false: paths without a non-specular event are not tallied"))
+    # estimator
+    if scene.detector.estimator == "point":
+        sim.append(("point estimates", "next-event estimation: every event that can be a path's "
+                    "last non-specular one is connected to each requested direction (no bin or "
+                    "cone average)"))
+        if not any(k == "delta" for k, _ in skip):
+            skip.append(("delta lobes in the values", "a specular reflection or unscattered "
+                         "transmission is a delta, not a point value: it leaves the point "
+                         "estimates out (it stays in the flux leaving each side)"))
     # colour
     if scene.channels == 3:
         channels, names = 3, CHANNEL_NAMES_RGB

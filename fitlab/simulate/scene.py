@@ -37,6 +37,9 @@ PHASES = ("isotropic", "hg", "sggx_surface", "sggx_fiber")
 SUBSTRATES = ("lambertian", "conductor", "dielectric")
 DETECTORS = ("hemisphere", "inplane", "measurement")
 SIDES = ("reflection", "transmission")
+#: How a detector estimates its values: averages over its bins or cones, or point estimates at
+#: the exact directions (next-event estimation, walk.py "Point estimates").
+ESTIMATORS = ("cone", "point")
 VOLUME_SCATTERING = ("none", "single", "multiple")
 COLORS = ("auto", "mono", "rgb")
 CHANNEL_NAMES_RGB = ("R", "G", "B")
@@ -92,6 +95,9 @@ class Detector(NamedTuple):
     inplane: cones of ``acceptance_sr`` steradians around in-plane directions ``theta_o``
     (signed degrees, see the schema), on the sides those angles fall on.
     measurement: cones of ``acceptance_sr`` around the exact directions of ``file``'s rows.
+
+    ``estimator``: "cone" (the bin or cone average, as above) or "point" (point estimates of f
+    at the bin centres or the exact directions, no aperture; ``acceptance_sr`` is then 0).
     """
 
     type: str
@@ -101,6 +107,7 @@ class Detector(NamedTuple):
     theta_o: tuple = ()
     acceptance_sr: float = 0.0
     file: str | None = None
+    estimator: str = "cone"
 
 
 class Effects(NamedTuple):
@@ -369,7 +376,8 @@ def _detector(ctx, table, base_dir, illum_given):
     field = "detector"
     dtype = _choice(ctx, table, field, "type", DETECTORS)
     if dtype == "hemisphere":
-        _check_keys(ctx, table, field, ("type", "sides", "theta_bins", "phi_bins"))
+        _check_keys(ctx, table, field, ("type", "sides", "theta_bins", "phi_bins", "estimator"))
+        estimator = _estimator(ctx, table)
         sides = table.get("sides", list(SIDES))
         if not isinstance(sides, list) or not sides or any(s not in SIDES for s in sides) \
                 or len(set(sides)) != len(sides):
@@ -379,18 +387,22 @@ def _detector(ctx, table, base_dir, illum_given):
         pb = _number(ctx, table, field, "phi_bins", default=36.0, lo=1, hi=3600)
         if tb != int(tb) or pb != int(pb):
             ctx.fail("detector.theta_bins", "bin counts must be whole numbers")
-        return Detector("hemisphere", tuple(s for s in SIDES if s in sides), int(tb), int(pb)), None
+        return Detector("hemisphere", tuple(s for s in SIDES if s in sides), int(tb), int(pb),
+                        estimator=estimator), None
     if dtype == "inplane":
-        _check_keys(ctx, table, field, ("type", "theta_o", "acceptance_sr"))
+        _check_keys(ctx, table, field, ("type", "theta_o", "acceptance_sr", "estimator"))
+        estimator = _estimator(ctx, table)
         theta = _angle_list(ctx, table, field, "theta_o", -180.0, 180.0)
         if any(abs(abs(t) - 90.0) < 1e-9 for t in theta):
             ctx.fail("detector.theta_o", "±90° lies in the surface plane, where no flux leaves",
                      "remove it")
-        omega = _acceptance(ctx, table)
+        omega = _acceptance(ctx, table, estimator)
         sides = tuple(s for s, on in (("reflection", any(abs(t) < 90 for t in theta)),
                                       ("transmission", any(abs(t) > 90 for t in theta))) if on)
-        return Detector("inplane", sides, theta_o=theta, acceptance_sr=omega), None
-    _check_keys(ctx, table, field, ("type", "file", "acceptance_sr"))
+        return Detector("inplane", sides, theta_o=theta, acceptance_sr=omega,
+                        estimator=estimator), None
+    _check_keys(ctx, table, field, ("type", "file", "acceptance_sr", "estimator"))
+    estimator = _estimator(ctx, table)
     if illum_given:
         ctx.fail("illumination", "a measurement detector takes its incident directions from the "
                  "file", "remove the [illumination] table")
@@ -402,7 +414,7 @@ def _detector(ctx, table, base_dir, illum_given):
     if not path.is_file():
         ctx.fail("detector.file", f"{quote(name)} does not exist (looked for {path})",
                  "give a path relative to the scene file's folder")
-    omega = _acceptance(ctx, table)
+    omega = _acceptance(ctx, table, estimator)
     from fitlab.io.formats import HEAD_BYTES
     from fitlab.io.measurement import FORMAT, read_measurement
 
@@ -417,10 +429,20 @@ def _detector(ctx, table, base_dir, illum_given):
                  "fitlab simulate illuminates from the outside (+z) only")
     trans = (m.wo[:, 2] < 0)
     sides = tuple(s for s, on in (("reflection", (~trans).any()), ("transmission", trans.any())) if on)
-    return Detector("measurement", sides, acceptance_sr=omega, file=str(path)), m
+    return Detector("measurement", sides, acceptance_sr=omega, file=str(path),
+                    estimator=estimator), m
 
 
-def _acceptance(ctx, table):
+def _estimator(ctx, table):
+    return _choice(ctx, table, "detector", "estimator", ESTIMATORS, default="cone")
+
+
+def _acceptance(ctx, table, estimator="cone"):
+    if estimator == "point":
+        if "acceptance_sr" in table:
+            ctx.fail("detector.acceptance_sr", "a point estimate has no acceptance solid angle",
+                     "remove acceptance_sr, or set estimator = \"cone\"")
+        return 0.0
     return _number(ctx, table, "detector", "acceptance_sr", lo=0.0, hi=1.0, lo_open=True,
                    hint="give the detector's acceptance solid angle in steradians, e.g. 0.001")
 
@@ -583,6 +605,8 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
         ctx.fail("detector.sides", "only transmission is observed but the substrate is opaque",
                  "observe reflection, or use a dielectric substrate")
     effects = _effects(ctx, d.get("effects", {}))
+    if detector.estimator == "point":
+        _check_point_estimates(ctx, boundaries, detector.sides)
 
     counts = {len(m.sigma_a) for m in media} | {len(m.sigma_s) for m in media} | \
         {len(b.albedo) for b in boundaries if b.albedo} | {len(b.n) for b in boundaries if b.n} | \
@@ -593,6 +617,25 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
                  "set color = \"rgb\" (or \"auto\"), or give single values")
     return Scene(str(source), name, n_out, tuple(media), tuple(boundaries), n_below, opaque,
                  theta_i, phi_i, detector, effects, channels)
+
+
+def boundary_classes(boundaries) -> tuple:
+    """What each boundary does to a crossing path, for point estimates
+    (:func:`fitlab.simulate.detectors.point_connections`)."""
+    from fitlab.simulate.detectors import PASS, ROUGH, SMOOTH
+
+    return tuple(PASS if b.kind == "pass" else SMOOTH if b.distribution == "smooth"
+                 and b.kind in ("dielectric", "conductor") else ROUGH for b in boundaries)
+
+
+def _check_point_estimates(ctx, boundaries, sides):
+    from fitlab.simulate.detectors import point_connections
+
+    up, down = point_connections(boundary_classes(boundaries))
+    for side, (_, why) in zip(SIDES, (up, down)):
+        if side in sides and why is not None:
+            ctx.fail("detector.estimator", f"point estimates of {side} are not possible for "
+                     f"this stack: {why}", "use estimator = \"cone\" (with acceptance_sr)")
 
 
 def load_scene(path) -> Scene:

@@ -30,6 +30,8 @@ BATCH_SIZE = 1 << 13
 CALL_LANES = 32
 #: Events per path after which a path still alive is dropped (reported as truncated).
 MAX_EVENTS = 512
+#: Memory of the per-lane running point estimates (bytes): lanes are reduced to fit.
+POINT_LANE_BYTES = 64 << 20
 
 
 class SimulationResult(NamedTuple):
@@ -82,8 +84,12 @@ class SimulationResult(NamedTuple):
             "effects_skipped": "; ".join(f"{k}: {v}" for k, v in self.plan.skipped) or "nothing",
             "truncated_paths": str(self.truncated),
             "region_indices": ", ".join(f"{n:g}" for n in self.scene.region_indices),
-            "value": "cosine-weighted mean BSDF over each bin or cone (1/sr); sigma = Monte "
-                     "Carlo standard error",
+            "estimator": self.scene.detector.estimator,
+            "value": ("point estimate of the BSDF at each row's exact direction by next-event "
+                      "estimation (1/sr); sigma = Monte Carlo standard error"
+                      if self.scene.detector.estimator == "point" else
+                      "cosine-weighted mean BSDF over each bin or cone (1/sr); sigma = Monte "
+                      "Carlo standard error"),
         }
 
     def _eta_metadata(self) -> dict:
@@ -202,13 +208,31 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
         volume_limit=-1 if plan.volume_limit is None else plan.volume_limit,
         absorption=plan.absorption, extinction_only=plan.extinction_only, delta=plan.delta,
         end_downward_after_last_bounce=plan.end_downward_after_last_bounce,
-        max_events=int(max_events), detector="bins" if det.type == "hemisphere" else "cones",
-        theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype)
+        max_events=int(max_events), detector=_walk_detector(det),
+        theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype,
+        **_point_sides(scene, plan))
     dt = jnp.dtype(dtype)
     f = lambda a: jnp.asarray(a, dtype=dt)  # noqa: E731
     arr = WalkArrays(f(thickness), f(sigma_a), f(sigma_s), f(sigma_s_c), f(hg_g), f(S), f(alpha),
                      f(alpha_y), f(eta), f(albedo), f(cn), f(ck))
     return cfg, arr
+
+
+def _walk_detector(det) -> str:
+    if det.estimator == "point":
+        return "points"
+    return "bins" if det.type == "hemisphere" else "cones"
+
+
+def _point_sides(scene: Scene, plan: EffectPlan) -> dict:
+    """WalkConfig.point_up / point_down: the connecting boundary of each observed side."""
+    if scene.detector.estimator != "point":
+        return {}
+    from fitlab.simulate.scene import boundary_classes
+
+    (k_up, _), (k_down, _) = detectors.point_connections(boundary_classes(scene.boundaries))
+    return {"point_up": k_up if plan.reflection else None,
+            "point_down": k_down if plan.transmission else None}
 
 
 def _incidence_rows(scene: Scene):
@@ -223,15 +247,23 @@ def _incidence_rows(scene: Scene):
         key = np.unique(key, axis=0)
         for ti, pi_ in np.unique(key[:, :2], axis=0):
             sel = (key[:, 0] == ti) & (key[:, 1] == pi_)
-            rows, d = detectors.measurement_rows(key[sel, 2], key[sel, 3], det.acceptance_sr)
+            if det.estimator == "point":
+                rows, d = detectors.point_rows(key[sel, 2], key[sel, 3])
+            else:
+                rows, d = detectors.measurement_rows(key[sel, 2], key[sel, 3], det.acceptance_sr)
             out.append((float(ti), float(pi_), rows, d))
         return out
     for ti, pi_ in zip(scene.theta_i, scene.phi_i):
         if det.type == "hemisphere":
-            out.append((ti, pi_, detectors.hemisphere_rows(det.theta_bins, det.phi_bins,
-                                                           det.sides), None))
+            rows = detectors.hemisphere_rows(det.theta_bins, det.phi_bins, det.sides)
+            if det.estimator == "point":  # at the bin centres
+                out.append((ti, pi_, *detectors.point_rows(rows.theta_o, rows.phi_o)))
+            else:
+                out.append((ti, pi_, rows, None))
         else:
             rows, d = detectors.inplane_rows(det.theta_o, pi_, det.acceptance_sr)
+            if det.estimator == "point":
+                rows, d = detectors.point_rows(rows.theta_o, rows.phi_o)
             out.append((ti, pi_, rows, d))
     return out
 
@@ -276,6 +308,11 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     C = plan.channels
     # lanes: a power of two up to batch_size; paths per call: up to CALL_LANES lanes' worth
     lanes = min(batch_size, 1 << max(int(np.ceil(np.log2(max(samples, 2)))), 6))
+    if scene.detector.estimator == "point":
+        # each lane holds its path's running point estimates (4 orders × rows × channels)
+        per_lane = 4 * max(len(r[2].tally) for r in incid) * C * 4
+        lanes = max(64, min(lanes, 1 << int(np.floor(np.log2(max(POINT_LANE_BYTES // per_lane,
+                                                                  64))))))
     batch = lanes * min(CALL_LANES, -(-samples // lanes))
     n_batches = -(-samples // batch)
     prog = _Progress(samples * len(incid) * len(channel_walks), progress)
@@ -289,13 +326,15 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
                  if axes is None else len(rows.tally))
         if axes is None:
             det = Detector(jnp.zeros((1, 3)), jnp.full((1,), 2.0))
+        elif scene.detector.estimator == "point":
+            det = Detector(jnp.asarray(axes, dtype=jnp.float64), jnp.zeros((len(axes),)))
         else:
             det = Detector(jnp.asarray(axes, dtype=jnp.float64),
                            jnp.full((len(axes),), detectors.cone_half_angle_cos(
                                scene.detector.acceptance_sr), dtype=jnp.float64))
         wi = jnp.asarray(detectors.direction(ti, pi_), dtype=jnp.float64)
         S1 = np.zeros((len(ORDER_CLASSES), n_out, C))
-        S2 = np.zeros_like(S1)
+        S2 = np.zeros((len(ORDER_CLASSES) + 1, n_out, C))  # per order, and the paths' totals
         E1 = np.zeros((2, 2, C))
         for ci, (cfg, arr) in enumerate(setups):
             sl = slice(None) if len(setups) == 1 else slice(ci, ci + 1)
@@ -312,14 +351,20 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
                 prog.add(n_valid, f"θi = {ti:g}°")
         N = float(samples)
         mean = S1 / N
-        var = np.maximum(S2 / N - mean * mean, 0.0) / (N - 1.0)
+        var = np.maximum(S2[:-1] / N - mean * mean, 0.0) / (N - 1.0)
         cw = rows.cos_solid_angle[None, :, None]
         by_order = mean[:, rows.tally] / cw
         sig_order = np.sqrt(var[:, rows.tally]) / cw
         tot = S1.sum(0) / N
-        tot_var = np.maximum(S2.sum(0) / N - tot * tot, 0.0) / (N - 1.0)
+        tot_var = np.maximum(S2[-1] / N - tot * tot, 0.0) / (N - 1.0)
         value = tot[rows.tally] / cw[0]
         sigma = np.sqrt(tot_var[rows.tally]) / cw[0]
+        if scene.detector.estimator == "point":
+            # a value every path gives alike (one rough interface: the first event's exact
+            # BSDF) has no Monte Carlo spread; it is known to the paths' float32 rounding
+            floor = float(np.finfo(np.dtype(dtype)).eps)
+            sigma = np.maximum(sigma, floor * np.abs(value))
+            sig_order = np.maximum(sig_order, floor * np.abs(by_order))
         all_rows.append((ti, pi_, rows, value, sigma, by_order, sig_order))
         energy[ii] = E1[0] / N
         energy_sig[ii] = np.sqrt(np.maximum(E1[1] / N - (E1[0] / N) ** 2, 0.0) / (N - 1.0))
@@ -336,7 +381,10 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
         incidences=np.array([[r[0], r[1]] for r in all_rows]),
         channel_names=plan.channel_names, plan=plan, samples=int(samples), seed=int(seed),
         time_s=elapsed, events=events, truncated=truncated, scene=scene,
-        bin_o_deg=(cat(lambda r: r[2].edges) if scene.detector.type == "hemisphere" else None),
-        aperture_deg=(None if scene.detector.type == "hemisphere" else np.full(
+        bin_o_deg=(cat(lambda r: r[2].edges) if scene.detector.type == "hemisphere"
+                   and scene.detector.estimator != "point" else None),
+        aperture_deg=(None if scene.detector.type == "hemisphere"
+                      and scene.detector.estimator != "point" else np.full(
             sum(len(r[2].tally) for r in all_rows),
-            detectors.cone_half_angle_deg(scene.detector.acceptance_sr))))
+            0.0 if scene.detector.estimator == "point"
+            else detectors.cone_half_angle_deg(scene.detector.acceptance_sr))))

@@ -18,6 +18,27 @@ conductor: fitlab.models.rough_conductor.MODEL.sample; Lambertian: cosine sampli
 dielectric: Fresnel choice between mirror and Snell directions, fitlab.fresnel.fresnel_dielectric). Paths that leave into region 0 upward or region M+1
 downward exit; their final direction and weight are tallied after the loop.
 
+Point estimates (``detector = "points"``): next-event estimation toward exact outgoing
+directions d_o, in the manner of position-free Monte Carlo (Guo, Hašan, Zhao 2018, which
+connects every vertex of a layered walk to the outgoing direction). Every path that leaves along
+d_o has a last non-specular event; after it only specular boundaries (or none) lie between the
+path and the outside, so the direction it must take there is fixed by d_o: reverse refraction
+through the specular boundaries (fitlab.fresnel.fresnel_dielectric) gives the direction d inside
+and the flux factor (1 − F) (η_exit/η_inside)² |cos θo| / |cos θd| of each crossing
+(solid-angle compression). At each event that can be that last event — the first rough boundary
+k from the outside (reflection there from the outside's side, transmission toward the outside
+from the other side) and volume scattering between it and the outside — the walk adds
+β · f_event(−w, d) |cos θd| (a boundary's BSDF, radiance convention, as its sampler) or
+β · p(−w, d) (a phase function) times the transmittance along d to the outside and the crossing
+factors: the flux fraction per steradian leaving along d_o, whose expectation is
+f(wi, d_o) |cos θo| (detectors.py divides by |cos θo|). Where a specular boundary between k and
+the outside could send light back toward the outside, the estimate would miss light: such
+stacks are refused (detectors.point_connections). No multiple importance sampling is needed: a
+path leaving by itself reaches an exact direction with probability 0, so the connection is the
+only estimator. Each path's connections are summed per lane and per bounce-order class, and a
+lane's sums go to the float64 totals (and their squares to the second moments) when its path
+ends, so the standard error is that of the per-path estimate.
+
 Bounce order: the number of turns from downward to upward travel below the top interface (the
 extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface reflection);
 tallied in four classes 0, 1, 2, ≥3.
@@ -63,10 +84,15 @@ class WalkConfig(NamedTuple):
     delta: bool
     end_downward_after_last_bounce: bool
     max_events: int
-    detector: str  # "bins" or "cones"
+    detector: str  # "bins", "cones" or "points"
     theta_bins: int
     phi_bins: int
     dtype: str = "float32"
+    # points: the boundary where the reflection side connects (first rough one from the top;
+    # n_media + 1: volume events only) and the transmission side (last rough one; -1: volume
+    # only); None: that side has no requested direction
+    point_up: int | None = None
+    point_down: int | None = None
 
 
 class WalkArrays(NamedTuple):
@@ -88,7 +114,8 @@ class WalkArrays(NamedTuple):
 
 class Detector(NamedTuple):
     """Per-incidence detector arrays: cones (R, 3) directions and cos of the half angle (R,);
-    for bins these are unused (size-1 placeholders)."""
+    points: the requested directions (R, 3) (cone_cos unused); for bins these are unused
+    (size-1 placeholders)."""
 
     cone_dir: jax.Array
     cone_cos: jax.Array
@@ -254,8 +281,10 @@ def _propose(cfg, arr, key, i, st):
     return st._replace(prop_wv=w_v, prop_wb=w_b, prop_fb=f_b, prop_db=diff_b)
 
 
-def _step(cfg, arr, key, i, st):
-    """One event of every live lane, with the outcomes sampled by ``_propose(..., i, st)``."""
+def _step(cfg, arr, key, i, st, pts=None):
+    """One event of every live lane, with the outcomes sampled by ``_propose(..., i, st)``.
+    With ``pts`` (:func:`_point_setup`), also the next-event connections of this event to the
+    requested directions: returns (state, contributions (B, 4, R, C)); else the state."""
     dt = st.w.dtype
     B = st.w.shape[0]
     M = cfg.n_media
@@ -298,6 +327,11 @@ def _step(cfg, arr, key, i, st):
     weight = st.weight * factor
     alive = st.alive & ~(in_medium & horizontal & ~scatter)  # a horizontal flight never ends
 
+    # --- next-event connections of this event to the requested directions --------------------
+    hit = alive & ~scatter
+    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
+    nee = None if pts is None else _connect(cfg, arr, pts, st, weight, z, scatter & alive, hit, b)
+
     # --- volume scattering -------------------------------------------------------------------
     w = st.w
     vol_events = st.vol_events
@@ -309,8 +343,6 @@ def _step(cfg, arr, key, i, st):
         diffuse = diffuse | scatter
 
     # --- boundary events ---------------------------------------------------------------------
-    hit = alive & ~scatter
-    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
     w_b, f_b, diff_b = st.prop_wb, st.prop_fb, st.prop_db
     w = jnp.where(hit[:, None], w_b, w)
     weight = jnp.where(hit[:, None], weight * f_b, weight)
@@ -351,8 +383,155 @@ def _step(cfg, arr, key, i, st):
         survive = u[:, 7] < q
         alive = alive & (~play | survive)
         weight = jnp.where((play & survive)[:, None], weight / q[:, None], weight)
-    return st._replace(region=region, z=z, w=w, weight=weight, alive=alive, exited=exited,
-                       bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse)
+    new = st._replace(region=region, z=z, w=w, weight=weight, alive=alive, exited=exited,
+                      bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse)
+    return new if pts is None else (new, nee)
+
+
+# --------------------------------------------------------------------------------------------
+# Point estimates: next-event connections (module text, "Point estimates")
+# --------------------------------------------------------------------------------------------
+
+
+class PointSide(NamedTuple):
+    """One side's connection data for the requested directions (R of them)."""
+
+    d: jax.Array  # (R, 3) propagation direction inside, just past the connecting event
+    chain: jax.Array  # (R,) crossing factors of the specular boundaries to the outside
+    sigma_t: jax.Array  # (regions, R, C) extinction along d per region
+    depth: jax.Array  # (regions, R, C) optical depth of the regions between a region and the exit
+
+
+def _extinction(cfg, arr, d):
+    """σt (regions, R, C) along directions d (R, 3): what attenuates an unscattered flight
+    in the walk (σs when volume scattering or extinction-only is compiled, σa when absorption
+    is), with the SGGX projected area σ(d)."""
+    C = cfg.channels
+    base = jnp.zeros_like(arr.sigma_a)
+    if cfg.volume or cfg.extinction_only:
+        base = base + arr.sigma_s_c
+    if cfg.absorption:
+        base = base + arr.sigma_a
+    proj = jnp.ones((base.shape[0], d.shape[0]), d.dtype)
+    if "sggx" in cfg.region_phase:
+        is_sggx = jnp.asarray([p == "sggx" for p in cfg.region_phase])
+        proj = jnp.where(is_sggx[:, None], sggx_sigma(arr.sggx_S[:, None], d[None]), 1.0)
+    return base[:, None, :] * proj[:, :, None] * jnp.ones((1, 1, C), d.dtype)
+
+
+def _reverse_crossing(wo, eta):
+    """The direction d inside a specular dielectric boundary that leaves along wo (unit, on the
+    outside of the crossing) and the flux factor per solid angle of wo, (1 − F) η_ti² |wo_z| /
+    |d_z| (η_ti = η_exit / η_inside): the reverse ray -wo refracted by Snell's law."""
+    F, cos_t, _, eta_ti = fresnel_dielectric(wo[..., 2], eta)
+    d = -jnp.stack([-wo[..., 0] * eta_ti, -wo[..., 1] * eta_ti, cos_t], axis=-1)
+    factor = (1.0 - F) * eta_ti**2 * jnp.abs(wo[..., 2]) / jnp.where(cos_t == 0, 1.0,
+                                                                       jnp.abs(cos_t))
+    return normalize(d), jnp.where(cos_t == 0, 0.0, factor)
+
+
+def _point_setup(cfg, arr, wo):
+    """Per side (reflection: wo_z > 0, transmission: wo_z < 0), the connection data."""
+    M = cfg.n_media
+    out = {}
+    for side, k in (("up", cfg.point_up), ("down", cfg.point_down)):
+        if k is None:
+            continue
+        observed = wo[:, 2] > 0 if side == "up" else wo[:, 2] < 0
+        exit_b = 0 if side == "up" else M
+        connect_at_exit = (k == exit_b) or cfg.boundary_groups[exit_b] == "pass"
+        if connect_at_exit:
+            d, chain = wo, jnp.ones(wo.shape[:1], wo.dtype)
+        else:  # a specular dielectric between the connection and the outside
+            d, chain = _reverse_crossing(wo, arr.eta[exit_b])
+        chain = jnp.where(observed, chain, 0.0)
+        sig = _extinction(cfg, arr, d)
+        tau = sig * arr.thickness[:, None, None] / jnp.maximum(jnp.abs(d[:, 2]), 1e-30)[None, :, None]
+        if side == "up":  # the regions above region r: 1 .. r-1
+            depth = jnp.cumsum(tau, axis=0) - tau
+        else:  # the regions below region r: r+1 .. M
+            depth = jnp.flip(jnp.cumsum(jnp.flip(tau, 0), axis=0), 0) - tau
+        out[side] = PointSide(d, chain, sig, depth)
+    return out
+
+
+def _boundary_f(cfg, arr, k, wi, d):
+    """The BSDF (radiance convention, no cosine) of boundary k from wi (B, R, 3) to d (B, R, 3):
+    (B, R, C). Boundary k is never specular (the connection boundary)."""
+    C = cfg.channels
+    g = cfg.boundary_groups[k]
+    if g.startswith("rough:"):
+        model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
+        f = model.eval({**params, "eta": arr.eta[k]}, wi, d, distribution=g[6:].split(":")[0])
+        return jnp.broadcast_to(f[..., None], f.shape + (C,))
+    if g == "lambertian":
+        up = (wi[..., 2] > 0) & (d[..., 2] > 0)
+        return jnp.where(up[..., None], arr.albedo[k] / jnp.pi, 0.0)
+    if g.startswith("conductor:"):
+        model, params = _rough(rough_conductor, g[10:], arr.alpha[k], arr.alpha_y[k])
+        return model.eval({**params, "n": arr.cond_n[k], "k": arr.cond_k[k]}, wi[..., None, :],
+                          d[..., None, :], distribution=g[10:].split(":")[0])
+    raise ValueError(f"boundary {k} ({g}) cannot take a next-event connection")  # pragma: no cover
+
+
+def _phase_p(cfg, arr, region, wi, d):
+    """Phase function of each lane's region from wi (B, R, 3) to d (B, R, 3): (B, R)."""
+    p = jnp.zeros(wi.shape[:-1], wi.dtype)
+    for kind in sorted({q for q in cfg.region_phase if q is not None}):
+        sel = functools.reduce(jnp.logical_or, [region == j for j, q in
+                                               enumerate(cfg.region_phase) if q == kind])
+        if kind == "hg":
+            params = {"g": arr.hg_g[region][:, None]}
+        elif kind == "sggx":
+            params = {"S": arr.sggx_S[region][:, None]}
+        else:
+            params = {}
+        p = jnp.where(sel[:, None], PHASE_FUNCTIONS[kind][0](params, wi, d), p)
+    return p
+
+
+def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b):
+    """This event's contributions (B, 4, R, C) to the per-path point estimates (the flux
+    fraction per steradian leaving along each requested direction), by bounce-order class."""
+    M = cfg.n_media
+    B = st.w.shape[0]
+    wi = -st.w[:, None, :]
+    down = st.w[:, 2] < 0
+    classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
+    total = 0.0
+    for side, ps in pts.items():
+        k = cfg.point_up if side == "up" else cfg.point_down
+        wi_full, d = jnp.broadcast_arrays(wi, ps.d[None])
+        if side == "up":
+            vol = scatter & (st.region <= k)
+            r_b, z_b = k, arr.thickness[min(k, M + 1)] if k <= M else 0.0
+        else:
+            vol = scatter & (st.region >= k + 1)
+            r_b, z_b = k + 1, 0.0
+        at_k = hit & (b == k) if 0 <= k <= M else jnp.zeros((B,), bool)
+        value = jnp.zeros((B,) + ps.d.shape[:1] + (cfg.channels,), beta.dtype)
+        if 0 <= k <= M:
+            fb = _boundary_f(cfg, arr, k, wi_full, d) * jnp.abs(ps.d[:, 2])[None, :, None]
+            value = jnp.where(at_k[:, None, None], fb, value)
+        if cfg.volume:
+            value = jnp.where(vol[:, None, None],
+                              _phase_p(cfg, arr, st.region, wi_full, d)[..., None], value)
+        # transmittance from the event to the outside along d
+        r = jnp.where(at_k, r_b, st.region)
+        zz = jnp.where(at_k, z_b, z)
+        dist = zz if side == "up" else arr.thickness[r] - zz
+        od = ps.depth[r] + ps.sigma_t[r] * (dist[:, None, None]
+                                             / jnp.maximum(jnp.abs(ps.d[:, 2]), 1e-30)[None, :, None])
+        value = value * jnp.exp(-od) * ps.chain[None, :, None] * beta[:, None, :]
+        value = jnp.where((at_k | vol)[:, None, None], value, 0.0)
+        # bounce order of the connected path: a downward path sent upward below the top turns
+        turn = down & (vol | (at_k & (k >= 1))) if side == "up" else jnp.zeros_like(down)
+        order = st.bounces + turn.astype(jnp.int32)
+        if cfg.max_bounces >= 0:
+            value = jnp.where((order <= cfg.max_bounces)[:, None, None], value, 0.0)
+        onehot = (jnp.minimum(order, len(ORDER_CLASSES) - 1)[:, None] == classes[None, :])
+        total = total + onehot.astype(value.dtype)[:, :, None, None] * value[:, None]
+    return total
 
 
 def _bin_index(cfg, w):
@@ -374,7 +553,9 @@ def _tally(cfg, det, w, x, order, n_out):
     (2 moments, 2 sides, C); w (P, 3) exit directions, order (P,) bounce classes."""
     C = cfg.channels
     order = jnp.minimum(order, len(ORDER_CLASSES) - 1)
-    if cfg.detector == "bins":
+    if cfg.detector == "points":  # the point estimates are tallied in the walk
+        s1 = s2 = None
+    elif cfg.detector == "bins":
         seg = order * n_out + _bin_index(cfg, w)
         n_seg = len(ORDER_CLASSES) * n_out
         s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg).reshape(-1, n_out, C)
@@ -424,6 +605,12 @@ class _Loop(NamedTuple):
     exit_order: jax.Array  # (paths,)
     events: jax.Array
     truncated: jax.Array
+    # point estimates (zero-size when the detector has none): per lane, the running sum of its
+    # path's connections (lanes, 4, R, C), and the float64 sums over finished paths of those
+    # sums (4, R, C) and of their squares, per order and (last) of the all-order sum (5, R, C)
+    point_acc: jax.Array
+    point_s1: jax.Array
+    point_s2: jax.Array
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "lanes", "paths", "n_out"))
@@ -431,7 +618,8 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
               paths: int, n_out: int):
     """Trace ``paths`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit, z > 0,
     pointing toward the light) on ``lanes`` parallel lanes. Returns float64 (4, n_out, C) sums
-    and sums of squares of the path contributions per order class and bin, the (2, 2, C) sums
+    of the path contributions per order class and bin, (5, n_out, C) sums of their squares per
+    order class and (last) of the squares of each path's all-order total, the (2, 2, C) sums
     and sums of squares of the flux leaving per side (up, down), the number of paths dropped
     after ``cfg.max_events`` events and the total number of events.
 
@@ -445,11 +633,18 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
     key = jax.random.bits(key, (2,), jnp.uint32)  # the walk's two seed words
     n_valid = jnp.minimum(n_valid, paths)
     lane = jnp.arange(lanes, dtype=jnp.int32)
+    points = cfg.detector == "points"
+    pts = _point_setup(cfg, arr, det.cone_dir.astype(dt)) if points else None
+    n_pts = n_out if points else 0
     st0 = _fresh(cfg, wi, lanes, dt)
     st0 = _propose(cfg, arr, key, jnp.int32(0), st0._replace(alive=lane < n_valid))
+    classes = len(ORDER_CLASSES)
     carry = _Loop(jnp.int32(0), st0, lane, jnp.minimum(jnp.int32(lanes), n_valid),
                   jnp.zeros((paths, 3), dt), jnp.zeros((paths, C), dt),
-                  jnp.zeros((paths,), jnp.int32), jnp.int32(0), jnp.int32(0))
+                  jnp.zeros((paths,), jnp.int32), jnp.int32(0), jnp.int32(0),
+                  jnp.zeros((lanes if points else 0, classes, n_pts, C), dt),
+                  jnp.zeros((classes, n_pts, C), jnp.float64),
+                  jnp.zeros((classes + 1, n_pts, C), jnp.float64))
     fresh = _fresh(cfg, wi, lanes, dt)
 
     def cond(c):
@@ -457,7 +652,11 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
 
     def body(c):
         was_alive = c.st.alive
-        st = _step(cfg, arr, key, c.i, c.st)
+        if points:
+            st, nee = _step(cfg, arr, key, c.i, c.st, pts)
+            acc = c.point_acc + nee
+        else:
+            st = _step(cfg, arr, key, c.i, c.st)
         # record the paths that exited into an observed bin in this event
         new_exit = st.exited & was_alive
         target = jnp.where(new_exit, c.path, paths)  # out of range: dropped
@@ -469,6 +668,19 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
         alive = st.alive & ~capped
         # lanes whose path ended take the next paths in order
         ended = ~alive
+        s1p, s2p = c.point_s1, c.point_s2
+        if points:
+            # a finished path's sums go to the totals (a truncated path's are dropped, as its
+            # exit would be); the lane starts its next path from zero
+            done = (ended & ~capped).astype(jnp.float64)
+            flat = acc.reshape(lanes, -1).astype(jnp.float64)
+            s1p = s1p + (done @ flat).reshape(s1p.shape)
+            tot = acc.sum(axis=1).astype(jnp.float64)  # the path's estimate, all orders
+            sq = jnp.concatenate([flat * flat, (tot * tot).reshape(lanes, -1)], axis=1)
+            s2p = s2p + (done @ sq).reshape(s2p.shape)
+            acc = jnp.where(ended[:, None, None, None], 0.0, acc)
+        else:
+            acc = c.point_acc
         rank = jnp.cumsum(ended, dtype=jnp.int32) - 1
         new_id = c.next_path + rank
         start = ended & (new_id < n_valid)
@@ -480,8 +692,12 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
         next_path = jnp.minimum(c.next_path + jnp.sum(ended, dtype=jnp.int32), n_valid)
         return _Loop(c.i + 1, st, path, next_path, exit_w, exit_x, exit_order,
                      c.events + jnp.sum(was_alive, dtype=jnp.int32),
-                     c.truncated + jnp.sum(capped, dtype=jnp.int32))
+                     c.truncated + jnp.sum(capped, dtype=jnp.int32), acc, s1p, s2p)
 
     c = jax.lax.while_loop(cond, body, carry)
     s1, s2, side = _tally(cfg, det, c.exit_w, c.exit_x.astype(jnp.float64), c.exit_order, n_out)
+    if points:
+        s1, s2 = c.point_s1, c.point_s2
+    else:  # each path exits in one order class: its total's square is its order's
+        s2 = jnp.concatenate([s2, s2.sum(axis=0, keepdims=True)])
     return s1, s2, side, c.truncated, c.events
