@@ -33,6 +33,10 @@ INVALID = {
     "scene_no_acceptance.toml": "detector.acceptance_sr: is missing",
     "scene_no_detector.toml": "detector: is missing",
     "scene_anisotropic_vmf.toml": "stack[0].alpha_x: the vmf distribution is isotropic",
+    "scene_point_with_acceptance.toml": "detector.acceptance_sr: a point estimate has no "
+                                        "acceptance solid angle",
+    "scene_point_specular_between.toml": "detector.estimator: point estimates of reflection are "
+                                         "not possible for this stack: boundary 1 is specular",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "
                               "declaration (at line 2, column 8))",
 }
