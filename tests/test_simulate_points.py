@@ -191,3 +191,24 @@ def test_cli_writes_point_estimates_with_their_provenance(tmp_path):
     assert main(["simulate", str(scene), "--samples", "2000", "--seed", "1", "--quiet",
                  "--out", str(again)]) == 0
     assert again.read_bytes() == out.read_bytes()
+
+
+@pytest.mark.parametrize("top", [{"type": "interface", "distribution": "ggx", "alpha": 0.3},
+                                 {"type": "interface", "distribution": "smooth"}])
+def test_point_estimates_are_reciprocal_on_a_layered_brdf(top):
+    """f(wi, wo) = f(wo, wi): every connecting strategy (direct, crossing, vertex with its
+    multiple-importance weights) meets its mirror image when the roles are swapped."""
+    stack = [top, {"type": "medium", "index": 1.4, "thickness": 0.5, "sigma_a": 0.2,
+                   "sigma_s": 1.0, "phase": "hg", "g": 0.3}]
+    angles = [10.0, 35.0, 60.0]
+    sc = _scene(stack, _point(angles), substrate={"type": "lambertian", "albedo": 0.6},
+                illumination={"theta_i": angles})
+    res = simulate(sc, 30_000, seed=11)
+    val = {(ti, to): (v, s) for ti, to, v, s in zip(res.theta_i, res.theta_o, res.value[:, 0],
+                                                     res.sigma[:, 0])}
+    for a in angles:
+        for b in angles:
+            if a < b:
+                (v1, s1), (v2, s2) = val[(a, b)], val[(b, a)]
+                assert abs(v1 - v2) < 4.0 * np.hypot(s1, s2), (a, b, v1, v2, s1, s2)
+                assert s1 < 0.02 * v1

@@ -33,11 +33,15 @@ from the other side) and volume scattering between it and the outside — the wa
 factors: the flux fraction per steradian leaving along d_o, whose expectation is
 f(wi, d_o) |cos θo| (detectors.py divides by |cos θo|). Where a specular boundary between k and
 the outside could send light back toward the outside, the estimate would miss light: such
-stacks are refused (detectors.point_connections). No multiple importance sampling is needed: a
-path leaving by itself reaches an exact direction with probability 0, so the connection is the
-only estimator. Each path's connections are summed per lane and per bounce-order class, and a
-lane's sums go to the float64 totals (and their squares to the second moments) when its path
-ends, so the standard error is that of the per-path estimate.
+stacks are refused (detectors.point_connections). A path leaving by itself reaches an exact
+direction with probability 0, so it adds nothing; but the events right behind a rough
+dielectric k (volume scattering in the region behind it, events at that region's far boundary)
+reach k two ways: the walk's own path crossing k (its BTDF evaluated toward d: noisy when k is
+sharp) and a connection from the vertex through a reverse sample of k's BSDF (noisy when the
+vertex is sharp). The two are combined with the balance heuristic (:func:`_connect`). Each
+path's connections are summed per lane and per bounce-order class, and a lane's sums go to the
+float64 totals (and their squares to the second moments) when its path ends, so the standard
+error is that of the per-path estimate.
 
 Bounce order: the number of turns from downward to upward travel below the top interface (the
 extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface reflection);
@@ -137,6 +141,11 @@ class State(NamedTuple):
     prop_wb: jax.Array  # (B, 3) direction after the boundary the path travels toward
     prop_fb: jax.Array  # (B, C) weight factor of that boundary event
     prop_db: jax.Array  # (B,) whether that boundary event is non-specular
+    # point estimates only (zeros otherwise): the densities of the proposed directions and the
+    # density with which the path's last event sampled its current direction (0: specular)
+    prop_pv: jax.Array  # (B,)
+    prop_pb: jax.Array  # (B,)
+    last_pdf: jax.Array  # (B,)
 
 
 def _flip_z(w):
@@ -163,8 +172,9 @@ def _rough(module, group, alpha, alpha_y):
 
 
 def _boundary_event(cfg, arr, st, b, u):
-    """New propagation direction, weight factor (B, C) and whether the event is non-specular,
-    for every path meeting boundary b (B,)."""
+    """New propagation direction, weight factor (B, C), whether the event is non-specular and
+    the density of the sampled direction per solid angle (0 for a specular event), for every
+    path meeting boundary b (B,)."""
     dt = st.w.dtype
     B = st.w.shape[0]
     C = cfg.channels
@@ -173,19 +183,21 @@ def _boundary_event(cfg, arr, st, b, u):
     new_w = w
     factor = jnp.ones((B, C), dtype=dt)
     diffuse = jnp.zeros((B,), dtype=bool)
+    pdf = jnp.zeros((B,), dtype=dt)
     groups = cfg.boundary_groups
     for g in sorted(set(groups)):
         ids = [j for j, gj in enumerate(groups) if gj == g]
         sel = functools.reduce(jnp.logical_or, [b == j for j in ids])
         if g == "pass":
             continue
+        gp = jnp.zeros((B,), dtype=dt)
         if g == "smooth":
             gw = _smooth_dielectric(w, arr.eta[b], u[:, 2])
             gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
         elif g.startswith("rough:"):
             model, params = _rough(rough_dielectric, g[6:], arr.alpha[b], arr.alpha_y[b])
-            gw, wt, _ = model.sample({**params, "eta": arr.eta[b]}, wi, u[:, 0:3],
-                                     distribution=g[6:].split(":")[0])
+            gw, wt, gp = model.sample({**params, "eta": arr.eta[b]}, wi, u[:, 0:3],
+                                      distribution=g[6:].split(":")[0])
             gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
         elif g == "lambertian":
             # cosine-weighted hemisphere (Malley), weight = albedo
@@ -193,7 +205,7 @@ def _boundary_event(cfg, arr, st, b, u):
             phi = 2.0 * jnp.pi * u[:, 1]
             z = jnp.sqrt(jnp.maximum(1.0 - u[:, 0], 0.0))
             gw = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi), z], axis=-1)
-            gf, gd = arr.albedo[b], jnp.ones((B,), dtype=bool)
+            gf, gd, gp = arr.albedo[b], jnp.ones((B,), dtype=bool), z / jnp.pi
         elif g == "conductor:smooth":
             gw = _flip_z(w)
             gf = fresnel_conductor_exact(jnp.abs(w[:, 2:3]), arr.cond_n[b], arr.cond_k[b])
@@ -201,22 +213,25 @@ def _boundary_event(cfg, arr, st, b, u):
         elif g.startswith("conductor:"):
             model, params = _rough(rough_conductor, g[10:], arr.alpha[b][:, None],
                                    arr.alpha_y[b][:, None])
-            wo, wt, _ = model.sample({**params, "n": arr.cond_n[b], "k": arr.cond_k[b]},
-                                     wi[:, None, :], u[:, None, 0:3],
-                                     distribution=g[10:].split(":")[0])
-            gw, gf, gd = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool)
+            wo, wt, gp = model.sample({**params, "n": arr.cond_n[b], "k": arr.cond_k[b]},
+                                      wi[:, None, :], u[:, None, 0:3],
+                                      distribution=g[10:].split(":")[0])
+            gw, gf, gd, gp = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool), gp[:, 0]
         else:  # pragma: no cover - scene.py admits no other kind
             raise ValueError(g)
         new_w = jnp.where(sel[:, None], gw, new_w)
         factor = jnp.where(sel[:, None], gf, factor)
         diffuse = jnp.where(sel, gd, diffuse)
-    return new_w, factor, diffuse
+        pdf = jnp.where(sel, gp, pdf)
+    return new_w, factor, diffuse, pdf
 
 
 def _volume_event(cfg, arr, st, u):
-    """Phase-function sampling for every path (selected by the caller)."""
+    """Phase-function sampling for every path (selected by the caller): the new direction and
+    its density."""
     wi = -st.w
     new_w = st.w
+    pdf = jnp.zeros(st.w.shape[:1], st.w.dtype)
     for kind in sorted({p for p in cfg.region_phase if p is not None}):
         sel = functools.reduce(jnp.logical_or, [st.region == j for j, p in
                                                enumerate(cfg.region_phase) if p == kind])
@@ -227,9 +242,10 @@ def _volume_event(cfg, arr, st, u):
             params = {"S": arr.sggx_S[st.region]}
         else:
             params = {}
-        wo, _ = sample(params, wi, u)
+        wo, p = sample(params, wi, u)
         new_w = jnp.where(sel[:, None], wo, new_w)
-    return new_w
+        pdf = jnp.where(sel, p, pdf)
+    return new_w, pdf
 
 
 def _projected_area(cfg, arr, st):
@@ -276,9 +292,12 @@ def _propose(cfg, arr, key, i, st):
     u = uniforms(key, i, B, 8, dt)
     down = st.w[:, 2] < 0
     b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, cfg.n_media)
-    w_b, f_b, diff_b = _boundary_event(cfg, arr, st, b, u[:, 0:3])
-    w_v = _volume_event(cfg, arr, st, u[:, 4:6]) if cfg.volume else st.prop_wv
-    return st._replace(prop_wv=w_v, prop_wb=w_b, prop_fb=f_b, prop_db=diff_b)
+    w_b, f_b, diff_b, p_b = _boundary_event(cfg, arr, st, b, u[:, 0:3])
+    w_v, p_v = _volume_event(cfg, arr, st, u[:, 4:6]) if cfg.volume else (st.prop_wv, st.prop_pv)
+    if cfg.detector != "points":  # the densities serve the point estimates' weights only
+        p_b, p_v = st.prop_pb, st.prop_pv
+    return st._replace(prop_wv=w_v, prop_wb=w_b, prop_fb=f_b, prop_db=diff_b, prop_pv=p_v,
+                       prop_pb=p_b)
 
 
 def _step(cfg, arr, key, i, st, pts=None):
@@ -330,7 +349,8 @@ def _step(cfg, arr, key, i, st, pts=None):
     # --- next-event connections of this event to the requested directions --------------------
     hit = alive & ~scatter
     b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
-    nee = None if pts is None else _connect(cfg, arr, pts, st, weight, z, scatter & alive, hit, b)
+    nee = None if pts is None else _connect(cfg, arr, pts, st, weight, z, scatter & alive, hit,
+                                            b, key, i)
 
     # --- volume scattering -------------------------------------------------------------------
     w = st.w
@@ -347,6 +367,10 @@ def _step(cfg, arr, key, i, st, pts=None):
     w = jnp.where(hit[:, None], w_b, w)
     weight = jnp.where(hit[:, None], weight * f_b, weight)
     diffuse = diffuse | (hit & diff_b)
+    last_pdf = st.last_pdf
+    if pts is not None:
+        last_pdf = jnp.where(scatter, st.prop_pv, jnp.where(hit, jnp.where(diff_b, st.prop_pb, 0.0),
+                                                            last_pdf))
     # float32 rounding of the sampled directions would compound over long paths (the phase
     # functions' local frames assume unit vectors): renormalize after every event
     w = normalize(w)
@@ -384,7 +408,8 @@ def _step(cfg, arr, key, i, st, pts=None):
         alive = alive & (~play | survive)
         weight = jnp.where((play & survive)[:, None], weight / q[:, None], weight)
     new = st._replace(region=region, z=z, w=w, weight=weight, alive=alive, exited=exited,
-                      bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse)
+                      bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse,
+                      last_pdf=last_pdf)
     return new if pts is None else (new, nee)
 
 
@@ -455,27 +480,38 @@ def _point_setup(cfg, arr, wo):
     return out
 
 
-def _boundary_f(cfg, arr, k, wi, d):
+def _boundary_f(cfg, arr, k, wi, d, with_pdf=False):
     """The BSDF (radiance convention, no cosine) of boundary k from wi (B, R, 3) to d (B, R, 3):
-    (B, R, C). Boundary k is never specular (the connection boundary)."""
+    (B, R, C); with ``with_pdf`` also the density (B, R) with which the walk samples d there.
+    Boundary k is never specular (the connection boundary or a vertex next to it)."""
     C = cfg.channels
     g = cfg.boundary_groups[k]
     if g.startswith("rough:"):
         model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
-        f = model.eval({**params, "eta": arr.eta[k]}, wi, d, distribution=g[6:].split(":")[0])
-        return jnp.broadcast_to(f[..., None], f.shape + (C,))
-    if g == "lambertian":
+        params = {**params, "eta": arr.eta[k]}
+        dist = g[6:].split(":")[0]
+        f = model.eval(params, wi, d, distribution=dist)
+        f = jnp.broadcast_to(f[..., None], f.shape + (C,))
+        pdf = model.pdf(params, wi, d, distribution=dist) if with_pdf else None
+    elif g == "lambertian":
         up = (wi[..., 2] > 0) & (d[..., 2] > 0)
-        return jnp.where(up[..., None], arr.albedo[k] / jnp.pi, 0.0)
-    if g.startswith("conductor:"):
+        f = jnp.where(up[..., None], arr.albedo[k] / jnp.pi, 0.0)
+        pdf = jnp.where(up, d[..., 2] / jnp.pi, 0.0) if with_pdf else None
+    elif g.startswith("conductor:") and g != "conductor:smooth":
         model, params = _rough(rough_conductor, g[10:], arr.alpha[k], arr.alpha_y[k])
-        return model.eval({**params, "n": arr.cond_n[k], "k": arr.cond_k[k]}, wi[..., None, :],
-                          d[..., None, :], distribution=g[10:].split(":")[0])
-    raise ValueError(f"boundary {k} ({g}) cannot take a next-event connection")  # pragma: no cover
+        dist = g[10:].split(":")[0]
+        params = {**params, "n": arr.cond_n[k], "k": arr.cond_k[k]}
+        f = model.eval(params, wi[..., None, :], d[..., None, :], distribution=dist)
+        pdf = model.pdf(params, wi[..., None, :], d[..., None, :],
+                        distribution=dist)[..., 0] if with_pdf else None
+    else:  # pragma: no cover - the caller connects at non-specular boundaries only
+        raise ValueError(f"boundary {k} ({g}) cannot take a next-event connection")
+    return (f, pdf) if with_pdf else f
 
 
 def _phase_p(cfg, arr, region, wi, d):
-    """Phase function of each lane's region from wi (B, R, 3) to d (B, R, 3): (B, R)."""
+    """Phase function of each lane's region from wi (B, R, 3) to d (B, R, 3): (B, R); it is
+    also the density with which the walk samples d (exact phase sampling)."""
     p = jnp.zeros(wi.shape[:-1], wi.dtype)
     for kind in sorted({q for q in cfg.region_phase if q is not None}):
         sel = functools.reduce(jnp.logical_or, [region == j for j, q in
@@ -490,9 +526,39 @@ def _phase_p(cfg, arr, region, wi, d):
     return p
 
 
-def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b):
+def _sigma_t_along(cfg, arr, region, d):
+    """σt (B, R, C) of each lane's region along directions d (B, R, 3)."""
+    base = jnp.zeros_like(arr.sigma_a[region])
+    if cfg.volume or cfg.extinction_only:
+        base = base + arr.sigma_s_c[region]
+    if cfg.absorption:
+        base = base + arr.sigma_a[region]
+    base = jnp.broadcast_to(base[:, None, :], d.shape[:-1] + base.shape[-1:])
+    if "sggx" in cfg.region_phase:
+        is_sggx = jnp.asarray([p == "sggx" for p in cfg.region_phase])[region]
+        proj = jnp.where(is_sggx[:, None], sggx_sigma(arr.sggx_S[region][:, None], d), 1.0)
+        base = base * proj[..., None]
+    return base
+
+
+def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
     """This event's contributions (B, 4, R, C) to the per-path point estimates (the flux
-    fraction per steradian leaving along each requested direction), by bounce-order class."""
+    fraction per steradian leaving along each requested direction), by bounce-order class.
+
+    Two strategies reach the connecting rough dielectric boundary k from the vertices right
+    behind it (volume events in the region behind k, events at the boundary behind that region
+    that send the path toward k), combined by the balance heuristic (Veach 1997, ch. 9):
+
+    * crossing (C): the walk's own path reaches k and the BSDF of k is evaluated toward the
+      requested direction; its density is that of the vertex's sampling, p_v(d');
+    * vertex (V): at the vertex, d' is sampled from k's BSDF in reverse, from the requested
+      direction's side (density q(d')), and the vertex's BSDF or phase function is evaluated;
+      by the generalized reciprocity of the BTDF (Walter eq. 21), f_k(−d' → d) =
+      (η_d / η_d')² f_k(d → −d'), so the sample's weight (eq. 41) gives the contribution.
+
+    Weights q/(q + p_v) and p_v/(q + p_v) for the same (vertex, d'), so the sum stays
+    unbiased; events farther away have only the crossing, events on the exit's side of k only
+    the direct connection."""
     M = cfg.n_media
     B = st.w.shape[0]
     wi = -st.w[:, None, :]
@@ -500,8 +566,10 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b):
     classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
     total = 0.0
     for side, ps in pts.items():
+        R = ps.d.shape[0]
         k = cfg.point_up if side == "up" else cfg.point_down
         wi_full, d = jnp.broadcast_arrays(wi, ps.d[None])
+        inv_dz = 1.0 / jnp.maximum(jnp.abs(ps.d[:, 2]), 1e-30)
         if side == "up":
             vol = scatter & (st.region <= k)
             r_b, z_b = k, arr.thickness[min(k, M + 1)] if k <= M else 0.0
@@ -509,29 +577,102 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b):
             vol = scatter & (st.region >= k + 1)
             r_b, z_b = k + 1, 0.0
         at_k = hit & (b == k) if 0 <= k <= M else jnp.zeros((B,), bool)
-        value = jnp.zeros((B,) + ps.d.shape[:1] + (cfg.channels,), beta.dtype)
+        value = jnp.zeros((B, R, cfg.channels), beta.dtype)
+        # transmittance from boundary k to the outside along d (and the crossing factors)
+        exit_od = ps.depth[r_b] + ps.sigma_t[r_b] * (
+            (z_b if side == "up" else arr.thickness[r_b] - z_b) * inv_dz)[:, None]
+        exit_t = jnp.exp(-exit_od) * ps.chain[:, None]  # (R, C)
+        # the vertex strategy exists behind a rough dielectric k with a medium behind it
+        behind = k + 1 if side == "up" else k
+        v_ok = (0 <= k <= M and cfg.boundary_groups[k].startswith("rough:")
+                and 1 <= behind <= M)
         if 0 <= k <= M:
             fb = _boundary_f(cfg, arr, k, wi_full, d) * jnp.abs(ps.d[:, 2])[None, :, None]
-            value = jnp.where(at_k[:, None, None], fb, value)
+            if v_ok:
+                # crossing strategy weight, for paths whose last event could have connected
+                g = cfg.boundary_groups[k]
+                model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
+                # q: the reverse sample's density of t = -w (the path's direction reversed)
+                q = model.pdf({**params, "eta": arr.eta[k]}, d, wi_full,
+                              distribution=g[6:].split(":")[0])
+                p_last = st.last_pdf[:, None]
+                w_c = jnp.where(p_last > 0, p_last / jnp.maximum(p_last + q, 1e-30), 1.0)
+                crossing = at_k & (st.region == behind)
+                fb = fb * jnp.where(crossing[:, None], w_c, 1.0)[..., None]
+            value = jnp.where(at_k[:, None, None], fb * exit_t[None], value)
         if cfg.volume:
-            value = jnp.where(vol[:, None, None],
-                              _phase_p(cfg, arr, st.region, wi_full, d)[..., None], value)
-        # transmittance from the event to the outside along d
-        r = jnp.where(at_k, r_b, st.region)
-        zz = jnp.where(at_k, z_b, z)
-        dist = zz if side == "up" else arr.thickness[r] - zz
-        od = ps.depth[r] + ps.sigma_t[r] * (dist[:, None, None]
-                                             / jnp.maximum(jnp.abs(ps.d[:, 2]), 1e-30)[None, :, None])
-        value = value * jnp.exp(-od) * ps.chain[None, :, None] * beta[:, None, :]
+            # direct connection of volume events on the exit's side of k
+            r = st.region
+            dist = z if side == "up" else arr.thickness[r] - z
+            od = ps.depth[r] + ps.sigma_t[r] * (dist[:, None] * inv_dz[None, :])[..., None]
+            pv = _phase_p(cfg, arr, r, wi_full, d)[..., None] * jnp.exp(-od) * ps.chain[None, :, None]
+            value = jnp.where(vol[:, None, None], pv, value)
+        value = value * beta[:, None, :]
         value = jnp.where((at_k | vol)[:, None, None], value, 0.0)
         # bounce order of the connected path: a downward path sent upward below the top turns
         turn = down & (vol | (at_k & (k >= 1))) if side == "up" else jnp.zeros_like(down)
-        order = st.bounces + turn.astype(jnp.int32)
-        if cfg.max_bounces >= 0:
-            value = jnp.where((order <= cfg.max_bounces)[:, None, None], value, 0.0)
-        onehot = (jnp.minimum(order, len(ORDER_CLASSES) - 1)[:, None] == classes[None, :])
-        total = total + onehot.astype(value.dtype)[:, :, None, None] * value[:, None]
+        orders = [(value, st.bounces + turn.astype(jnp.int32))]
+        if v_ok:
+            orders.append(_vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i,
+                                           side, k, behind, wi_full, exit_t))
+        for val, order in orders:
+            if cfg.max_bounces >= 0:
+                val = jnp.where((order <= cfg.max_bounces)[:, None, None], val, 0.0)
+            onehot = (jnp.minimum(order, len(ORDER_CLASSES) - 1)[:, None] == classes[None, :])
+            total = total + onehot.astype(val.dtype)[:, :, None, None] * val[:, None]
     return total
+
+
+def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k, behind,
+                     wi_full, exit_t):
+    """The vertex strategy of :func:`_connect` (contributions (B, R, C) and their orders):
+    events in region ``behind`` (volume) or at the boundary on its far side, connected through
+    the rough dielectric k by a reverse sample of k's BSDF."""
+    M = cfg.n_media
+    B, R = wi_full.shape[:2]
+    dt = wi_full.dtype
+    g = cfg.boundary_groups[k]
+    model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
+    params = {**params, "eta": arr.eta[k]}
+    dist_name = g[6:].split(":")[0]
+    far = behind if side == "up" else behind - 1  # region r lies between boundaries r-1 and r
+    down = st.w[:, 2] < 0
+    # reverse sample of k from the requested direction's side: t into region `behind`
+    u = uniforms((key[0] ^ jnp.uint32(0x5BD1E995), key[1]), i, B, 3 * R, dt).reshape(B, R, 3)
+    d_k = jnp.broadcast_to(ps.d[None], (B, R, 3))
+    t, weight, q = model.sample(params, d_k, u, distribution=dist_name)
+    into = t[..., 2] < 0 if side == "up" else t[..., 2] > 0
+    dp = -t  # the path's direction from the vertex toward k
+    dz = jnp.maximum(jnp.abs(dp[..., 2]), 1e-30)
+    eta2 = arr.eta[k] ** 2
+    ratio = 1.0 / eta2 if side == "up" else eta2  # (η on d's side / η on d′'s side)²
+    w_rev = jnp.where(into, ratio * weight * jnp.abs(ps.d[:, 2])[None, :] / dz, 0.0)
+    # the vertices: volume events in `behind`, events at `far` sending the path toward k
+    vol = scatter & (st.region == behind) if cfg.volume else jnp.zeros((B,), bool)
+    far_ok = 0 <= far <= M and cfg.boundary_groups[far] not in ("pass", "smooth",
+                                                                 "conductor:smooth")
+    at_far = hit & (b == far) if far_ok else jnp.zeros((B,), bool)
+    f_v = jnp.zeros((B, R, cfg.channels), dt)
+    p_v = jnp.zeros((B, R), dt)
+    if far_ok:
+        fb, pb = _boundary_f(cfg, arr, far, wi_full, dp, with_pdf=True)
+        f_v = jnp.where(at_far[:, None, None], fb * dz[..., None], f_v)
+        p_v = jnp.where(at_far[:, None], pb, p_v)
+    if cfg.volume:
+        ph = _phase_p(cfg, arr, st.region, wi_full, dp)
+        f_v = jnp.where(vol[:, None, None], ph[..., None], f_v)
+        p_v = jnp.where(vol[:, None], ph, p_v)
+    # attenuation across `behind` from the vertex to k
+    length = jnp.where(at_far, arr.thickness[behind],
+                       z if side == "up" else arr.thickness[behind] - z)
+    sig = _sigma_t_along(cfg, arr, jnp.full((B,), behind, jnp.int32), dp)
+    att = jnp.exp(-sig * (length[:, None] / dz)[..., None])
+    w_v = q / jnp.maximum(q + p_v, 1e-30)
+    val = (beta[:, None, :] * f_v * att * (w_rev * w_v)[..., None] * exit_t[None])
+    val = jnp.where(((vol | at_far)[:, None] & into)[..., None], val, 0.0)
+    val = jnp.where(jnp.isfinite(val), val, 0.0)
+    turn = down & (vol | at_far) if side == "up" else jnp.zeros_like(down)
+    return val, st.bounces + turn.astype(jnp.int32)
 
 
 def _bin_index(cfg, w):
@@ -592,7 +733,8 @@ def _fresh(cfg, wi, n, dt):
         bounces=jnp.zeros((n,), jnp.int32), vol_events=jnp.zeros((n,), jnp.int32),
         events=jnp.zeros((n,), jnp.int32), diffuse=jnp.zeros((n,), bool),
         prop_wv=jnp.zeros((n, 3), dt), prop_wb=jnp.zeros((n, 3), dt),
-        prop_fb=jnp.zeros((n, cfg.channels), dt), prop_db=jnp.zeros((n,), bool))
+        prop_fb=jnp.zeros((n, cfg.channels), dt), prop_db=jnp.zeros((n,), bool),
+        prop_pv=jnp.zeros((n,), dt), prop_pb=jnp.zeros((n,), dt), last_pdf=jnp.zeros((n,), dt))
 
 
 class _Loop(NamedTuple):
