@@ -27,6 +27,7 @@ simulator needs until its own RMS relative noise equals the model's RMS relative
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import platform
 import sys
@@ -51,6 +52,8 @@ ETA = 1.5
 #: chromium at 550 nm (Elek 2010 appendix A), relative to vacuum
 N_CR, K_CR = 3.18, 4.41
 FLOOR = 0.01
+#: paths per stack by estimator: about the same noise (point estimates need ~100x fewer paths)
+DEFAULT_SAMPLES = {"point": 1 << 14, "cone": 2_000_000}
 
 
 def log(msg):
@@ -62,7 +65,7 @@ def log(msg):
 # ----------------------------------------------------------------------------------------------
 
 
-def scene(top_alpha, base, tau, max_bounces):
+def scene(top_alpha, base, tau, max_bounces, estimator="cone"):
     top = ({"type": "interface", "distribution": "smooth"} if top_alpha is None else
            {"type": "interface", "distribution": "ggx", "alpha": top_alpha})
     if isinstance(base, tuple):  # ("conductor", alpha)
@@ -74,7 +77,9 @@ def scene(top_alpha, base, tau, max_bounces):
         "stack": [top, {"type": "medium", "index": ETA, "thickness": 1.0, "sigma_a": tau}],
         "substrate": sub,
         "illumination": {"theta_i": [THETA_I]},
-        "detector": {"type": "inplane", "theta_o": ARC, "acceptance_sr": ACCEPTANCE_SR},
+        "detector": ({"type": "inplane", "theta_o": ARC, "acceptance_sr": ACCEPTANCE_SR}
+                     if estimator == "cone" else
+                     {"type": "inplane", "theta_o": ARC, "estimator": "point"}),
         "effects": {"max_bounces": max_bounces, "delta": False, "color": "mono"},
     })
 
@@ -103,29 +108,51 @@ def cone_points(theta_o, phi_o, k=12):
 
 
 def cone_average(model_name, params, options, theta_o, phi_o, theta_i=THETA_I):
-    m = get_model(model_name)
     pts, w = cone_points(theta_o, phi_o)
     ti = np.radians(theta_i)
     wi = np.broadcast_to([np.sin(ti), 0.0, np.cos(ti)], pts.shape)
-    f = np.asarray(jax.jit(lambda p, a, b: m.eval(p, a, b, **options))(
-        {k: jnp.float64(v) for k, v in params.items()}, jnp.asarray(wi), jnp.asarray(pts)))
+    f = np.asarray(_eval(model_name, params, options, wi, pts))
     return np.sum(f * w, -1) / np.maximum(np.sum(w, -1), 1e-300)
 
 
-def eval_time_us(model_name, params, options, n=100_000, repeats=5):
+@functools.lru_cache(maxsize=None)
+def _jitted_eval(model_name, options):
+    """One compiled evaluation per model and options (``options``: sorted (key, value) pairs),
+    shared by every stack and direction set of the run."""
     m = get_model(model_name)
+    return jax.jit(lambda p, a, b: m.eval(p, a, b, **dict(options)))
+
+
+def _eval(model_name, params, options, wi, wo):
+    fn = _jitted_eval(model_name, tuple(sorted(options.items())))
+    return fn({k: jnp.float64(v) for k, v in params.items()}, jnp.asarray(wi), jnp.asarray(wo))
+
+
+def point_values(model_name, params, options, theta_o, phi_o, theta_i=THETA_I):
+    """The model at the exact directions (what the simulator's point estimates estimate)."""
+    t, p = np.radians(theta_o), np.radians(phi_o)
+    wo = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)
+    ti = np.radians(theta_i)
+    wi = np.broadcast_to([np.sin(ti), 0.0, np.cos(ti)], wo.shape)
+    return np.asarray(_eval(model_name, params, options, wi, wo))
+
+
+def model_values(estimator, *args, **kw):
+    """The model as the simulator's rows estimate it: cone averages or point values."""
+    return (cone_average if estimator == "cone" else point_values)(*args, **kw)
+
+
+def eval_time_us(model_name, params, options, n=100_000, repeats=5):
     rng = np.random.default_rng(0)
     mu = rng.uniform(0.05, 1, (2, n))
     ph = rng.uniform(0, 2 * np.pi, (2, n))
     d = np.stack([np.sqrt(1 - mu**2) * np.cos(ph), np.sqrt(1 - mu**2) * np.sin(ph), mu], -1)
-    fn = jax.jit(lambda p, a, b: m.eval(p, a, b, **options))
-    p = {k: jnp.float64(v) for k, v in params.items()}
     a, b = jnp.asarray(d[0]), jnp.asarray(d[1])
-    fn(p, a, b).block_until_ready()
+    _eval(model_name, params, options, a, b).block_until_ready()
     best = np.inf
     for _ in range(repeats):
         t0 = time.perf_counter()
-        fn(p, a, b).block_until_ready()
+        _eval(model_name, params, options, a, b).block_until_ready()
         best = min(best, time.perf_counter() - t0)
     return 1e6 * best / n
 
@@ -181,14 +208,25 @@ def compare(sim_value, sim_sigma, model_value, theta_o):
 # ----------------------------------------------------------------------------------------------
 
 
-def run(samples, quick):
+def run(samples, quick, estimator="point"):
     rows = []
+    stack = functools.partial(scene, estimator=estimator)
+
+    compiled, done = set(), {}
 
     def do(part, label, sc, bounce_sel, models):
-        simulate(sc, samples=1 << 15, seed=0)  # compile first: the timings are steady-state
-        t0 = time.perf_counter()
-        res = simulate(sc, samples=samples, seed=1)
-        wall = time.perf_counter() - t0
+        # one warm-up per walk configuration (what is compiled: the boundary kinds, absorption,
+        # bounce limit), so the timings are steady-state; each stack is simulated once
+        config = (tuple((b.kind, b.distribution) for b in sc.boundaries),
+                  any(max(m.sigma_a) > 0 for m in sc.media), sc.effects.max_bounces)
+        if config not in compiled:
+            simulate(sc, samples=samples, seed=0)
+            compiled.add(config)
+        if label + str(sc.effects.max_bounces) not in done:
+            t0 = time.perf_counter()
+            done[label + str(sc.effects.max_bounces)] = (simulate(sc, samples=samples, seed=1),
+                                                         time.perf_counter() - t0)
+        res, wall = done[label + str(sc.effects.max_bounces)]
         th = res.theta_o * np.where(np.abs(res.phi_o - 180.0) < 1e-6, 1.0, -1.0)
         if bounce_sel == "one":
             v, s = res.by_order[1, :, 0], res.sigma_by_order[1, :, 0]
@@ -201,9 +239,10 @@ def run(samples, quick):
         th, v, s = th[order], v[order], s[order]
         pps = res.samples / max(wall, 1e-12)
         for mname, params, opts, sub in models:
-            mv = cone_average(mname, params, opts, res.theta_o[order], res.phi_o[order])
+            mv = model_values(estimator, mname, params, opts, res.theta_o[order],
+                              res.phi_o[order])
             if sub is not None:  # subtract the top interface's own lobe
-                mv = mv - cone_average(*sub, res.theta_o[order], res.phi_o[order])
+                mv = mv - model_values(estimator, *sub, res.theta_o[order], res.phi_o[order])
             c = compare(v, s, mv, th)
             t_eval = eval_time_us(mname, params, opts)
             n_star = samples * (c["rms_rel_noise"] / max(c["rms_rel_error"], 1e-12)) ** 2
@@ -221,12 +260,12 @@ def run(samples, quick):
     for tau in taus:
         for a2 in a2s:
             p = {"coat_eta": ETA, "coat_tau": tau, "alpha": a2, "n": N_CR / ETA, "k": K_CR / ETA}
-            do("A", f"smooth coat / conductor a2={a2} tau={tau}", scene(None, ("conductor", a2), tau, 1),
+            do("A", f"smooth coat / conductor a2={a2} tau={tau}", stack(None, ("conductor", a2), tau, 1),
                "one", [("coated(rough_conductor)", p, {}, None)])
         p = {"coat_eta": ETA, "coat_tau": tau, "albedo": 0.7}
-        do("A", f"smooth coat / lambertian 0.7 tau={tau}", scene(None, 0.7, tau, 1), "one",
+        do("A", f"smooth coat / lambertian 0.7 tau={tau}", stack(None, 0.7, tau, 1), "one",
            [("coated(lambertian)", p, {"interreflection": "single"}, None)])
-        do("A", f"smooth coat / lambertian 0.7 tau={tau}", scene(None, 0.7, tau, "all"), "all",
+        do("A", f"smooth coat / lambertian 0.7 tau={tau}", stack(None, 0.7, tau, "all"), "all",
            [("coated(lambertian)", p, {"interreflection": "closed_form"}, None),
             ("coated(lambertian)", p, {"interreflection": "single"}, None)])
     # B: Weidlich–Wilkie vs full simulation
@@ -238,7 +277,7 @@ def run(samples, quick):
                 p = {"alpha1": a1, "n1": ETA, "k1": 0.0, "tau1": tau, "alpha2": a2, "n2": N_CR,
                      "k2": K_CR}
                 top = ("rough_conductor", {"alpha": a1, "n": ETA, "k": 0.0}, {})
-                sc = scene(a1, ("conductor", a2), tau, "all")
+                sc = stack(a1, ("conductor", a2), tau, "all")
                 label = f"GGX a1={a1} / conductor a2={a2} tau={tau}"
                 do("B", label, sc, "all",
                    [("weidlich_wilkie(rough_conductor)", p, {}, None),
@@ -248,7 +287,7 @@ def run(samples, quick):
                     ("weidlich_wilkie(rough_conductor)", p, {"roughness_clamp": "clamp"}, top)])
     for a1 in ((0.05, 0.3) if not quick else (0.3,)):
         p = {"alpha1": a1, "n1": ETA, "k1": 0.0, "tau1": 0.0, "albedo2": 0.7}
-        do("B", f"GGX a1={a1} / lambertian 0.7 tau=0", scene(a1, 0.7, 0.0, "all"), "all",
+        do("B", f"GGX a1={a1} / lambertian 0.7 tau=0", stack(a1, 0.7, 0.0, "all"), "all",
            [("weidlich_wilkie(lambertian)", p, {}, None)])
     return rows
 
@@ -353,12 +392,19 @@ def _machine():
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--samples", type=int, default=2_000_000, help="paths per stack")
+    ap.add_argument("--estimator", choices=("point", "cone"), default="point",
+                    help="point estimates at the arc's directions, the model evaluated there "
+                         "(default), or cones of 0.01 sr with the model averaged over them")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="paths per stack (default 16384 for point estimates, 2,000,000 for "
+                         "cones: about the same noise)")
     ap.add_argument("--quick", action="store_true", help="one stack per group (smoke run)")
     ap.add_argument("--out", default=str(OUT), help="output folder")
     ap.add_argument("--render-only", action="store_true",
                     help="rewrite README.md from the folder's results.json without simulating")
     args = ap.parse_args(argv)
+    if args.samples is None:
+        args.samples = DEFAULT_SAMPLES[args.estimator]
     t0 = time.perf_counter()
     out = Path(args.out)
     machine = _machine()
@@ -366,10 +412,11 @@ def main(argv=None):
         data = json.loads((out / "results.json").read_text())
         rows, args.samples, machine = data["rows"], data["samples"], data.get("machine", machine)
     else:
-        rows = run(args.samples, args.quick)
+        rows = run(args.samples, args.quick, args.estimator)
     command = "python benchmarks/layered_validation.py" + (
-        f" --samples {args.samples}" if args.samples != 2_000_000 else "") + (
-        " --quick" if args.quick else "")
+        f" --estimator {args.estimator}" if args.estimator != "point" else "") + (
+        f" --samples {args.samples}" if args.samples != DEFAULT_SAMPLES[args.estimator]
+        else "") + (" --quick" if args.quick else "")
     out.mkdir(parents=True, exist_ok=True)
     if not args.render_only:
         atomic_write_text(out / "results.json", json.dumps(
