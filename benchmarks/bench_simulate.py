@@ -19,7 +19,21 @@ error against time.
    standard error of the reflected flux. ``--figure PATH`` also draws it
    (fitlab.report.simulate_figures).
 
+4. Time to equal error (``--only tte``): every example scene of data_formats/examples/scenes,
+   with the estimator it asks for (bins or cones) and, for in-plane and measurement detectors,
+   with point estimates at the same directions; and the throughput scene of [1] on an in-plane
+   arc, fitlab's point estimates against the NumPy walk's (numpy_walk.simulate_numpy_points,
+   when present) and the NumPy walk's cones. Each run is warm (a first run of the same size
+   compiles); the time to a median relative standard error of 1% over the rows holding at
+   least 1% of the largest value is extrapolated as t · (rel / 0.01)² (Monte Carlo error
+   falls as 1/√N). Target: >= 10x the NumPy walk.
+5. Effect selection in time to equal error (``--only tte``): the same requested values (the
+   one-bounce reflection of the absorbing slab at 30°, point estimates on an in-plane arc)
+   from a scene that asks only for them against one that simulates everything and reads them
+   from its bounce-order split. Target: >= 3x.
+
 Usage: python benchmarks/bench_simulate.py [--paths 524288] [--seed 0] [--figure reports/x.png]
+       [--only throughput|tte]
 Exit status 0 when the two walks agree, 1 when they do not.
 """
 
@@ -76,14 +90,169 @@ def warm(scene, n, seed, **kw):
     return cold.time_s - res.time_s, res
 
 
+SCENES = os.path.join(HERE, "..", "data_formats", "examples", "scenes")
+TARGET_REL = 0.01
+
+
+def _median_rel(values, sigma):
+    v, s = np.asarray(values, float), np.asarray(sigma, float)
+    big = v >= 0.01 * v.max()
+    return float(np.median(s[big] / v[big]))
+
+
+def _tte_run(scene, n, seed, pick=None):
+    """Warm run of n paths: (result, wall s, CPU s, median relative SE of the picked values)."""
+    _, res = warm(scene, n, seed)
+    v, sg = (res.value, res.sigma) if pick is None else pick(res)
+    return res, res.time_s, warm.cpu_s, _median_rel(v.ravel(), sg.ravel())
+
+
+def _tte(scene, seed, pick=None, budget_s=8.0, start=1 << 12):
+    """Grow the path count (x8) until a warm run takes about ``budget_s`` / 8 or more, then
+    extrapolate the time to a 1% median relative standard error."""
+    n = start
+    while True:
+        res, wall, cpu, rel = _tte_run(scene, n, seed, pick)
+        if wall * 8 > budget_s or n >= 1 << 21:
+            break
+        n *= 8
+    scale = (rel / TARGET_REL) ** 2
+    return {"paths": n, "wall_s": wall, "cpu_s": cpu, "rel": rel, "events": res.events / n /
+            max(len(res.incidences), 1), "tte_s": wall * scale, "tte_cpu_s": cpu * scale,
+            "rows": int(np.asarray(res.value).shape[0])}
+
+
+def _as_points(scene):
+    return scene._replace(detector=scene.detector._replace(estimator="point", acceptance_sr=0.0))
+
+
+def time_to_error(seed):
+    print("[4] time to a 1% median relative standard error at the requested values (warm; "
+          "extrapolated t * (rel/0.01)^2)")
+    print("    scene                          estimator  rows   paths    wall_s   CPU_s  "
+          "events/path  rel_SE   t_1%_s  CPU_1%_s")
+    out = []
+    for name in sorted(os.listdir(SCENES)):
+        if not name.endswith(".toml"):
+            continue
+        scene = load_scene(os.path.join(SCENES, name))
+        runs = [(scene.detector.estimator if scene.detector.type != "hemisphere"
+                 or scene.detector.estimator == "point" else "bin", scene)]
+        if scene.detector.type != "hemisphere" and scene.detector.estimator == "cone":
+            runs.append(("point", _as_points(scene)))
+        for est, sc in runs:
+            r = _tte(sc, seed)
+            out.append((name, est, r))
+            print(f"    {name[:-5]:<30} {est:<9} {r['rows']:5d} {r['paths']:8d} "
+                  f"{r['wall_s']:8.2f} {r['cpu_s']:7.2f} {r['events']:9.2f}  {r['rel']:.4f} "
+                  f"{r['tte_s']:9.2f} {r['tte_cpu_s']:9.2f}", flush=True)
+    return out
+
+
+def arc_scene(estimator, sr=0.01):
+    """The throughput scene on an in-plane arc (5° steps, both sides)."""
+    sc = throughput_scene()
+    arc = tuple(float(t) for t in np.arange(-80.0, 81.0, 5.0)) + \
+        tuple(float(t) for t in np.arange(100.0, 180.0, 10.0))
+    det = sc.detector._replace(type="inplane", sides=("reflection", "transmission"),
+                               theta_o=arc, acceptance_sr=0.0 if estimator == "point" else sr,
+                               estimator=estimator, theta_bins=0, phi_bins=0)
+    return sc._replace(detector=det)
+
+
+def against_numpy(seed):
+    print("[4b] the throughput scene on an in-plane arc (41 directions, both sides): fitlab "
+          "against the NumPy walk")
+    rows = []
+    for est in ("point", "cone"):
+        r = _tte(arc_scene(est), seed)
+        rows.append((f"fitlab {est}", r))
+    try:
+        from numpy_walk import simulate_numpy_points
+    except ImportError:
+        simulate_numpy_points = None
+    if simulate_numpy_points is not None:
+        sc = arc_scene("point")
+        from fitlab.simulate.detectors import inplane_rows
+
+        _, axes = inplane_rows(sc.detector.theta_o, 0.0, 1e-3)
+        regions = [{"index": 1.0}, {"index": 1.5, "thickness": 1.0, "sigma_a": 0.2,
+                                    "sigma_s": 0.8, "g": 0.5}, {"index": 1.0}]
+        boundaries = [{"kind": "ggx", "alpha": 0.2}, {"kind": "ggx", "alpha": 0.3}]
+        wi = [np.sin(np.radians(THETA_I)), 0.0, np.cos(np.radians(THETA_I))]
+        n = 1 << 12
+        while True:
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = simulate_numpy_points(regions, boundaries, wi, n, axes, seed=seed)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            if wall * 8 > 8.0 or n >= 1 << 21:
+                break
+            n *= 8
+        value, sigma = out[0], out[1]
+        rel = _median_rel(value, sigma)
+        scale = (rel / TARGET_REL) ** 2
+        rows.append(("NumPy point", {"paths": n, "wall_s": wall, "cpu_s": cpu, "rel": rel,
+                                     "tte_s": wall * scale, "tte_cpu_s": cpu * scale}))
+    print("    walk            paths    wall_s   CPU_s   rel_SE   t_1%_s   CPU_1%_s")
+    for name, r in rows:
+        print(f"    {name:<14} {r['paths']:8d} {r['wall_s']:8.2f} {r['cpu_s']:7.2f}  "
+              f"{r['rel']:.4f} {r['tte_s']:9.2f} {r['tte_cpu_s']:9.2f}")
+    best = {name: r for name, r in rows}
+    if "NumPy point" in best:
+        f, n_ = best["fitlab point"], best["NumPy point"]
+        print(f"    ratio NumPy / fitlab, time to 1%: {n_['tte_s'] / f['tte_s']:.1f}x wall, "
+              f"{n_['tte_cpu_s'] / f['tte_cpu_s']:.1f}x CPU (target >= 10x)")
+    return rows
+
+
+def selection_tte(seed):
+    """[5]: the one-bounce reflection on an arc from a scene asking for it alone, against the
+    same values read from a scene simulating everything (both sides, all bounces)."""
+    slab = load_scene(os.path.join(SCENES, "absorbing_slab.toml"))
+    arc = tuple(float(t) for t in np.arange(-80.0, 81.0, 5.0))
+    det = slab.detector._replace(type="inplane", sides=("reflection",), theta_o=arc,
+                                 estimator="point", acceptance_sr=0.0)
+    one = slab._replace(detector=det, effects=slab.effects._replace(max_bounces=1),
+                        theta_i=(THETA_I,), phi_i=(0.0,))
+    everything = slab._replace(
+        detector=det._replace(sides=("reflection", "transmission"),
+                              theta_o=arc + (120.0, 150.0)),
+        effects=slab.effects._replace(max_bounces=None), theta_i=(THETA_I,), phi_i=(0.0,))
+    n_arc = len(arc)
+
+    def order1(res):
+        return res.by_order[1, :n_arc], res.sigma_by_order[1, :n_arc]
+
+    r_one = _tte(one, seed, pick=order1)
+    r_all = _tte(everything, seed, pick=order1)
+    print("[5] effect selection, time to 1% on the one-bounce reflection (absorbing slab, RGB, "
+          "30 deg, 33 arc directions, point estimates)")
+    for label, r in (("asks for it alone (reflection, max_bounces = 1)", r_one),
+                     ("simulates everything, reads order 1", r_all)):
+        print(f"    {label:<50} {r['paths']:8d} paths {r['wall_s']:7.2f} s  rel {r['rel']:.4f}"
+              f"  t_1% {r['tte_s']:8.2f} s  CPU_1% {r['tte_cpu_s']:8.2f} s")
+    print(f"    saving: {r_all['tte_s'] / r_one['tte_s']:.1f}x wall, "
+          f"{r_all['tte_cpu_s'] / r_one['tte_cpu_s']:.1f}x CPU in time to equal error "
+          "(target >= 3x)")
+    return r_one, r_all
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--paths", type=int, default=1 << 19)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--figure", help="write the standard error vs time figure here (PNG)")
+    ap.add_argument("--only", choices=("throughput", "tte"),
+                    help="run only [1]-[3] (throughput) or [4]-[5] (time to equal error)")
     args = ap.parse_args(argv)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"python {platform.python_version()}", flush=True)
+    if args.only != "throughput":
+        time_to_error(args.seed)
+        against_numpy(args.seed)
+        selection_tte(args.seed)
+        if args.only == "tte":
+            return 0
 
     # 1. throughput ------------------------------------------------------------------------
     scene = throughput_scene()

@@ -309,10 +309,14 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     # lanes: a power of two up to batch_size; paths per call: up to CALL_LANES lanes' worth
     lanes = min(batch_size, 1 << max(int(np.ceil(np.log2(max(samples, 2)))), 6))
     if scene.detector.estimator == "point":
-        # each lane holds its path's running point estimates (4 orders × rows × channels)
+        # every live lane pays for its connections to every row each event, also while the
+        # last long paths of a call drain: fewer lanes, each tracing many paths in turn
+        # (about CALL_LANES), keep the lanes busy; each lane holds its path's running point
+        # estimates (4 orders × rows × channels)
         per_lane = 4 * max(len(r[2].tally) for r in incid) * C * 4
-        lanes = max(64, min(lanes, 1 << int(np.floor(np.log2(max(POINT_LANE_BYTES // per_lane,
-                                                                  64))))))
+        busy = 1 << max(int(np.ceil(np.log2(max(samples // CALL_LANES, 1)))), 8)
+        memory = 1 << int(np.floor(np.log2(max(POINT_LANE_BYTES // per_lane, 64))))
+        lanes = max(64, min(lanes, busy, memory))
     batch = lanes * min(CALL_LANES, -(-samples // lanes))
     n_batches = -(-samples // batch)
     prog = _Progress(samples * len(incid) * len(channel_walks), progress)
@@ -324,10 +328,16 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     for ii, (ti, pi_, rows, axes) in enumerate(incid):
         n_out = (2 * scene.detector.theta_bins * scene.detector.phi_bins
                  if axes is None else len(rows.tally))
+        n_up = 0
         if axes is None:
             det = Detector(jnp.zeros((1, 3)), jnp.full((1,), 2.0))
         elif scene.detector.estimator == "point":
-            det = Detector(jnp.asarray(axes, dtype=jnp.float64), jnp.zeros((len(axes),)))
+            # the walk takes the reflection rows first; tally maps each row to its position
+            walk_order = np.argsort(axes[:, 2] <= 0, kind="stable")
+            n_up = int(np.sum(axes[:, 2] > 0))
+            rows = rows._replace(tally=np.argsort(walk_order, kind="stable"))
+            det = Detector(jnp.asarray(axes[walk_order], dtype=jnp.float64),
+                           jnp.zeros((len(axes),)))
         else:
             det = Detector(jnp.asarray(axes, dtype=jnp.float64),
                            jnp.full((len(axes),), detectors.cone_half_angle_cos(
@@ -342,7 +352,7 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
                 n_valid = min(batch, samples - k * batch)
                 key = jax.random.fold_in(jax.random.fold_in(root, ii), k)
                 s1, s2, side, alive, ev = run_batch(cfg, arr, det, key, wi, n_valid, lanes=lanes,
-                                                    paths=batch, n_out=n_out)
+                                                    paths=batch, n_out=n_out, n_up=n_up)
                 S1[..., sl] += np.asarray(s1)
                 S2[..., sl] += np.asarray(s2)
                 E1[..., sl] += np.asarray(side)

@@ -455,12 +455,18 @@ def _reverse_crossing(wo, eta):
     return normalize(d), jnp.where(cos_t == 0, 0.0, factor)
 
 
-def _point_setup(cfg, arr, wo):
-    """Per side (reflection: wo_z > 0, transmission: wo_z < 0), the connection data."""
+def _point_setup(cfg, arr, wo_all, n_up):
+    """Per side, the connection data of its requested directions: the reflection side's are
+    the first ``n_up`` rows of ``wo_all`` (wo_z > 0), the transmission side's the rest. A side
+    without rows is left out; a side with rows but not simulated gets its row count (zeros)."""
     M = cfg.n_media
     out = {}
-    for side, k in (("up", cfg.point_up), ("down", cfg.point_down)):
+    for side, k, wo in (("up", cfg.point_up, wo_all[:n_up]), ("down", cfg.point_down,
+                                                               wo_all[n_up:])):
+        if wo.shape[0] == 0:
+            continue
         if k is None:
+            out[side] = wo.shape[0]
             continue
         observed = wo[:, 2] > 0 if side == "up" else wo[:, 2] < 0
         exit_b = 0 if side == "up" else M
@@ -564,8 +570,12 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
     wi = -st.w[:, None, :]
     down = st.w[:, 2] < 0
     classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
-    total = 0.0
+    parts = []
     for side, ps in pts.items():
+        if isinstance(ps, int):  # rows of a side that is not simulated
+            parts.append(jnp.zeros((B, len(ORDER_CLASSES), ps, cfg.channels), beta.dtype))
+            continue
+        total = 0.0
         R = ps.d.shape[0]
         k = cfg.point_up if side == "up" else cfg.point_down
         wi_full, d = jnp.broadcast_arrays(wi, ps.d[None])
@@ -620,7 +630,8 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
                 val = jnp.where((order <= cfg.max_bounces)[:, None, None], val, 0.0)
             onehot = (jnp.minimum(order, len(ORDER_CLASSES) - 1)[:, None] == classes[None, :])
             total = total + onehot.astype(val.dtype)[:, :, None, None] * val[:, None]
-    return total
+        parts.append(total)
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=2)
 
 
 def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k, behind,
@@ -755,9 +766,9 @@ class _Loop(NamedTuple):
     point_s2: jax.Array
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "lanes", "paths", "n_out"))
+@functools.partial(jax.jit, static_argnames=("cfg", "lanes", "paths", "n_out", "n_up"))
 def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid, *, lanes: int,
-              paths: int, n_out: int):
+              paths: int, n_out: int, n_up: int = 0):
     """Trace ``paths`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit, z > 0,
     pointing toward the light) on ``lanes`` parallel lanes. Returns float64 (4, n_out, C) sums
     of the path contributions per order class and bin, (5, n_out, C) sums of their squares per
@@ -768,7 +779,7 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
     Path regeneration: a lane whose path ends starts the next path at once, so every lane stays
     busy until the last paths drain (one compiled loop, no idle tail per path). Each path exits
     at most once: its exit direction, weight and order go to per-path buffers, tallied after the
-    loop."""
+    loop. Point detectors: the walk's rows are the reflection rows first, ``n_up`` of them."""
     dt = jnp.dtype(cfg.dtype)
     C = cfg.channels
     wi = wi.astype(dt)
@@ -776,7 +787,7 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
     n_valid = jnp.minimum(n_valid, paths)
     lane = jnp.arange(lanes, dtype=jnp.int32)
     points = cfg.detector == "points"
-    pts = _point_setup(cfg, arr, det.cone_dir.astype(dt)) if points else None
+    pts = _point_setup(cfg, arr, det.cone_dir.astype(dt), n_up) if points else None
     n_pts = n_out if points else 0
     st0 = _fresh(cfg, wi, lanes, dt)
     st0 = _propose(cfg, arr, key, jnp.int32(0), st0._replace(alive=lane < n_valid))
