@@ -6,6 +6,7 @@ the stacks where a connection would miss light are refused by name."""
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -212,3 +213,27 @@ def test_point_estimates_are_reciprocal_on_a_layered_brdf(top):
                 (v1, s1), (v2, s2) = val[(a, b)], val[(b, a)]
                 assert abs(v1 - v2) < 4.0 * np.hypot(s1, s2), (a, b, v1, v2, s1, s2)
                 assert s1 < 0.02 * v1
+
+
+def test_device_selection(tmp_path, capsys):
+    """--device cpu runs on the CPU (the same numbers as JAX's default device here when that
+    is the CPU); --device gpu without a GPU is an input error (exit 2) saying what to install."""
+    import jax
+
+    from fitlab.cli import main
+
+    scene = str(Path(__file__).resolve().parents[1] / "data_formats" / "examples" / "scenes"
+                / "coated_lambertian.toml")
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    assert main(["simulate", scene, "--samples", "256", "--quiet", "--device", "cpu",
+                 "--out", str(a)]) == 0
+    if jax.devices()[0].platform == "cpu":
+        assert main(["simulate", scene, "--samples", "256", "--quiet", "--out", str(b)]) == 0
+        assert a.read_bytes() == b.read_bytes()
+    if not any(d.platform == "gpu" for d in jax.devices()):
+        capsys.readouterr()
+        assert main(["simulate", scene, "--samples", "256", "--quiet", "--device", "gpu",
+                     "--out", str(tmp_path / "c.csv")]) == 2
+        err = capsys.readouterr().err
+        assert "no gpu device" in err and "jax[cuda12]" in err
+        assert not (tmp_path / "c.csv").exists()

@@ -6,6 +6,7 @@ import sys
 
 from fitlab.cli.common import add_quiet
 from fitlab.errors import FitlabError
+from fitlab.simulate.simulator import DEVICES
 
 
 def add_parser(sub):
@@ -20,7 +21,8 @@ def add_parser(sub):
         "from the scene itself (no medium: no volume code; sigma_a = 0: no attenuation; grey: one "
         "channel; opaque substrate: no transmitted paths). Writes a measurement CSV "
         "(data_formats/measurement_csv.md): value = BSDF in 1/sr averaged over each bin or "
-        "cone, sigma = Monte Carlo standard error, metadata with the effects simulated and "
+        "cone, or with the detector's estimator = \"point\" a point estimate at each exact "
+        "direction (next-event estimation), sigma = Monte Carlo standard error, metadata with the effects simulated and "
         "skipped (and why), samples and seed (the same scene, samples, seed and batch size give "
         "the same bytes; the run time is printed, not stored), so `fitlab fit OUT.csv --model "
         "...` works on it. Progress on stderr; the output is written atomically.",
@@ -40,6 +42,10 @@ def add_parser(sub):
     p.add_argument("--batch-size", type=int, default=1 << 13,
                    help="paths traced in parallel (lanes); with 32 lanes' worth of paths per "
                    "compiled call it bounds the memory (default 8192)")
+    p.add_argument("--device", choices=DEVICES, default="auto",
+                   help="where the walk runs: auto (JAX's default device: a GPU when JAX has "
+                   "one), cpu, or gpu (an error when JAX sees none; install a CUDA build of "
+                   "jaxlib, e.g. pip install 'jax[cuda12]'); results are reproducible per device")
     add_quiet(p)
     return p
 
@@ -67,7 +73,7 @@ def run(args):
         for line in plan.describe().splitlines():
             print(f"simulate: {line}", file=sys.stderr)
     res = simulate(scene, args.samples, args.seed, batch_size=args.batch_size,
-                   progress=not args.quiet)
+                   progress=not args.quiet, device=args.device)
     m = res.to_measurement()
     # The scene as the output names files: relative to its folder (standard output: the working
     # folder), never an absolute path of this machine.

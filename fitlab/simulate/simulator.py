@@ -30,6 +30,8 @@ BATCH_SIZE = 1 << 13
 CALL_LANES = 32
 #: Events per path after which a path still alive is dropped (reported as truncated).
 MAX_EVENTS = 512
+#: Where the walk runs: JAX's default device, the CPU, or a GPU.
+DEVICES = ("auto", "cpu", "gpu")
 #: Memory of the per-lane running point estimates (bytes): lanes are reduced to fit.
 POINT_LANE_BYTES = 64 << 20
 
@@ -286,9 +288,26 @@ class _Progress:
                   file=sys.stderr, flush=True)
 
 
+def walk_device(device: str = "auto"):
+    """The JAX device the walk runs on: ``auto`` (JAX's default: a GPU when jaxlib has one),
+    ``cpu`` or ``gpu``. Raises :class:`fitlab.errors.FitlabError` when no such device exists."""
+    from fitlab.errors import FitlabError
+
+    if device not in DEVICES:
+        raise FitlabError(f"device must be one of {', '.join(DEVICES)}, not {device!r}")
+    if device == "auto":
+        return jax.devices()[0]
+    try:
+        return jax.devices(device)[0]
+    except RuntimeError:
+        have = ", ".join(sorted({d.platform for d in jax.devices()}))
+        raise FitlabError(f"no {device} device: JAX sees only {have}; install a CUDA build of "
+                          "jaxlib (pip install 'jax[cuda12]') or use --device cpu") from None
+
+
 def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BATCH_SIZE,
              max_events: int = MAX_EVENTS, dtype: str = "float32",
-             progress: bool = False) -> SimulationResult:
+             progress: bool = False, device: str = "auto") -> SimulationResult:
     """Trace ``samples`` paths per incident direction of ``scene`` and estimate the BSDF of every
     detector bin (data_formats/scene_toml.md).
 
@@ -296,8 +315,15 @@ def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BAT
     ``batch_size``); ``batch_size`` lanes trace paths in parallel (memory bound); ``max_events``
     caps the events of one path (paths still alive are dropped and counted in ``truncated``);
     ``dtype`` of the paths (float32 for throughput; tallies are float64); ``progress`` prints
-    progress on stderr. Returns a :class:`SimulationResult`.
+    progress on stderr; ``device``: ``auto``, ``cpu`` or ``gpu`` (:func:`walk_device`; the
+    numbers are reproducible on one device, not across devices). Returns a
+    :class:`SimulationResult`.
     """
+    with jax.default_device(walk_device(device)):
+        return _simulate(scene, samples, seed, batch_size, max_events, dtype, progress)
+
+
+def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
     if samples < 2:
         raise ValueError("samples must be at least 2 (a standard error needs two paths)")
     plan = derive_effects(scene)
