@@ -515,11 +515,14 @@ def _boundary_f(cfg, arr, k, wi, d, with_pdf=False):
     return (f, pdf) if with_pdf else f
 
 
-def _phase_p(cfg, arr, region, wi, d):
+def _phase_p(cfg, arr, region, wi, d, kinds=None):
     """Phase function of each lane's region from wi (B, R, 3) to d (B, R, 3): (B, R); it is
-    also the density with which the walk samples d (exact phase sampling)."""
+    also the density with which the walk samples d (exact phase sampling). ``kinds``: the
+    phase functions to consider (default: every one in the stack)."""
     p = jnp.zeros(wi.shape[:-1], wi.dtype)
-    for kind in sorted({q for q in cfg.region_phase if q is not None}):
+    if kinds is None:
+        kinds = {q for q in cfg.region_phase if q is not None}
+    for kind in sorted(kinds):
         sel = functools.reduce(jnp.logical_or, [region == j for j, q in
                                                enumerate(cfg.region_phase) if q == kind])
         if kind == "hg":
@@ -610,7 +613,8 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
                 crossing = at_k & (st.region == behind)
                 fb = fb * jnp.where(crossing[:, None], w_c, 1.0)[..., None]
             value = jnp.where(at_k[:, None, None], fb * exit_t[None], value)
-        if cfg.volume:
+        exit_side = range(1, min(k, M) + 1) if side == "up" else range(max(k + 1, 1), M + 1)
+        if cfg.volume and any(cfg.region_phase[j] is not None for j in exit_side):
             # direct connection of volume events on the exit's side of k
             r = st.region
             dist = z if side == "up" else arr.thickness[r] - z
@@ -659,7 +663,8 @@ def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k
     ratio = 1.0 / eta2 if side == "up" else eta2  # (η on d's side / η on d′'s side)²
     w_rev = jnp.where(into, ratio * weight * jnp.abs(ps.d[:, 2])[None, :] / dz, 0.0)
     # the vertices: volume events in `behind`, events at `far` sending the path toward k
-    vol = scatter & (st.region == behind) if cfg.volume else jnp.zeros((B,), bool)
+    vol = scatter & (st.region == behind) if cfg.volume and cfg.region_phase[behind] is not None \
+        else jnp.zeros((B,), bool)
     far_ok = 0 <= far <= M and cfg.boundary_groups[far] not in ("pass", "smooth",
                                                                  "conductor:smooth")
     at_far = hit & (b == far) if far_ok else jnp.zeros((B,), bool)
@@ -669,8 +674,8 @@ def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k
         fb, pb = _boundary_f(cfg, arr, far, wi_full, dp, with_pdf=True)
         f_v = jnp.where(at_far[:, None, None], fb * dz[..., None], f_v)
         p_v = jnp.where(at_far[:, None], pb, p_v)
-    if cfg.volume:
-        ph = _phase_p(cfg, arr, st.region, wi_full, dp)
+    if cfg.volume and cfg.region_phase[behind] is not None:
+        ph = _phase_p(cfg, arr, st.region, wi_full, dp, kinds={cfg.region_phase[behind]})
         f_v = jnp.where(vol[:, None, None], ph[..., None], f_v)
         p_v = jnp.where(vol[:, None], ph, p_v)
     # attenuation across `behind` from the vertex to k
