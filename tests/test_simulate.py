@@ -33,6 +33,8 @@ INVALID = {
     "scene_no_acceptance.toml": "detector.acceptance_sr: is missing",
     "scene_no_detector.toml": "detector: is missing",
     "scene_anisotropic_vmf.toml": "stack[0].alpha_x: the vmf distribution is isotropic",
+    "scene_masking_not_vmf.toml": "stack[0].masking: only a vmf distribution has a masking "
+                                  "choice",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "
                               "declaration (at line 2, column 8))",
 }
