@@ -1,5 +1,6 @@
 """Microfacet distributions of Walter et al. 2007, section 5.2 (eqs 24-36), isotropic and
-anisotropic, and the vMF NDF of the extended-NDF paper (eqs 5-8).
+anisotropic, and the vMF NDF of the extended-NDF paper (eqs 5-8), with its masking by eq. 8
+(``vmf``) or by eq. 7 integrated (``vmf_exact``).
 
 Every distribution is parameterized by its width α (Walter's α_b for Beckmann, α_g for GGX);
 an anisotropic one by the widths (α_x, α_y) along the tangent frame's +x and +y (pbrt-v4's
@@ -420,9 +421,20 @@ def G1_vMF(v, alpha, alpha_y=None):
     """vMF masking, paper eqs 7-8: G1 = A3(κ) cos θv / (a cos(b θv)), a = (A3 + 1)²/4,
     b = A3^{1/3}, clamped to [0, 1] (the approximation of the clamped-cosine integral is the
     paper's; it is not derived from D_vMF by Smith's Λ, so a vMF interface is not exactly
-    energy-consistent; fitlab.vmf.G1_approx)."""
+    energy-consistent; fitlab.vmf.G1_approx). :func:`G1_vMF_exact` is the exact one."""
     _isotropic_only("vmf", alpha_y)
     return vmf.G1_approx(v, vmf_kappa(alpha))
+
+
+def G1_vMF_exact(v, alpha, alpha_y=None):
+    """vMF masking of paper eq. 7 with its integral evaluated, G1 = cos θv / ∫⟨v,m⟩D_vMF(m) dω_m:
+    the Smith masking derived from D_vMF as normalized here (∫G1(v)⟨v,m⟩D dω = v·n holds, so a
+    vMF interface is energy-consistent). 16-point Gauss–Legendre quadrature in cos θm with the
+    clamped cosine's azimuthal integral in closed form, relative error ≤ 5e-4 for κ 1e-2 – 1e6
+    and θv up to 89.99° (fitlab.vmf.G1_exact). Eq. 8 (:func:`G1_vMF`) differs most near the
+    horizon: 0.769 against 0.043 at κ = 1e4, θv = 89.99°; 0.909 against 1 at κ = 2, θv = 0."""
+    _isotropic_only("vmf", alpha_y)
+    return vmf.G1_exact(v, vmf_kappa(alpha))
 
 
 def sample_m_vMF(u1, u2, alpha, alpha_y=None):
@@ -575,8 +587,18 @@ REGISTRY: dict[str, Family] = {
         Family("vmf", D_vMF, G1_vMF, sample_m_vMF,
                "extended-NDF paper eqs 5-8 (vMF NDF, masking approximation), kappa = 2/alpha^2 "
                "(isotropic only)", walter=False),
+        Family("vmf_exact", D_vMF, G1_vMF_exact, sample_m_vMF,
+               "extended-NDF paper eqs 5-7 (vMF NDF, the exact masking of eq. 7 integrated by "
+               "16-point Gauss-Legendre quadrature), kappa = 2/alpha^2 (isotropic only)",
+               walter=False),
     )
 }
+
+#: The vMF NDF's registry families by masking, keyed by the choices of the thin layer's
+#: ``masking`` option (fitlab.vmf.MASKING): eq. 7 integrated (exact) or eq. 8 (approx). A scene
+#: names the NDF ``vmf`` and chooses its masking with a key of its own (fitlab.simulate.scene).
+VMF_MASKING = {"exact": "vmf_exact", "approx": "vmf"}
+
 
 def names(*, walter: bool | None = True, anisotropic: bool | None = None) -> tuple[str, ...]:
     """Registry names, filtered: ``walter=True`` the distributions of Walter 2007 that the

@@ -15,8 +15,9 @@ finite gradients:
 * A3⁻¹ (:func:`nu_of_log_A3`) is 1 - A3 for κ̂ > 20 and otherwise a fixed number of Newton steps
   from Banerjee et al.'s start κ0 = R(3 - R²)/(1 - R²), with the implicit derivative as its JVP.
 
-The microfacet registry's ``vmf`` family (fitlab.microfacet, width α with κ = 2/α²) and the
-thin-layer model (fitlab.models.thin_layer) use these functions.
+The microfacet registry's ``vmf`` and ``vmf_exact`` families (fitlab.microfacet, width α with
+κ = 2/α²; masking by eq. 8 and by eq. 7 integrated) and the thin-layer model
+(fitlab.models.thin_layer) use these functions.
 """
 
 from __future__ import annotations
@@ -219,7 +220,8 @@ def G1_exact(v, kappa):
     return jnp.clip(safe_div(jnp.abs(v[..., 2]), projected_area(v, kappa)), 0.0, 1.0)
 
 
-#: Masking choices of the thin-layer model and the ``vmf`` family.
+#: Masking choices of the thin-layer model (the microfacet families ``vmf`` = approx and
+#: ``vmf_exact`` = exact, fitlab.microfacet.VMF_MASKING).
 MASKING = {"approx": G1_approx, "exact": G1_exact}
 
 

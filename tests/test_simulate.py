@@ -37,6 +37,8 @@ INVALID = {
                                         "acceptance solid angle",
     "scene_point_specular_between.toml": "detector.estimator: point estimates of reflection are "
                                          "not possible for this stack: boundary 1 is specular",
+    "scene_masking_not_vmf.toml": "stack[0].masking: only a vmf distribution has a masking "
+                                  "choice",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "
                               "declaration (at line 2, column 8))",
 }

@@ -14,7 +14,8 @@ def add_parser(sub):
         "simulate", help="Monte Carlo ground truth of a layer stack (scene TOML) as measurement CSV",
         description="Trace a vectorized Monte Carlo random walk (JAX) through the layer stack of "
         "SCENE.toml (data_formats/scene_toml.md): rough or smooth dielectric interfaces (GGX, "
-        "Beckmann, vMF), absorbing and scattering media (isotropic, Henyey-Greenstein, SGGX "
+        "Beckmann, vMF with the exact masking of its NDF unless masking = \"approx\" asks for "
+        "the extended-NDF paper's eq. 8), absorbing and scattering media (isotropic, Henyey-Greenstein, SGGX "
         "microflakes), Lambertian / conductor / dielectric substrates. Only the effects the scene "
         "asks for are compiled and traced (observed hemispheres, bounce limit, absorption, volume "
         "scattering none/single/multiple, delta transmission, mono/RGB), and fitlab derives more "

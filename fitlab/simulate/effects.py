@@ -59,6 +59,19 @@ def derive_effects(scene: Scene) -> EffectPlan:
         skip.append(("transmission", "no transmission detector: paths entering the medium "
                      "below end at once"))
 
+    # masking of the vMF boundaries (scene.py: eq. 7 integrated unless masking = "approx")
+    where = {m: ", ".join(b.field or f"boundary {j}" for j, b in enumerate(scene.boundaries)
+                          if b.masking == m) for m in ("exact", "approx")}
+    if where["exact"]:
+        sim.append(("exact vmf masking", f"at {where['exact']}: the Smith masking of the vMF "
+                    "NDF, the extended-NDF paper's eq. 7 integrated by quadrature"))
+    if where["approx"]:
+        sim.append(("approximate vmf masking", f"at {where['approx']}, chosen by masking = "
+                    "\"approx\": the extended-NDF paper's eq. 8, an approximation, not the "
+                    "masking of the vMF NDF itself"))
+        skip.append(("exact vmf masking", f"masking = \"approx\" at {where['approx']}: eq. 8 "
+                     "traced instead of eq. 7's integral"))
+
     media = scene.media
     thick = [m for m in media if m.thickness > 0]
     # volume scattering

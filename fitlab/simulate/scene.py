@@ -28,9 +28,16 @@ from fitlab.io.validate import load_toml, quote
 from fitlab.io.files import read_bytes
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
-#: Microfacet distributions an interface or substrate may use ("smooth" = a flat interface).
-#: every registry distribution (fitlab.microfacet.REGISTRY) is a choice.
-INTERFACE_DISTRIBUTIONS = ("smooth",) + tuple(microfacet.REGISTRY)
+#: Microfacet distributions an interface or substrate may use ("smooth" = a flat interface):
+#: every registry distribution (fitlab.microfacet.REGISTRY), the vMF NDF once, as ``vmf``: its
+#: families differ only in their masking, which the key ``masking`` chooses.
+_VMF_VARIANTS = frozenset(microfacet.VMF_MASKING.values()) - {"vmf"}
+INTERFACE_DISTRIBUTIONS = ("smooth",) + tuple(n for n in microfacet.REGISTRY
+                                              if n not in _VMF_VARIANTS)
+#: Masking of a vmf interface: the paper's eq. 7 integrated (exact, the default: the simulator
+#: is the ground truth the thin layer is validated against) or its eq. 8 (approx).
+MASKINGS = tuple(microfacet.VMF_MASKING)
+DEFAULT_MASKING = "exact"
 #: ... and these take anisotropic widths alpha_x, alpha_y.
 ANISOTROPIC_DISTRIBUTIONS = microfacet.names(walter=None, anisotropic=True)
 PHASES = ("isotropic", "hg", "sggx_surface", "sggx_fiber")
@@ -76,7 +83,10 @@ class Boundary(NamedTuple):
     along the tangent +y of an anisotropic NDF (alpha is then the width along +x), None when
     isotropic.
     albedo (lambertian), n and k (conductor, relative to vacuum: divided by the index of the
-    medium above at simulation time): per channel, 1 or 3 values."""
+    medium above at simulation time): per channel, 1 or 3 values.
+    masking: a vmf NDF's masking, ``exact`` (eq. 7 integrated) or ``approx`` (eq. 8); None for
+    the other distributions. field: the scene field the boundary comes from (``stack[2]``,
+    ``substrate``, ``below``), for messages and the effect plan."""
 
     kind: str
     distribution: str = "smooth"
@@ -85,6 +95,14 @@ class Boundary(NamedTuple):
     n: tuple = ()
     k: tuple = ()
     alpha_y: float | None = None
+    masking: str | None = None
+    field: str = ""
+
+    @property
+    def family(self) -> str:
+        """The microfacet registry family the walk samples: the distribution, or for vmf the
+        family of its masking (fitlab.microfacet.VMF_MASKING)."""
+        return self.distribution if self.masking is None else microfacet.VMF_MASKING[self.masking]
 
 
 class Detector(NamedTuple):
@@ -252,8 +270,22 @@ def _angle_list(ctx, table, field, key, lo, hi, *, hi_open=False):
 
 
 def _roughness(ctx, table, field):
-    """(distribution, alpha, alpha_y) of an interface or a rough substrate; alpha_y is None
-    unless the widths are given as alpha_x, alpha_y (anisotropic)."""
+    """The keyword arguments distribution, alpha, alpha_y, masking of the :class:`Boundary` of
+    an interface or a substrate; alpha_y is None unless the widths are given as alpha_x, alpha_y
+    (anisotropic), masking None unless the distribution is vmf."""
+    dist, alpha, alpha_y = _widths(ctx, table, field)
+    masking = None
+    if dist == "vmf":
+        masking = _choice(ctx, table, field, "masking", MASKINGS, default=DEFAULT_MASKING)
+    elif "masking" in table:
+        ctx.fail(f"{field}.masking", "only a vmf distribution has a masking choice",
+                 "remove it, or choose distribution = \"vmf\" (masking = \"exact\": eq. 7 "
+                 "integrated, the default; \"approx\": eq. 8)")
+    return {"distribution": dist, "alpha": alpha, "alpha_y": alpha_y, "masking": masking}
+
+
+def _widths(ctx, table, field):
+    """(distribution, alpha, alpha_y) of an interface or a rough substrate."""
     dist = _choice(ctx, table, field, "distribution", INTERFACE_DISTRIBUTIONS, default="smooth")
     if dist == "smooth":
         for key in ("alpha", "kappa", "alpha_x", "alpha_y"):
@@ -319,7 +351,7 @@ def _phase(ctx, table, field):
     return Phase(ptype, g, rough, orient)
 
 
-_ROUGHNESS_KEYS = ("distribution", "alpha", "kappa", "alpha_x", "alpha_y")
+_ROUGHNESS_KEYS = ("distribution", "alpha", "kappa", "alpha_x", "alpha_y", "masking")
 _INTERFACE_KEYS = ("type",) + _ROUGHNESS_KEYS
 _MEDIUM_KEYS = ("type", "index", "thickness", "sigma_a", "sigma_s", "phase", "g", "roughness",
                 "orientation")
@@ -352,7 +384,7 @@ def _substrate(ctx, table, above_index):
         return Boundary("lambertian", albedo=albedo), None
     if kind == "conductor":
         _check_keys(ctx, table, field, ("type",) + _ROUGHNESS_KEYS + ("n", "k", "preset"))
-        dist, alpha, alpha_y = _roughness(ctx, table, field)
+        rough = _roughness(ctx, table, field)
         if "preset" in table:
             if "n" in table or "k" in table:
                 ctx.fail("substrate.preset", "give either a preset or n and k, not both")
@@ -364,12 +396,12 @@ def _substrate(ctx, table, above_index):
             k = _per_channel(ctx, table, field, "k", lo=0.0, hint="the extinction k >= 0")
             if min(n) <= 0:
                 ctx.fail("substrate.n", "must be > 0", "give the real part of the complex index")
-        return Boundary("conductor", dist, alpha, n=tuple(n), k=tuple(k), alpha_y=alpha_y), None
+        return Boundary("conductor", n=tuple(n), k=tuple(k), **rough), None
     _check_keys(ctx, table, field, ("type",) + _ROUGHNESS_KEYS + ("index",))
-    dist, alpha, alpha_y = _roughness(ctx, table, field)
+    rough = _roughness(ctx, table, field)
     index = _number(ctx, table, field, "index", lo=0.0, lo_open=True,
                     hint="give the refractive index of the semi-infinite dielectric below")
-    return Boundary("dielectric", dist, alpha, alpha_y=alpha_y), index
+    return Boundary("dielectric", **rough), index
 
 
 def _detector(ctx, table, base_dir, illum_given):
@@ -511,8 +543,8 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
             if pending is not None:
                 ctx.fail(field, "two interfaces in a row", "put a [[stack]] type = \"medium\" "
                          "between them (an interface separates two media)")
-            dist, alpha, alpha_y = _roughness(ctx, item, field)
-            pending, pending_field = Boundary("dielectric", dist, alpha, alpha_y=alpha_y), field
+            pending = Boundary("dielectric", **_roughness(ctx, item, field))
+            pending_field = field
         else:
             med = _medium(ctx, item, field)
             if pending is None:
@@ -615,6 +647,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
     if effects.color == "mono" and channels == 3:
         ctx.fail("effects.color", "is \"mono\" but some properties have three (R, G, B) values",
                  "set color = \"rgb\" (or \"auto\"), or give single values")
+    boundaries = [b._replace(field=where) for b, where in zip(boundaries, origin)]
     return Scene(str(source), name, n_out, tuple(media), tuple(boundaries), n_below, opaque,
                  theta_i, phi_i, detector, effects, channels)
 

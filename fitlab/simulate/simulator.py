@@ -187,8 +187,9 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
     for b, bd in enumerate(scene.boundaries):
         alpha[b] = bd.alpha
         alpha_y[b] = bd.alpha if bd.alpha_y is None else bd.alpha_y
-        # an anisotropic NDF is sampled by the anisotropic models (widths alpha, alpha_y)
-        rough = bd.distribution if bd.alpha_y is None else f"{bd.distribution}:anisotropic"
+        # the registry family the models sample (vmf: by its masking, vmf_exact or vmf); an
+        # anisotropic NDF is sampled by the anisotropic models (widths alpha, alpha_y)
+        rough = bd.family if bd.alpha_y is None else f"{bd.family}:anisotropic"
         eta[b] = idx[b + 1] / idx[b]
         if bd.kind == "pass":
             groups.append("pass")
