@@ -88,6 +88,7 @@ def test_vmf_family_values_and_gradients_finite(name, dtype):
     assert ms.dtype == dtype and bool(jnp.all(jnp.isfinite(ms))) and bool(jnp.all(ms[..., 2] > 0))
 
 
+@pytest.mark.slow
 def test_rough_dielectric_with_vmf_exact_finite_on_the_hard_grid(dtype):
     """The rough dielectric model with distribution vmf_exact (what the simulator samples) on
     tests/test_hard_cases.py's grid (θ up to 89.99° and past the horizon, α 1e-4 – 1, η above
