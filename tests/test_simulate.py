@@ -228,7 +228,8 @@ def test_same_seed_same_numbers_other_seed_other_numbers():
 
 
 #: Examples whose float32 walk compiles kernels no other quick test needs: whole suite only.
-SLOW_FLOAT32_SCENES = {"sggx_fiber_layer.toml", "measurement_directions.toml"}
+SLOW_FLOAT32_SCENES = {"sggx_fiber_layer.toml", "measurement_directions.toml",
+                       "measurement_points.toml"}
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow)

@@ -97,29 +97,30 @@ def test_point_values_agree_with_fine_cones_on_an_hg_slab(top):
     theta_o = [-60.0, -30.0, 0.0, 30.0, 60.0, 120.0, 150.0, 180.0 - 10.0]
     kw = dict(below={"index": 1.2}, illumination={"theta_i": [20.0]},
               effects={"color": "mono", "delta": False})
-    pts = simulate(_scene(stack, _point(theta_o), **kw), 20_000, seed=3)
-    cones = simulate(_scene(stack, _cone(theta_o), **kw), 400_000, seed=4)
+    n_cones = 800_000 if top == "ggx" else 200_000  # (the rough top: the slow tier)
+    pts = simulate(_scene(stack, _point(theta_o), **kw), 8_000, seed=3)
+    cones = simulate(_scene(stack, _cone(theta_o), **kw), n_cones, seed=4)
     v, s = pts.value[:, 0], pts.sigma[:, 0]
     c, cs = cones.value[:, 0], cones.sigma[:, 0]
-    keep = c > 0.02 * c.max()
+    keep = (cs > 0) & (cs < 0.25 * c)  # cones that caught enough paths to compare
     assert keep.sum() >= 6
     z = (v - c) / np.hypot(s, cs)
     assert np.all(np.abs(z[keep]) < 4.0), np.c_[pts.theta_o, v, s, c, cs][keep]
     # the point estimate reaches a given error with far fewer paths
-    assert np.median((s / v)[keep]) * np.sqrt(20_000) < \
-        0.2 * np.median((cs / c)[keep]) * np.sqrt(400_000)
+    assert np.median((s / v)[keep]) * np.sqrt(8_000) < \
+        0.2 * np.median((cs / c)[keep]) * np.sqrt(n_cones)
 
 
 def test_bounce_orders_sum_and_max_bounces_keeps_the_low_orders():
     stack = [{"type": "interface", "distribution": "ggx", "alpha": 0.3},
              {"type": "medium", "index": 1.5, "thickness": 1.0, "sigma_a": 0.2}]
     sub = {"type": "lambertian", "albedo": 0.8}
-    full = simulate(_scene(stack, _point(), substrate=sub), 8_000, seed=5)
+    full = simulate(_scene(stack, _point(), substrate=sub), 4_000, seed=5)
     assert np.allclose(full.by_order.sum(0), full.value, rtol=1e-9, atol=1e-15)
     assert np.all(full.by_order[1] > 0) and np.all(full.by_order[2] > 0)
     one = simulate(_scene(stack, _point(), substrate=sub,
                           effects={"max_bounces": 1, "delta": False, "color": "mono"}),
-                   8_000, seed=5)
+                   4_000, seed=5)
     assert np.all(one.by_order[2:] == 0)
     # order 0 (the top's reflection) is the model's exactly, in both runs
     np.testing.assert_allclose(one.by_order[0], full.by_order[0], rtol=1e-6)
@@ -204,7 +205,7 @@ def test_point_estimates_are_reciprocal_on_a_layered_brdf(top):
     angles = [10.0, 35.0, 60.0]
     sc = _scene(stack, _point(angles), substrate={"type": "lambertian", "albedo": 0.6},
                 illumination={"theta_i": angles})
-    res = simulate(sc, 30_000, seed=11)
+    res = simulate(sc, 12_000, seed=11)
     val = {(ti, to): (v, s) for ti, to, v, s in zip(res.theta_i, res.theta_o, res.value[:, 0],
                                                      res.sigma[:, 0])}
     for a in angles:
@@ -212,7 +213,7 @@ def test_point_estimates_are_reciprocal_on_a_layered_brdf(top):
             if a < b:
                 (v1, s1), (v2, s2) = val[(a, b)], val[(b, a)]
                 assert abs(v1 - v2) < 4.0 * np.hypot(s1, s2), (a, b, v1, v2, s1, s2)
-                assert s1 < 0.02 * v1
+                assert s1 < 0.03 * v1
 
 
 def test_device_selection(tmp_path, capsys):
