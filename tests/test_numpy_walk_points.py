@@ -158,7 +158,7 @@ def test_points_agree_with_fitlab(top):
     variant (reverse refraction through the top, no vertex strategy on the reflection side):
     point estimates of the peer and of fitlab at 14 in-plane directions on both sides, within 4
     combined standard errors everywhere (fitlab's compilation dominates the time)."""
-    n = 1 << 15
+    n = 1 << 14
     res = simulate(_scene(top, {"type": "inplane", "theta_o": ARC, "estimator": "point"}), n,
                    seed=11)
     wo = direction(res.theta_o, res.phi_o)

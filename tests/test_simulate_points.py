@@ -97,7 +97,7 @@ def test_point_values_agree_with_fine_cones_on_an_hg_slab(top):
     theta_o = [-60.0, -30.0, 0.0, 30.0, 60.0, 120.0, 150.0, 180.0 - 10.0]
     kw = dict(below={"index": 1.2}, illumination={"theta_i": [20.0]},
               effects={"color": "mono", "delta": False})
-    n_cones = 800_000 if top == "ggx" else 200_000  # (the rough top: the slow tier)
+    n_cones = 500_000 if top == "ggx" else 200_000  # (the rough top: the slow tier)
     pts = simulate(_scene(stack, _point(theta_o), **kw), 8_000, seed=3)
     cones = simulate(_scene(stack, _cone(theta_o), **kw), n_cones, seed=4)
     v, s = pts.value[:, 0], pts.sigma[:, 0]
@@ -276,12 +276,12 @@ def test_point_values_integrate_to_the_flux_that_leaves():
              {"type": "medium", "index": 1.2, "thickness": 0.5, "sigma_s": 1.0,
               "phase": "isotropic"},
              {"type": "interface", "distribution": "ggx", "alpha": 0.6}]
-    det = {"type": "hemisphere", "theta_bins": 18, "phi_bins": 36, "estimator": "point"}
+    det = {"type": "hemisphere", "theta_bins": 12, "phi_bins": 24, "estimator": "point"}
     sc = _scene(stack, det, illumination={"theta_i": [20.0]}, below={"index": 1.0})
-    res = simulate(sc, 10_000, seed=17)
+    res = simulate(sc, 6_000, seed=17)
     from fitlab.simulate.detectors import hemisphere_rows
 
-    cw = hemisphere_rows(18, 36, ("reflection", "transmission")).cos_solid_angle
+    cw = hemisphere_rows(12, 24, ("reflection", "transmission")).cos_solid_angle
     up = res.theta_o < 90
     R, T = (float(np.sum(res.value[m, 0] * cw[m])) for m in (up, ~up))
     (Rw, Tw), (sR, sT) = res.energy[0, :, 0], res.energy_sigma[0, :, 0]
@@ -289,5 +289,5 @@ def test_point_values_integrate_to_the_flux_that_leaves():
     # (rough interfaces' single-scattering microfacet BSDFs lose energy at α 0.5–0.6, so the
     # flux leaving is below 1 here: the check is that both estimates see the same flux)
     assert 0.5 < Rw + Tw < 1.0
-    # the walk's own flux is the noisier side; the midpoint rule adds about 1%
-    assert abs(R - Rw) < 4 * sR + 0.01 * Rw and abs(T - Tw) < 4 * sT + 0.01 * Tw, (R, Rw, T, Tw)
+    # the walk's own flux is the noisier side; the midpoint rule (7.5° x 15°) adds about 2%
+    assert abs(R - Rw) < 4 * sR + 0.02 * Rw and abs(T - Tw) < 4 * sT + 0.02 * Tw, (R, Rw, T, Tw)
