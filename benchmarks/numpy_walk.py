@@ -113,6 +113,28 @@ def _sample_hg(wi, g, u):
     return (sin_t * np.cos(phi))[:, None] * s + (sin_t * np.sin(phi))[:, None] * t + cos_t[:, None] * d
 
 
+def _flight(w, region, z, weight, u, thick, sig_s, sig_a, M):
+    """One free flight of every live path: a distance sampled by σs (``u[:, 3]``) against the
+    distance to the boundary ahead, Beer–Lambert weights for σa. Returns (down, scatter,
+    weight, z, alive): whether each path travels downward, scatters in the volume, its new
+    weight and depth, and whether it goes on (a horizontal flight in a medium never ends)."""
+    wz = w[:, 2]
+    down = wz < 0
+    in_med = (region >= 1) & (region <= M)
+    abs_wz = np.abs(wz)
+    horizontal = abs_wz < 1e-7
+    d_b = np.where(down, thick[region] - z, z) / np.where(horizontal, 1.0, abs_wz)
+    d_b = np.where(in_med, np.maximum(d_b, 0.0), 0.0)
+    ss = sig_s[region]
+    can = ss > 0
+    t = -np.log1p(-u[:, 3]) / np.where(can, ss, 1.0)
+    scatter = in_med & can & (t < d_b)
+    d = np.where(scatter, t, d_b)
+    weight = weight * np.exp(-np.where(in_med, sig_a[region] * d, 0.0))
+    z = np.where(in_med, z - d * wz, z)
+    return down, scatter, weight, z, ~(in_med & horizontal & ~scatter)
+
+
 def simulate_numpy(regions, boundaries, wi, samples, theta_bins, phi_bins, seed=0,
                    max_events=512, rr_start=3, rr_min_q=0.05, cones=None):
     """regions: list of dicts (index, thickness, sigma_a, sigma_s, g) for regions 0..M+1;
@@ -172,21 +194,7 @@ def simulate_numpy(regions, boundaries, wi, samples, theta_bins, phi_bins, seed=
             break
         n = region.size
         u = rng.random((n, 8))
-        wz = w[:, 2]
-        down = wz < 0
-        in_med = (region >= 1) & (region <= M)
-        abs_wz = np.abs(wz)
-        horizontal = abs_wz < 1e-7
-        d_b = np.where(down, thick[region] - z, z) / np.where(horizontal, 1.0, abs_wz)
-        d_b = np.where(in_med, np.maximum(d_b, 0.0), 0.0)
-        ss = sig_s[region]
-        can = ss > 0
-        t = -np.log1p(-u[:, 3]) / np.where(can, ss, 1.0)
-        scatter = in_med & can & (t < d_b)
-        d = np.where(scatter, t, d_b)
-        weight = weight * np.exp(-np.where(in_med, sig_a[region] * d, 0.0))
-        z = np.where(in_med, z - d * wz, z)
-        alive = ~(in_med & horizontal & ~scatter)
+        down, scatter, weight, z, alive = _flight(w, region, z, weight, u, thick, sig_s, sig_a, M)
         new_w = w.copy()
         if scatter.any():
             new_w[scatter] = _sample_hg(-w[scatter], hg_g[region[scatter]], u[scatter, 4:6])
@@ -562,21 +570,8 @@ def simulate_numpy_points(regions, boundaries, wi, samples, wo_dirs, seed=0, max
                 break
             n_events += n
             u = rng.random((n, 8))
-            wz = w[:, 2]
-            down = wz < 0
-            in_med = (region >= 1) & (region <= M)
-            abs_wz = np.abs(wz)
-            horizontal = abs_wz < 1e-7
-            d_b = np.where(down, thick[region] - z, z) / np.where(horizontal, 1.0, abs_wz)
-            d_b = np.where(in_med, np.maximum(d_b, 0.0), 0.0)
-            ss = sig_s[region]
-            can = ss > 0
-            t = -np.log1p(-u[:, 3]) / np.where(can, ss, 1.0)
-            scatter = in_med & can & (t < d_b)
-            dist = np.where(scatter, t, d_b)
-            weight = weight * np.exp(-np.where(in_med, sig_a[region] * dist, 0.0))
-            z = np.where(in_med, z - dist * wz, z)
-            alive = ~(in_med & horizontal & ~scatter)
+            down, scatter, weight, z, alive = _flight(w, region, z, weight, u, thick, sig_s,
+                                                      sig_a, M)
             hit = alive & ~scatter
             b = np.clip(np.where(down, region, region - 1), 0, M)
             # next-event connections of this event (weight after the flight, before the event)
