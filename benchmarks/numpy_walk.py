@@ -113,6 +113,15 @@ def _sample_hg(wi, g, u):
     return (sin_t * np.cos(phi))[:, None] * s + (sin_t * np.sin(phi))[:, None] * t + cos_t[:, None] * d
 
 
+def _roulette(alive, weight, events, u, rr_start, rr_min_q):
+    """Russian roulette after ``rr_start`` events: survival q = clip(weight, rr_min_q, 1), the
+    survivors' weight divided by q (unbiased)."""
+    q = np.clip(weight, rr_min_q, 1.0)
+    play = alive & (events > rr_start)
+    survive = u < q
+    return alive & (~play | survive), np.where(play & survive, weight / q, weight)
+
+
 def _flight(w, region, z, weight, u, thick, sig_s, sig_a, M):
     """One free flight of every live path: a distance sampled by σs (``u[:, 3]``) against the
     distance to the boundary ahead, Beer–Lambert weights for σa. Returns (down, scatter,
@@ -222,11 +231,7 @@ def simulate_numpy(regions, boundaries, wi, samples, theta_bins, phi_bins, seed=
             tally(new_w[leaving], weight[leaving], bounces[leaving])
         alive = alive & ~leaving & (weight > 0)
         events = events + alive
-        q = np.clip(weight, rr_min_q, 1.0)
-        play = alive & (events > rr_start)
-        survive = u[:, 7] < q
-        alive = alive & (~play | survive)
-        weight = np.where(play & survive, weight / q, weight)
+        alive, weight = _roulette(alive, weight, events, u[:, 7], rr_start, rr_min_q)
         keep = np.flatnonzero(alive)
         region, z, w, weight = region[keep], z[keep], new_w[keep], weight[keep]
         bounces, events = bounces[keep], events[keep]
@@ -609,11 +614,7 @@ def simulate_numpy_points(regions, boundaries, wi, samples, wo_dirs, seed=0, max
             leaving = alive & (((region == 0) & up_new) | ((region == M + 1) & ~up_new))
             alive = alive & ~leaving & (weight > 0)
             events = events + alive
-            q = np.clip(weight, rr_min_q, 1.0)
-            play = alive & (events > rr_start)
-            survive = u[:, 7] < q
-            alive = alive & (~play | survive)
-            weight = np.where(play & survive, weight / q, weight)
+            alive, weight = _roulette(alive, weight, events, u[:, 7], rr_start, rr_min_q)
             # a finished path's sums go to the totals
             done = np.flatnonzero(~alive)
             if done.size:

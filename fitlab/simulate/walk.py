@@ -428,20 +428,10 @@ class PointSide(NamedTuple):
 
 
 def _extinction(cfg, arr, d):
-    """σt (regions, R, C) along directions d (R, 3): what attenuates an unscattered flight
-    in the walk (σs when volume scattering or extinction-only is compiled, σa when absorption
-    is), with the SGGX projected area σ(d)."""
-    C = cfg.channels
-    base = jnp.zeros_like(arr.sigma_a)
-    if cfg.volume or cfg.extinction_only:
-        base = base + arr.sigma_s_c
-    if cfg.absorption:
-        base = base + arr.sigma_a
-    proj = jnp.ones((base.shape[0], d.shape[0]), d.dtype)
-    if "sggx" in cfg.region_phase:
-        is_sggx = jnp.asarray([p == "sggx" for p in cfg.region_phase])
-        proj = jnp.where(is_sggx[:, None], sggx_sigma(arr.sggx_S[:, None], d[None]), 1.0)
-    return base[:, None, :] * proj[:, :, None] * jnp.ones((1, 1, C), d.dtype)
+    """σt (regions, R, C) of every region along directions d (R, 3) (:func:`_sigma_t_along`)."""
+    regions = arr.thickness.shape[0]
+    return _sigma_t_along(cfg, arr, jnp.arange(regions, dtype=jnp.int32),
+                          jnp.broadcast_to(d[None], (regions,) + d.shape))
 
 
 def _reverse_crossing(wo, eta):
@@ -536,7 +526,9 @@ def _phase_p(cfg, arr, region, wi, d, kinds=None):
 
 
 def _sigma_t_along(cfg, arr, region, d):
-    """σt (B, R, C) of each lane's region along directions d (B, R, 3)."""
+    """σt (B, R, C) of each lane's region along directions d (B, R, 3): what attenuates an
+    unscattered flight in the walk (σs when volume scattering or extinction-only is compiled,
+    σa when absorption is), with the SGGX projected area σ(d)."""
     base = jnp.zeros_like(arr.sigma_a[region])
     if cfg.volume or cfg.extinction_only:
         base = base + arr.sigma_s_c[region]
