@@ -205,36 +205,75 @@ def against_numpy(seed):
     return rows
 
 
-def selection_tte(seed):
-    """[5]: the one-bounce reflection on an arc from a scene asking for it alone, against the
-    same values read from a scene simulating everything (both sides, all bounces)."""
-    slab = load_scene(os.path.join(SCENES, "absorbing_slab.toml"))
+def _arc_points(scene, sides=("reflection",), extra=()):
+    """``scene`` at θi = THETA_I with point estimates on the in-plane arc (33 directions, 5°
+    steps) and ``extra`` directions (transmission rows) after them."""
     arc = tuple(float(t) for t in np.arange(-80.0, 81.0, 5.0))
-    det = slab.detector._replace(type="inplane", sides=("reflection",), theta_o=arc,
-                                 estimator="point", acceptance_sr=0.0)
-    one = slab._replace(detector=det, effects=slab.effects._replace(max_bounces=1),
-                        theta_i=(THETA_I,), phi_i=(0.0,))
-    everything = slab._replace(
-        detector=det._replace(sides=("reflection", "transmission"),
-                              theta_o=arc + (120.0, 150.0)),
-        effects=slab.effects._replace(max_bounces=None), theta_i=(THETA_I,), phi_i=(0.0,))
-    n_arc = len(arc)
+    det = scene.detector._replace(type="inplane", sides=sides, theta_o=arc + tuple(extra),
+                                  estimator="point", acceptance_sr=0.0, theta_bins=0,
+                                  phi_bins=0)
+    return scene._replace(detector=det, theta_i=(THETA_I,), phi_i=(0.0,)), len(arc)
 
-    def order1(res):
-        return res.by_order[1, :n_arc], res.sigma_by_order[1, :n_arc]
 
-    r_one = _tte(one, seed, pick=order1)
-    r_all = _tte(everything, seed, pick=order1)
-    print("[5] effect selection, time to 1% on the one-bounce reflection (absorbing slab, RGB, "
-          "30 deg, 33 arc directions, point estimates)")
-    for label, r in (("asks for it alone (reflection, max_bounces = 1)", r_one),
-                     ("simulates everything, reads order 1", r_all)):
-        print(f"    {label:<50} {r['paths']:8d} paths {r['wall_s']:7.2f} s  rel {r['rel']:.4f}"
-              f"  t_1% {r['tte_s']:8.2f} s  CPU_1% {r['tte_cpu_s']:8.2f} s")
-    print(f"    saving: {r_all['tte_s'] / r_one['tte_s']:.1f}x wall, "
-          f"{r_all['tte_cpu_s'] / r_one['tte_cpu_s']:.1f}x CPU in time to equal error "
-          "(target >= 3x)")
-    return r_one, r_all
+def selection_cases():
+    """[5]'s cases: (effect dropped, scene, scene asking for it alone, the same scene asking for
+    everything, how the compared values are read from each)."""
+    both = (("reflection", "transmission"), (120.0, 150.0, 180.0))
+    cases = []
+    # one bounce: the absorbing slab (its own example) and a scattering slab
+    for name in ("absorbing_slab", "hg_medium"):
+        sc = load_scene(os.path.join(SCENES, name + ".toml"))
+        one, n = _arc_points(sc._replace(effects=sc.effects._replace(max_bounces=1)))
+        every, _ = _arc_points(sc._replace(effects=sc.effects._replace(max_bounces=None)), *both)
+        cases.append(("one bounce", name, one, every,
+                      lambda r, n=n: (r.by_order[1, :n], r.sigma_by_order[1, :n])))
+    # reflection only: a slab over a dense dielectric (the bottom's refracted branch forced away)
+    dense = scene_from_dict({
+        "name": "HG slab over a dense dielectric",
+        "stack": [{"type": "interface", "distribution": "ggx", "alpha": 0.2},
+                  {"type": "medium", "index": 1.5, "thickness": 0.5, "sigma_a": 0.05,
+                   "sigma_s": 1.0, "phase": "hg", "g": 0.5},
+                  {"type": "interface", "distribution": "ggx", "alpha": 0.3}],
+        "below": {"index": 2.4}, "illumination": {"theta_i": [THETA_I]},
+        "detector": {"type": "hemisphere"}})
+    one, n = _arc_points(dense)
+    every, _ = _arc_points(dense, *both)
+    cases.append(("transmission", "slab over η 2.4", one, every,
+                  lambda r, n=n: (r.value[:n], r.sigma[:n])))
+    # one channel of an RGB scene whose σs differs by channel (one walk per channel)
+    def rgb(color):
+        return scene_from_dict({
+            "name": "HG slab in RGB",
+            "stack": [{"type": "medium", "index": 1.0, "thickness": 1.0, "sigma_a": 0.2,
+                       "sigma_s": [1.8, 1.2, 0.6], "phase": "hg", "g": 0.6}],
+            "illumination": {"theta_i": [THETA_I]}, "detector": {"type": "hemisphere"},
+            "effects": {"delta": False, "color": color}})
+
+    g_only, n = _arc_points(rgb("g"))
+    every, _ = _arc_points(rgb("rgb"))
+    cases.append(("channels R, B", "hg_medium in RGB", g_only, every,
+                  lambda r, n=n: ((r.value[:n, 1], r.sigma[:n, 1]) if r.value.shape[1] == 3
+                                  else (r.value[:n, 0], r.sigma[:n, 0]))))
+    return cases
+
+
+def selection_tte(seed):
+    """[5]: effect selection in time to equal error: each case's values from a scene asking for
+    them alone against the same values read from a scene simulating everything."""
+    print(f"[5] effect selection, time to 1% (point estimates on a 33-direction arc at "
+          f"{THETA_I:g} deg)")
+    print("    dropped          scene                         alone: paths  t_1%_s CPU_1%_s |"
+          " everything: paths  t_1%_s CPU_1%_s | saving wall, CPU")
+    out = []
+    for dropped, name, alone, every, pick in selection_cases():
+        r_one = _tte(alone, seed, pick=pick)
+        r_all = _tte(every, seed, pick=pick)
+        out.append((dropped, name, r_one, r_all))
+        print(f"    {dropped:<16} {name:<30} {r_one['paths']:9d} {r_one['tte_s']:7.2f} "
+              f"{r_one['tte_cpu_s']:8.2f} | {r_all['paths']:16d} {r_all['tte_s']:7.2f} "
+              f"{r_all['tte_cpu_s']:8.2f} | {r_all['tte_s'] / r_one['tte_s']:5.1f}x "
+              f"{r_all['tte_cpu_s'] / r_one['tte_cpu_s']:5.1f}x (target >= 3x)", flush=True)
+    return out
 
 
 def main(argv=None):

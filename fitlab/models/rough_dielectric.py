@@ -38,6 +38,47 @@ def _half_vector(wi, wo, eta):
     return h, is_r
 
 
+#: ``force`` codes of :func:`walter_sample`: choose by F, reflect, refract
+CHOOSE, REFLECT, REFRACT = 0, 1, 2
+
+
+def walter_sample(dist, params, wi, u, sampling="standard", force=None):
+    """Walter section 5.3 with NDF ``dist``: sample m ~ D(m)|m·n| (or its widened or visible
+    variant), choose reflection with probability F(i,m) (``u[..., 2] < F``), reflect (eq. 39) or
+    refract (eq. 40); weight by eq. 41. Returns (wo, weight, pdf) as a registry ``sample``.
+
+    ``force`` (optional, int array broadcasting with wi's batch shape): per sample, CHOOSE (the
+    Fresnel choice above), REFLECT or REFRACT: the branch is taken with probability 1 and the
+    weight carries its probability F or 1 − F instead (branch forcing: unbiased for whatever
+    the other branch would not have reached). The returned density stays that of the unforced
+    sampling (``pdf``), so that multiple-importance weights built from it still sum to 1."""
+    wi, _, eta, s = _to_upper_frame(wi, wi, params["eta"])
+    ci = wi[..., 2]
+    m = roughness.sample_normal(dist, wi, u, sampling)
+    c = dot(wi, m)
+    # one Fresnel evaluation gives F and the refracted cosine (c > 0 on valid samples)
+    F, cos_t, _, eta_ti = fresnel_dielectric(c, eta)
+    choose_r = u[..., 2] < F
+    if force is not None:
+        choose_r = jnp.where(force == CHOOSE, choose_r, force == REFLECT)
+    wo_r = reflect(wi, m)  # Walter eq. 39
+    wo_t = refracted(wi, m, cos_t, eta_ti)  # Walter eq. 40 (TIR: F = 1, never chosen)
+    wo = jnp.where(choose_r[..., None], wo_r, wo_t)
+    co = wo[..., 2]
+    valid = (ci > 0) & (c > 0) & jnp.where(choose_r, co > 0, co < 0)
+    weight = roughness.sample_weight(dist, wi, wo, m, sampling)  # Walter eq. 41
+    if force is not None:
+        weight = weight * jnp.where(force == CHOOSE, 1.0, jnp.where(choose_r, F, 1.0 - F))
+    p_m = roughness.normal_pdf(dist, wi, m, sampling)
+    o_m = dot(wo, m)
+    h2 = (c + eta * o_m) ** 2
+    p = p_m * jnp.where(choose_r, F * safe_div(1.0, 4.0 * jnp.abs(o_m)),
+                        (1.0 - F) * safe_div(eta**2 * jnp.abs(o_m), h2))
+    weight = jnp.where(valid, weight, 0.0)
+    p = jnp.where(valid, p, 0.0)
+    return flip_z(wo, s), weight, p
+
+
 def make(anisotropic: bool) -> Model:
     """The rough dielectric model, isotropic or anisotropic."""
 
@@ -101,28 +142,7 @@ def make(anisotropic: bool) -> Model:
         """Walter section 5.3: sample m ~ D(m)|m·n|, choose reflection with probability F(i,m),
         reflect (eq. 39) or refract (eq. 40); weight by eq. 41 (times D/D† for widened sampling;
         G1(o, m) for visible normals)."""
-        dist = ndf(params, distribution)
-        wi, _, eta, s = _to_upper_frame(wi, wi, params["eta"])
-        ci = wi[..., 2]
-        m = roughness.sample_normal(dist, wi, u, sampling)
-        c = dot(wi, m)
-        # one Fresnel evaluation gives F and the refracted cosine (c > 0 on valid samples)
-        F, cos_t, _, eta_ti = fresnel_dielectric(c, eta)
-        choose_r = u[..., 2] < F
-        wo_r = reflect(wi, m)  # Walter eq. 39
-        wo_t = refracted(wi, m, cos_t, eta_ti)  # Walter eq. 40 (TIR: F = 1, never chosen)
-        wo = jnp.where(choose_r[..., None], wo_r, wo_t)
-        co = wo[..., 2]
-        valid = (ci > 0) & (c > 0) & jnp.where(choose_r, co > 0, co < 0)
-        weight = roughness.sample_weight(dist, wi, wo, m, sampling)  # Walter eq. 41
-        p_m = roughness.normal_pdf(dist, wi, m, sampling)
-        o_m = dot(wo, m)
-        h2 = (c + eta * o_m) ** 2
-        p = p_m * jnp.where(choose_r, F * safe_div(1.0, 4.0 * jnp.abs(o_m)),
-                            (1.0 - F) * safe_div(eta**2 * jnp.abs(o_m), h2))
-        weight = jnp.where(valid, weight, 0.0)
-        p = jnp.where(valid, p, 0.0)
-        return flip_z(wo, s), weight, p
+        return walter_sample(ndf(params, distribution), params, wi, u, sampling)
 
     kind = "anisotropic " if anisotropic else ""
     return Model(

@@ -25,7 +25,13 @@ class EffectPlan(NamedTuple):
     channels: int  # channels simulated (1 or 3)
     channel_names: tuple
     walk_per_channel: bool  # σs differs by channel: one walk per channel
+    channel_pick: int | None  # color = "R" | "G" | "B" of RGB properties: that channel's index
     end_downward_after_last_bounce: bool
+    # branch forcing (item "forced branches" of the plan): a dielectric boundary whose one
+    # branch leads only to an unobserved side takes the other with probability 1, weighted by
+    # that branch's probability (F or 1 − F)
+    force_top: bool  # reflection not observed: the top boundary keeps paths inside
+    force_bottom: bool  # transmission not observed: the bottom boundary reflects every path
     simulated: tuple  # (effect, detail)
     skipped: tuple  # (effect, reason)
 
@@ -47,17 +53,34 @@ def derive_effects(scene: Scene) -> EffectPlan:
     sides = scene.detector.sides
     reflection = "reflection" in sides
     transmission = "transmission" in sides and not scene.opaque_substrate
+    top, bottom = scene.boundaries[0], scene.boundaries[-1]
+    force_top = not reflection and top.kind == "dielectric"
+    force_bottom = not transmission and not scene.opaque_substrate and bottom.kind == "dielectric"
     if reflection:
         sim.append(("reflection", "paths leaving into the outside are tallied"))
+    elif force_top:
+        skip.append(("reflection", "no reflection detector: the top boundary's branch into the "
+                     "outside is not traced (forced branches)"))
     else:
         skip.append(("reflection", "no reflection detector: paths leaving upward are not tallied"))
     if transmission:
         sim.append(("transmission", "paths entering the medium below are tallied"))
     elif scene.opaque_substrate:
         skip.append(("transmission", "the substrate is opaque: no transmitted paths exist"))
+    elif force_bottom:
+        skip.append(("transmission", "no transmission detector: the bottom boundary's "
+                     "refracted branch is not traced (forced reflection)"))
     else:
         skip.append(("transmission", "no transmission detector: paths entering the medium "
                      "below end at once"))
+    if force_top:
+        sim.append(("forced branches at the top", "reflection is not observed: light arriving "
+                    "from outside is refracted and light arriving from inside reflected with "
+                    "probability 1, weighted by 1 - F or F (unbiased)"))
+    if force_bottom:
+        sim.append(("forced reflection at the bottom", "transmission is not observed: paths "
+                    "meeting the bottom boundary are reflected with probability 1, weighted "
+                    "by F (unbiased), instead of ending when they would have crossed it"))
 
     # masking of the vMF boundaries (scene.py: eq. 7 integrated unless masking = "approx")
     where = {m: ", ".join(b.field or f"boundary {j}" for j, b in enumerate(scene.boundaries)
@@ -119,7 +142,6 @@ def derive_effects(scene: Scene) -> EffectPlan:
         sim.append(("early termination", "a path that has used its bounces and travels "
                     "downward ends at once (no transmission detector)"))
     # delta
-    top = scene.boundaries[0]
     if top.kind in ("lambertian",) or (top.kind in ("dielectric", "conductor")
                                         and top.distribution != "smooth"):
         skip.append(("delta", "the top surface is rough or diffuse: every path has a "
@@ -138,7 +160,18 @@ def derive_effects(scene: Scene) -> EffectPlan:
                          "transmission is a delta, not a point value: it leaves the point "
                          "estimates out (it stays in the flux leaving each side)"))
     # colour
-    if scene.channels == 3:
+    pick = None
+    if eff.color.upper() in CHANNEL_NAMES_RGB:
+        one = eff.color.upper()
+        channels, names, per_channel = 1, (one,), False
+        if scene.channels == 3:
+            pick = CHANNEL_NAMES_RGB.index(one)
+            sim.append(("color", f"channel {one} alone (its values of the R, G, B properties)"))
+            skip.append(("other channels", f"color = \"{one}\": the other channels are not "
+                         "simulated"))
+        else:
+            sim.append(("color", f"one channel (grey properties), named {one}"))
+    elif scene.channels == 3:
         channels, names = 3, CHANNEL_NAMES_RGB
         per_channel = any(len(set(m.sigma_s)) > 1 for m in scattering) and volume
         sim.append(("color", "R, G, B" + ("; one walk per channel (sigma_s differs by channel)"
@@ -151,5 +184,5 @@ def derive_effects(scene: Scene) -> EffectPlan:
         else:
             sim.append(("color", "one channel (grey properties)"))
     return EffectPlan(reflection, transmission, eff.max_bounces, rr, volume, limit, absorption,
-                      ext_only, eff.delta, channels, names, per_channel, end_down, tuple(sim),
-                      tuple(skip))
+                      ext_only, eff.delta, channels, names, per_channel, pick, end_down, force_top,
+                      force_bottom, tuple(sim), tuple(skip))

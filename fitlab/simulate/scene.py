@@ -48,8 +48,8 @@ SIDES = ("reflection", "transmission")
 #: the exact directions (next-event estimation, walk.py "Point estimates").
 ESTIMATORS = ("cone", "point")
 VOLUME_SCATTERING = ("none", "single", "multiple")
-COLORS = ("auto", "mono", "rgb")
 CHANNEL_NAMES_RGB = ("R", "G", "B")
+COLORS = ("auto", "mono", "rgb", "r", "g", "b")  # "R", "G", "B" (any case): that channel alone
 
 
 class Phase(NamedTuple):

@@ -211,7 +211,7 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
         volume_limit=-1 if plan.volume_limit is None else plan.volume_limit,
         absorption=plan.absorption, extinction_only=plan.extinction_only, delta=plan.delta,
         end_downward_after_last_bounce=plan.end_downward_after_last_bounce,
-        max_events=int(max_events), detector=_walk_detector(det),
+        force_top=plan.force_top, force_bottom=plan.force_bottom, max_events=int(max_events), detector=_walk_detector(det),
         theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype,
         **_point_sides(scene, plan))
     dt = jnp.dtype(dtype)
@@ -330,7 +330,7 @@ def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
     plan = derive_effects(scene)
     t0 = time.perf_counter()
     incid = _incidence_rows(scene)
-    channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [None]
+    channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [plan.channel_pick]
     setups = [_walk_setup(scene, plan, c, max_events, dtype) for c in channel_walks]
     C = plan.channels
     # lanes: a power of two up to batch_size; paths per call: up to CALL_LANES lanes' worth

@@ -60,6 +60,7 @@ import jax.numpy as jnp
 from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric
 from fitlab.frame import normalize
 from fitlab.models import rough_conductor, rough_dielectric
+from fitlab.models.rough_dielectric import CHOOSE, REFLECT, REFRACT
 from fitlab.phase import PHASE_FUNCTIONS, sggx_sigma
 
 #: Bounce-order classes tallied separately: 0, 1, 2, ≥ 3.
@@ -97,6 +98,9 @@ class WalkConfig(NamedTuple):
     # only); None: that side has no requested direction
     point_up: int | None = None
     point_down: int | None = None
+    # branch forcing (effects.EffectPlan.force_top / force_bottom)
+    force_top: bool = False
+    force_bottom: bool = False
 
 
 class WalkArrays(NamedTuple):
@@ -152,15 +156,37 @@ def _flip_z(w):
     return w * jnp.asarray([1.0, 1.0, -1.0], dtype=w.dtype)
 
 
-def _smooth_dielectric(w, eta, u):
+def _smooth_dielectric(w, eta, u, force=None):
     """Smooth interface met by propagation direction w: reflect with probability F (Walter
     eq. 22, TIR included), else refract by Snell's law; both from one
     :func:`fitlab.fresnel.fresnel_dielectric` (eta = n_below / n_above; the light comes from
-    above when w.z < 0, i.e. the incident direction -w has a positive cosine)."""
+    above when w.z < 0, i.e. the incident direction -w has a positive cosine). Returns the new
+    direction and the weight factor: 1, or with ``force`` (per lane: CHOOSE, REFLECT, REFRACT
+    as in :func:`fitlab.models.rough_dielectric.walter_sample`) F or 1 − F for a forced
+    branch."""
     F, cos_t, _, eta_ti = fresnel_dielectric(-w[..., 2], eta)
     w_t = jnp.stack([w[..., 0] * eta_ti, w[..., 1] * eta_ti, cos_t], axis=-1)
     reflect = u < F
-    return jnp.where(reflect[..., None], _flip_z(w), w_t)
+    factor = jnp.ones_like(F)
+    if force is not None:
+        reflect = jnp.where(force == CHOOSE, reflect, force == REFLECT)
+        factor = jnp.where(force == CHOOSE, 1.0, jnp.where(reflect, F, 1.0 - F))
+    return jnp.where(reflect[..., None], _flip_z(w), w_t), factor
+
+
+def _forced_branch(cfg, st, b):
+    """Per lane, the branch forcing at boundary b (None when the walk forces nothing): the top
+    boundary refracts light from outside and reflects light from inside when reflection is not
+    observed; the bottom boundary reflects light from above when transmission is not."""
+    if not (cfg.force_top or cfg.force_bottom):
+        return None
+    down = st.w[:, 2] < 0
+    force = jnp.full(b.shape, CHOOSE, jnp.int32)
+    if cfg.force_bottom:
+        force = jnp.where((b == cfg.n_media) & down, REFLECT, force)
+    if cfg.force_top:
+        force = jnp.where(b == 0, jnp.where(down, REFRACT, REFLECT), force)
+    return force
 
 
 def _rough(module, group, alpha, alpha_y):
@@ -185,6 +211,7 @@ def _boundary_event(cfg, arr, st, b, u):
     diffuse = jnp.zeros((B,), dtype=bool)
     pdf = jnp.zeros((B,), dtype=dt)
     groups = cfg.boundary_groups
+    force = _forced_branch(cfg, st, b)
     for g in sorted(set(groups)):
         ids = [j for j, gj in enumerate(groups) if gj == g]
         sel = functools.reduce(jnp.logical_or, [b == j for j in ids])
@@ -192,12 +219,14 @@ def _boundary_event(cfg, arr, st, b, u):
             continue
         gp = jnp.zeros((B,), dtype=dt)
         if g == "smooth":
-            gw = _smooth_dielectric(w, arr.eta[b], u[:, 2])
-            gf, gd = jnp.ones((B, C), dtype=dt), jnp.zeros((B,), dtype=bool)
+            gw, wt = _smooth_dielectric(w, arr.eta[b], u[:, 2], force)
+            gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.zeros((B,), dtype=bool)
         elif g.startswith("rough:"):
             model, params = _rough(rough_dielectric, g[6:], arr.alpha[b], arr.alpha_y[b])
-            gw, wt, gp = model.sample({**params, "eta": arr.eta[b]}, wi, u[:, 0:3],
-                                      distribution=g[6:].split(":")[0])
+            params = {**params, "eta": arr.eta[b]}
+            gw, wt, gp = rough_dielectric.walter_sample(
+                model.microfacet(params, g[6:].split(":")[0]), params, wi, u[:, 0:3],
+                force=force)
             gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
         elif g == "lambertian":
             # cosine-weighted hemisphere (Malley), weight = albedo
