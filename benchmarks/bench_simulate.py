@@ -276,20 +276,46 @@ def selection_tte(seed):
     return out
 
 
+def splitting_tte(seed):
+    """[5b]: splitting at the first interface (``split_first_interface``) against the plain
+    walk, time to 1% on the cones of the throughput scene's arc and of the coated Lambertian
+    example: the surface reflection's cones gain most."""
+    print("[5b] splitting at the first interface, time to 1% (cones)")
+    coated = load_scene(os.path.join(SCENES, "coated_lambertian.toml"))
+    out = []
+    for name, sc in (("throughput arc, cones 0.01 sr", arc_scene("cone")),
+                     ("coated_lambertian, its cones", coated)):
+        split = sc._replace(effects=sc.effects._replace(split_first_interface=True))
+        r_plain, r_split = _tte(sc, seed), _tte(split, seed)
+        out.append((name, r_plain, r_split))
+        print(f"    {name:<32} plain {r_plain['paths']:8d} paths t_1% {r_plain['tte_s']:7.2f} s "
+              f"(CPU {r_plain['tte_cpu_s']:7.2f}) | split {r_split['paths']:8d} paths t_1% "
+              f"{r_split['tte_s']:7.2f} s (CPU {r_split['tte_cpu_s']:7.2f}) | "
+              f"{r_plain['tte_s'] / r_split['tte_s']:.1f}x wall, "
+              f"{r_plain['tte_cpu_s'] / r_split['tte_cpu_s']:.1f}x CPU", flush=True)
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--paths", type=int, default=1 << 19)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--figure", help="write the standard error vs time figure here (PNG)")
-    ap.add_argument("--only", choices=("throughput", "tte"),
-                    help="run only [1]-[3] (throughput) or [4]-[5] (time to equal error)")
+    ap.add_argument("--only", choices=("throughput", "tte", "selection"),
+                    help="run only [1]-[3] (throughput), [4]-[5b] (time to equal error) or [5]-[5b] "
+                    "(effect selection, splitting)")
     args = ap.parse_args(argv)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"python {platform.python_version()}", flush=True)
+    if args.only == "selection":
+        selection_tte(args.seed)
+        splitting_tte(args.seed)
+        return 0
     if args.only != "throughput":
         time_to_error(args.seed)
         against_numpy(args.seed)
         selection_tte(args.seed)
+        splitting_tte(args.seed)
         if args.only == "tte":
             return 0
 

@@ -39,6 +39,8 @@ INVALID = {
                                          "not possible for this stack: boundary 1 is specular",
     "scene_masking_not_vmf.toml": "stack[0].masking: only a vmf distribution has a masking "
                                   "choice",
+    "scene_split_with_points.toml": "effects.split_first_interface: point estimates already "
+                                    "take the first crossing's reflection exactly",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "
                               "declaration (at line 2, column 8))",
 }

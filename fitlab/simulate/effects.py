@@ -32,6 +32,7 @@ class EffectPlan(NamedTuple):
     # that branch's probability (F or 1 − F)
     force_top: bool  # reflection not observed: the top boundary keeps paths inside
     force_bottom: bool  # transmission not observed: the bottom boundary reflects every path
+    split_first: bool  # splitting at the first interface (split_first_interface = true)
     simulated: tuple  # (effect, detail)
     skipped: tuple  # (effect, reason)
 
@@ -81,6 +82,11 @@ def derive_effects(scene: Scene) -> EffectPlan:
         sim.append(("forced reflection at the bottom", "transmission is not observed: paths "
                     "meeting the bottom boundary are reflected with probability 1, weighted "
                     "by F (unbiased), instead of ending when they would have crossed it"))
+
+    if eff.split_first_interface:
+        sim.append(("splitting at the first interface", "every path's first crossing of the top "
+                    "boundary is split: its reflected branch (weight F) is tallied at once, "
+                    "sampled apart, and the path continues refracted (weight 1 - F)"))
 
     # masking of the vMF boundaries (scene.py: eq. 7 integrated unless masking = "approx")
     where = {m: ", ".join(b.field or f"boundary {j}" for j, b in enumerate(scene.boundaries)
@@ -185,4 +191,4 @@ def derive_effects(scene: Scene) -> EffectPlan:
             sim.append(("color", "one channel (grey properties)"))
     return EffectPlan(reflection, transmission, eff.max_bounces, rr, volume, limit, absorption,
                       ext_only, eff.delta, channels, names, per_channel, pick, end_down, force_top,
-                      force_bottom, tuple(sim), tuple(skip))
+                      force_bottom, eff.split_first_interface, tuple(sim), tuple(skip))

@@ -142,6 +142,7 @@ class Effects(NamedTuple):
     volume_scattering: str = "multiple"
     delta: bool = True
     color: str = "auto"
+    split_first_interface: bool = False
 
 
 class Scene(NamedTuple):
@@ -482,7 +483,8 @@ def _acceptance(ctx, table, estimator="cone"):
 def _effects(ctx, table):
     field = "effects"
     _check_keys(ctx, table, field, ("max_bounces", "russian_roulette", "absorption",
-                                    "volume_scattering", "delta", "color"))
+                                    "volume_scattering", "delta", "color",
+                                    "split_first_interface"))
     mb = table.get("max_bounces", "all")
     if mb == "all":
         max_bounces = None
@@ -499,6 +501,7 @@ def _effects(ctx, table):
                                   default="multiple"),
         delta=_bool(ctx, table, field, "delta", True),
         color=_choice(ctx, table, field, "color", COLORS, default="auto"),
+        split_first_interface=_bool(ctx, table, field, "split_first_interface", False),
     )
 
 
@@ -639,6 +642,8 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
     effects = _effects(ctx, d.get("effects", {}))
     if detector.estimator == "point":
         _check_point_estimates(ctx, boundaries, detector.sides)
+    if effects.split_first_interface:
+        _check_split(ctx, boundaries[0], detector)
 
     counts = {len(m.sigma_a) for m in media} | {len(m.sigma_s) for m in media} | \
         {len(b.albedo) for b in boundaries if b.albedo} | {len(b.n) for b in boundaries if b.n} | \
@@ -659,6 +664,23 @@ def boundary_classes(boundaries) -> tuple:
 
     return tuple(PASS if b.kind == "pass" else SMOOTH if b.distribution == "smooth"
                  and b.kind in ("dielectric", "conductor") else ROUGH for b in boundaries)
+
+
+def _check_split(ctx, top, detector):
+    """Splitting at the first interface needs a dielectric top, observed reflection, and bins
+    or cones (point estimates connect the first crossing exactly already)."""
+    where = "effects.split_first_interface"
+    if top.kind != "dielectric":
+        ctx.fail(where, "the top of the stack is not a dielectric interface, so its first "
+                 "crossing has no reflected and refracted branch to split",
+                 "remove split_first_interface, or start the stack with an interface")
+    if "reflection" not in detector.sides:
+        ctx.fail(where, "reflection is not observed: the split-off reflection would not be "
+                 "tallied (the walk already forces the refracted branch)",
+                 "remove split_first_interface")
+    if detector.estimator == "point":
+        ctx.fail(where, "point estimates already take the first crossing's reflection "
+                 "exactly (a next-event connection)", "remove split_first_interface")
 
 
 def _check_point_estimates(ctx, boundaries, sides):

@@ -211,7 +211,8 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
         volume_limit=-1 if plan.volume_limit is None else plan.volume_limit,
         absorption=plan.absorption, extinction_only=plan.extinction_only, delta=plan.delta,
         end_downward_after_last_bounce=plan.end_downward_after_last_bounce,
-        force_top=plan.force_top, force_bottom=plan.force_bottom, max_events=int(max_events), detector=_walk_detector(det),
+        force_top=plan.force_top, force_bottom=plan.force_bottom, split_first=plan.split_first,
+        max_events=int(max_events), detector=_walk_detector(det),
         theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype,
         **_point_sides(scene, plan))
     dt = jnp.dtype(dtype)
@@ -373,27 +374,41 @@ def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
         S1 = np.zeros((len(ORDER_CLASSES), n_out, C))
         S2 = np.zeros((len(ORDER_CLASSES) + 1, n_out, C))  # per order, and the paths' totals
         E1 = np.zeros((2, 2, C))
+        # splitting at the first interface: the reflected branches' sums (bins, per side)
+        Q1, Q2, F1 = np.zeros((n_out, C)), np.zeros((n_out, C)), np.zeros((2, 2, C))
         for ci, (cfg, arr) in enumerate(setups):
             sl = slice(None) if len(setups) == 1 else slice(ci, ci + 1)
             for k in range(n_batches):
                 n_valid = min(batch, samples - k * batch)
                 key = jax.random.fold_in(jax.random.fold_in(root, ii), k)
-                s1, s2, side, alive, ev = run_batch(cfg, arr, det, key, wi, n_valid, lanes=lanes,
-                                                    paths=batch, n_out=n_out, n_up=n_up)
+                s1, s2, side, alive, ev, split = run_batch(
+                    cfg, arr, det, key, wi, n_valid, lanes=lanes, paths=batch, n_out=n_out,
+                    n_up=n_up)
                 S1[..., sl] += np.asarray(s1)
                 S2[..., sl] += np.asarray(s2)
                 E1[..., sl] += np.asarray(side)
+                if split is not None:
+                    Q1[..., sl] += np.asarray(split[0])
+                    Q2[..., sl] += np.asarray(split[1])
+                    F1[..., sl] += np.asarray(split[2])
                 truncated += int(alive)
                 events += int(ev)
                 prog.add(n_valid, f"θi = {ti:g}°")
         N = float(samples)
+        # the split-off reflections are order 0, where the walk itself leaves no reflection
+        # (every path that returns has bounced), and independent of the walk: their
+        # variance adds to the all-order total's
+        S1[0] += Q1
+        S2[0] += Q2
+        q_var = np.maximum(Q2 / N - (Q1 / N) ** 2, 0.0) / (N - 1.0)
         mean = S1 / N
         var = np.maximum(S2[:-1] / N - mean * mean, 0.0) / (N - 1.0)
         cw = rows.cos_solid_angle[None, :, None]
         by_order = mean[:, rows.tally] / cw
         sig_order = np.sqrt(var[:, rows.tally]) / cw
+        tot_walk = (S1.sum(0) - Q1) / N
         tot = S1.sum(0) / N
-        tot_var = np.maximum(S2[-1] / N - tot * tot, 0.0) / (N - 1.0)
+        tot_var = np.maximum(S2[-1] / N - tot_walk * tot_walk, 0.0) / (N - 1.0) + q_var
         value = tot[rows.tally] / cw[0]
         sigma = np.sqrt(tot_var[rows.tally]) / cw[0]
         if scene.detector.estimator == "point":
@@ -403,8 +418,9 @@ def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
             sigma = np.maximum(sigma, floor * np.abs(value))
             sig_order = np.maximum(sig_order, floor * np.abs(by_order))
         all_rows.append((ti, pi_, rows, value, sigma, by_order, sig_order))
-        energy[ii] = E1[0] / N
-        energy_sig[ii] = np.sqrt(np.maximum(E1[1] / N - (E1[0] / N) ** 2, 0.0) / (N - 1.0))
+        energy[ii] = (E1[0] + F1[0]) / N
+        energy_sig[ii] = np.sqrt(sum(np.maximum(e[1] / N - (e[0] / N) ** 2, 0.0)
+                                     for e in (E1, F1)) / (N - 1.0))
     elapsed = time.perf_counter() - t0
     cat = lambda f: np.concatenate([f(r) for r in all_rows])  # noqa: E731
     return SimulationResult(

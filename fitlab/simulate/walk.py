@@ -101,6 +101,9 @@ class WalkConfig(NamedTuple):
     # branch forcing (effects.EffectPlan.force_top / force_bottom)
     force_top: bool = False
     force_bottom: bool = False
+    # splitting at the first interface (effects.EffectPlan.split_first): the walk's first
+    # crossing refracts (weight 1 − F); the reflected branch is tallied apart (run_batch)
+    split_first: bool = False
 
 
 class WalkArrays(NamedTuple):
@@ -178,7 +181,7 @@ def _forced_branch(cfg, st, b):
     """Per lane, the branch forcing at boundary b (None when the walk forces nothing): the top
     boundary refracts light from outside and reflects light from inside when reflection is not
     observed; the bottom boundary reflects light from above when transmission is not."""
-    if not (cfg.force_top or cfg.force_bottom):
+    if not (cfg.force_top or cfg.force_bottom or cfg.split_first):
         return None
     down = st.w[:, 2] < 0
     force = jnp.full(b.shape, CHOOSE, jnp.int32)
@@ -186,6 +189,8 @@ def _forced_branch(cfg, st, b):
         force = jnp.where((b == cfg.n_media) & down, REFLECT, force)
     if cfg.force_top:
         force = jnp.where(b == 0, jnp.where(down, REFRACT, REFLECT), force)
+    if cfg.split_first:  # the first crossing, from outside: its reflection is tallied apart
+        force = jnp.where((b == 0) & down & (st.region == 0), REFRACT, force)
     return force
 
 
@@ -197,10 +202,11 @@ def _rough(module, group, alpha, alpha_y):
     return module.MODEL, {"alpha": alpha}
 
 
-def _boundary_event(cfg, arr, st, b, u):
+def _boundary_event(cfg, arr, st, b, u, force=None):
     """New propagation direction, weight factor (B, C), whether the event is non-specular and
     the density of the sampled direction per solid angle (0 for a specular event), for every
-    path meeting boundary b (B,)."""
+    path meeting boundary b (B,). ``force``: the branch forcing per lane (default: the walk's,
+    :func:`_forced_branch`)."""
     dt = st.w.dtype
     B = st.w.shape[0]
     C = cfg.channels
@@ -211,7 +217,8 @@ def _boundary_event(cfg, arr, st, b, u):
     diffuse = jnp.zeros((B,), dtype=bool)
     pdf = jnp.zeros((B,), dtype=dt)
     groups = cfg.boundary_groups
-    force = _forced_branch(cfg, st, b)
+    if force is None:
+        force = _forced_branch(cfg, st, b)
     for g in sorted(set(groups)):
         ids = [j for j, gj in enumerate(groups) if gj == g]
         sel = functools.reduce(jnp.logical_or, [b == j for j in ids])
@@ -761,6 +768,26 @@ def _tally(cfg, det, w, x, order, n_out):
     return s1, s2, side
 
 
+def _first_reflection(cfg, arr, det, key, wi, n_valid, paths, n_out):
+    """Splitting at the first interface: the reflected branch of each path's first crossing of
+    the top boundary, weight F (rough: F(i·m) times Walter's eq. 41 weight), sampled with its
+    own random numbers (independent of the walk, whose first crossing is forced to refract
+    with weight 1 − F) and tallied as bounce order 0: (n_out, C) sums and sums of squares per
+    bin and the (2, 2, C) flux per side, as :func:`_tally`."""
+    dt = wi.dtype
+    st = _fresh(cfg, wi, paths, dt)
+    u = uniforms((key[0] ^ jnp.uint32(0x27D4EB2F), key[1] ^ jnp.uint32(0x165667B1)),
+                 jnp.int32(0), paths, 3, dt)
+    b = jnp.zeros((paths,), jnp.int32)
+    w, f, diffuse, _ = _boundary_event(cfg, arr, st, b, u, jnp.full((paths,), REFLECT))
+    keep = (jnp.arange(paths) < n_valid) & (w[:, 2] > 0)
+    if not cfg.delta:
+        keep = keep & diffuse
+    x = jnp.where(keep[:, None], f, 0.0).astype(jnp.float64)
+    s1, s2, side = _tally(cfg, det, w, x, jnp.zeros((paths,), jnp.int32), n_out)
+    return s1[0], s2[0], side
+
+
 def _fresh(cfg, wi, n, dt):
     """State of n new paths at the top of the stack, travelling along -wi."""
     return State(
@@ -800,7 +827,9 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
     of the path contributions per order class and bin, (5, n_out, C) sums of their squares per
     order class and (last) of the squares of each path's all-order total, the (2, 2, C) sums
     and sums of squares of the flux leaving per side (up, down), the number of paths dropped
-    after ``cfg.max_events`` events and the total number of events.
+    after ``cfg.max_events`` events, the total number of events, and with
+    ``cfg.split_first`` the first crossings' reflected branches (:func:`_first_reflection`:
+    independent of the rest, so the caller adds their variances), else None.
 
     Path regeneration: a lane whose path ends starts the next path at once, so every lane stays
     busy until the last paths drain (one compiled loop, no idle tail per path). Each path exits
@@ -879,4 +908,7 @@ def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid,
         s1, s2 = c.point_s1, c.point_s2
     else:  # each path exits in one order class: its total's square is its order's
         s2 = jnp.concatenate([s2, s2.sum(axis=0, keepdims=True)])
-    return s1, s2, side, c.truncated, c.events
+    split = None
+    if cfg.split_first:
+        split = _first_reflection(cfg, arr, det, key, wi, n_valid, paths, n_out)
+    return s1, s2, side, c.truncated, c.events, split
