@@ -132,7 +132,7 @@ def test_one_channel_of_an_rgb_scene_is_that_channel_of_the_full_walk():
     assert grey.channel_names == ("B",) and grey.channel_pick is None
 
 
-@pytest.mark.parametrize("top", ["ggx", "smooth"])
+@pytest.mark.parametrize("top", [pytest.param("ggx", marks=pytest.mark.slow), "smooth"])
 def test_splitting_the_first_interface_agrees_and_sharpens_the_surface_lobe(top):
     """split_first_interface = true: every path's first crossing gives its reflection (tallied
     at once) and continues refracted. Cone values and the flux per side agree with the plain
