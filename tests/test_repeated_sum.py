@@ -73,6 +73,7 @@ def two_lobe_data():
                      seed=5)
 
 
+@pytest.mark.slow
 def test_fit_recovers_both_lobes(two_lobe_data):
     """A narrow (α 0.05) and a broad (α 0.3) lobe over a diffuse floor, 2% noise: every free
     parameter within 4 standard errors of the truth, the lobes reported narrowest first, and no

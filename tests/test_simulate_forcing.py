@@ -55,6 +55,7 @@ def test_forced_branches_are_named_in_the_effect_plan():
     assert not opaque.force_bottom
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("top", ["smooth"])
 def test_forced_sides_agree_with_the_walk_that_traces_both(top):
     """Point estimates of each side alone (the other side's branches forced away) against the

@@ -85,7 +85,8 @@ def test_smooth_coat_over_lambertian_equals_the_closed_form():
     assert "delta lobes in the values" in dict(derive_effects(with_delta).skipped)
 
 
-@pytest.mark.parametrize("top", [pytest.param("ggx", marks=pytest.mark.slow), "smooth"])
+@pytest.mark.slow
+@pytest.mark.parametrize("top", ["ggx", "smooth"])
 def test_point_values_agree_with_fine_cones_on_an_hg_slab(top):
     """An HG slab (index 1.5) between a rough or smooth top and a rough bottom interface, every
     order: point estimates against cone averages over 0.004 sr (half-angle 2°) of broad lobes."""
