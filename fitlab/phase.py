@@ -113,6 +113,38 @@ def sggx_matrix(kind, roughness, axis):
     raise ValueError(f"unknown SGGX kind {kind!r}; choose 'surface' or 'fiber'")
 
 
+def sggx_axial(kind, roughness, axis, w):
+    """(c², s²) of w against an axial SGGX distribution: c = w·a along the axis and
+    s² = |w × a|² across it, for the closed forms of a rotated diag(α², α², 1) (surface) or
+    diag(1, 1, α²) (fiber) matrix. The cross product keeps s² accurate where w is near the axis,
+    which 1 - c² is not in float32 (its error, divided by α² = 1e-6, would swamp D)."""
+    c = dot(w, axis)
+    x = jnp.cross(w, axis)
+    return c * c, dot(x, x)
+
+
+def sggx_axial_sigma(kind, roughness, axis, w):
+    """σ(w) = sqrt(wᵀSw) of :func:`sggx_matrix` without forming S (SpongeCake eq. 7):
+    surface sqrt(α² s² + c²), fiber sqrt(s² + α² c²)."""
+    c2, s2 = sggx_axial(kind, roughness, axis, w)
+    a2 = roughness * roughness
+    return safe_sqrt(a2 * s2 + c2) if kind == "surface" else safe_sqrt(s2 + a2 * c2)
+
+
+def sggx_axial_D(kind, roughness, axis, m):
+    """D(m) of :func:`sggx_matrix` without inverting S (SpongeCake eq. 7): with
+    q = mᵀS⁻¹m, surface q = s²/α² + c² and √|S| = α², fiber q = s² + c²/α² and √|S| = α;
+    written as D = α² / (π (s² + α² c²)²) (surface) and α³ / (π (α² s² + c²)²) (fiber), which
+    stay finite for α down to the bound without dividing by α."""
+    c2, s2 = sggx_axial(kind, roughness, axis, m)
+    a2 = roughness * roughness
+    if kind == "surface":
+        den = s2 + a2 * c2
+        return safe_div(a2, jnp.pi * den * den)
+    den = a2 * s2 + c2
+    return safe_div(a2 * roughness, jnp.pi * den * den)
+
+
 def _quad(S, w):
     """wᵀ S w."""
     return jnp.einsum("...i,...ij,...j->...", w, S, w)

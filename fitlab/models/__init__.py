@@ -13,7 +13,7 @@ import functools
 from fitlab.models import diffuse, rough_conductor, rough_dielectric
 from fitlab.models.base import ROLES, Capabilities, Model, Option, Parameter
 from fitlab.models.composite import SEPARATOR, make_sum
-from fitlab.models import coated, thin_layer, weidlich_wilkie  # noqa: E402  (layered: built from the above)
+from fitlab.models import coated, spongecake, thin_layer, weidlich_wilkie  # noqa: E402  (layered: built from the above)
 from fitlab.models.syntax import parse_call, split_top_level
 
 _BUILTIN = (
@@ -29,18 +29,21 @@ MODELS: dict[str, Model] = {m.name: m for m in _BUILTIN}
 
 #: Layered constructors, ``name(MODEL[,key=value])`` (syntax: fitlab/models/syntax.py).
 CONSTRUCTORS = {coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call,
-                thin_layer.NAME: thin_layer.from_call}
+                thin_layer.NAME: thin_layer.from_call, spongecake.NAME: spongecake.from_call}
 
 #: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
 LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
                     "weidlich_wilkie(oren_nayar)", "weidlich_wilkie(rough_conductor)",
-                    "thin_layer(rough_conductor)", "thin_layer(rough_dielectric)")
+                    "thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
+                    "spongecake(surface)", "spongecake(fiber,surface)", "spongecake(hg)",
+                    "spongecake(surface,substrate=lambertian)")
 
 
 def get_model(name: str) -> Model:
     """A registry model by name; ``"a+b"`` is the sum of registry models a and b;
     ``coated(INNER)``, ``weidlich_wilkie(BASE[,layers=K])`` and
-    ``thin_layer(BOTTOM[,roughness=kappa|alpha])`` are layered models."""
+    ``thin_layer(BOTTOM[,roughness=kappa|alpha])`` and
+    ``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false])`` are layered models."""
     parts = split_top_level(name, SEPARATOR)
     if len(parts) > 1:
         return _sum_of(tuple(get_model(n) for n in parts))

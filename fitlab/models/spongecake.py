@@ -1,0 +1,371 @@
+"""SpongeCake: layered volumetric BSDFs without interfaces (Wang, Jin, Hašan, Yan 2022).
+
+``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false])`` stacks homogeneous
+layers from the top, each ``surface`` or ``fiber`` (SGGX microflakes, eq. 7) or ``hg``
+(Henyey–Greenstein), over an optional substrate, any registry BSDF. There are no interfaces:
+light keeps its direction across the layers' boundaries (§3.4), so the model is the exact
+single scattering of the stack (§4) and the substrate seen through it.
+
+Layer i (1 = top) has parameters, suffixed with i:
+
+* ``alpha`` (surface, fiber): flake roughness α; S = diag(α², α², 1) for surface-like and
+  diag(1, 1, α²) for fiber-like flakes (§3.3) in the frame whose z is the axis ωp;
+* ``theta_p``, ``phi_p`` (surface, fiber): the axis ωp (flake normal / fiber direction) in
+  degrees; flakes are two-sided, so ωp and -ωp are the same layer;
+* ``g`` (hg): the mean cosine of the Henyey–Greenstein phase function;
+* ``albedo``: the constant part γ of the reflectance term F(h) = γ · Schlick(f0, |h·ωi|) of
+  eq. 5 (Table 2: f0 = 1 means no Fresnel term); for hg, F = γ, the single-scattering albedo;
+* ``f0`` (surface, fiber; named ``f0_i``): the flakes' Schlick reflectance at normal incidence;
+* ``tau``: the effective thickness Tρ (thickness × flake density, unitless; §4.1 after eq. 12).
+  The extinction along ω is ρσ(ω), σ(ω) = sqrt(ωᵀSω) the flakes' projected area (eq. 3),
+  so the optical depth of the layer along ω is Tρ σ(ω)/|cos θ|; for hg, σ = 1.
+
+With Λ(ω) = σ(ω)/cos θ (signed: negative below the horizon) the single scattering of one layer
+is eq. 10, f = f̄p/(ρ |cos θi cos θo|) · G, with the reduced phase function f̄p = σt(ωi) F fp
+(eq. 5), so f̄p/ρ = F D(h)/4 for microflakes (eqs 4, 11) and γ p_HG for hg, and
+
+    G = (1 − e^{−Tρ(Λi+Λo)}) / (Λi + Λo)                     reflection      (eq. 12)
+    G = (1 − e^{−Tρ(Λi+Λo)}) / (Λi + Λo) · e^{TρΛo}           transmission    (eq. 14)
+
+Both are evaluated in a form that cannot overflow or divide 0 by 0: with the optical depths
+d = Tρσ/|cos θ| > 0 of the two directions, G/Tρ = φ(di + do) for reflection and
+e^{−min(di, do)} φ(|di − do|) for transmission, φ(x) = (1 − e^{−x})/x = −expm1(−x)/x (a series
+near 0). Layer i's term is attenuated by the layers the two directions cross outside it (§4.3):
+those above it for a direction above the stack, below it for one below. The substrate's f is
+attenuated by every layer for each of its directions above the stack (§4.4); with a substrate
+the layers scatter only light that arrives from above and leaves upward (paths through the
+substrate and a layer scatter twice).
+
+The unscattered transmission (§4.4) is a Dirac delta e^{−Σ di} δ(ωo + ωi) and is never part of
+``eval``/``pdf``/``sample``: with ``delta=true`` (the default without a substrate) the model
+declares it (``capabilities.delta``, :func:`delta_transmittance` gives its weight), with
+``delta=false`` the material has none (the paper's flag: thicker fabrics, leaves). ``sample``
+(§4.5) picks a layer with the probability that ωi's light first scatters in it (attenuation of
+the layers above, 1 − e^{−di}, times its albedo) or the substrate (the light that reaches it),
+then samples that layer's phase function (exactly: the SGGX visible normals, Heitz et al. 2015)
+or the substrate; the pdf is the mixture's.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from fitlab.fresnel import fresnel_schlick
+from fitlab.frame import dot, normalize, reflect
+from fitlab.models.base import Capabilities, Model, Parameter, sample_result
+from fitlab.models.syntax import Call
+from fitlab.numerics import safe_div
+from fitlab.phase import (eval_hg, sample_hg, sample_sggx_vndf, sggx_axial_D, sggx_axial_sigma,
+                          sggx_matrix)
+
+NAME = "spongecake"
+KINDS = ("surface", "fiber", "hg")
+MAX_LAYERS = 6
+#: |cos θ| below this is taken as this: the optical depth Tρσ/|cos θ| stays ≤ 1e9, and its
+#: derivative finite in float32, on the horizon itself.
+MU_MIN = 1e-7
+#: φ(x) = −expm1(−x)/x is its series 1 − x/2 + x²/6 below this (error < x³/24).
+_PHI_SERIES = 1e-3
+#: A layer (or the substrate) is sampled with at least this share of the layer-choice mass.
+_P_FLOOR = 0.05
+
+USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false]) with LAYER one of "
+         f"{', '.join(KINDS)} from the top, e.g. {NAME}(fiber,surface,substrate=lambertian)")
+
+
+class Layer(NamedTuple):
+    kind: str  # surface | fiber | hg
+    index: int  # 1 = top
+
+    def name(self, base: str) -> str:
+        return f"{base}_{self.index}" if base == "f0" else f"{base}{self.index}"
+
+
+def layer_parameters(layer: Layer) -> tuple[Parameter, ...]:
+    """The parameters of one layer (the module docstring says what each means)."""
+    i, kind = layer.index, layer.kind
+    own = []
+    if kind == "hg":
+        own.append(Parameter(layer.name("g"), -0.95, 0.95, 0.0, "1",
+                             f"layer {i}: Henyey–Greenstein mean cosine g", "other"))
+    else:
+        own += [
+            Parameter(layer.name("alpha"), 1e-3, 1.0, 0.3 if kind == "surface" else 0.5, "1",
+                      f"layer {i}: SGGX {kind} flake roughness α (SpongeCake §3.3)", "roughness"),
+            Parameter(layer.name("theta_p"), 0.0, 90.0, 0.0 if kind == "surface" else 90.0,
+                      "deg", f"layer {i}: polar angle of the {kind} axis ωp "
+                      f"({'flake normal' if kind == 'surface' else 'fiber direction'})", "other"),
+            Parameter(layer.name("phi_p"), -180.0, 180.0, 0.0, "deg",
+                      f"layer {i}: azimuth of the axis ωp", "other"),
+        ]
+    own.append(Parameter(layer.name("albedo"), 0.0, 1.0, 0.8, "1",
+                         f"layer {i}: albedo γ of the reflectance term (eq. 5, Table 2)", "albedo"))
+    if kind != "hg":
+        own.append(Parameter(layer.name("f0"), 0.0, 1.0, 1.0, "1",
+                             f"layer {i}: Schlick reflectance f0 of the flakes (1 = no Fresnel "
+                             "term, Table 2)", "albedo"))
+    own.append(Parameter(layer.name("tau"), 1e-4, 100.0, 1.0, "1",
+                         f"layer {i}: effective thickness Tρ (thickness × density, §4.1)",
+                         "optical_depth"))
+    return tuple(own)
+
+
+def axis(theta_p_deg, phi_p_deg):
+    """The unit axis ωp from its angles in degrees."""
+    t, p = jnp.radians(theta_p_deg), jnp.radians(phi_p_deg)
+    st = jnp.sin(t)
+    return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t) * jnp.ones_like(p)], axis=-1)
+
+
+def _axis_of(layer, params):
+    return axis(params[layer.name("theta_p")], params[layer.name("phi_p")])
+
+
+def projected_area(layer: Layer, params, w):
+    """σ(w) of the layer's flakes (eq. 3, SGGX eq. 7); 1 for hg."""
+    if layer.kind == "hg":
+        return jnp.ones_like(w[..., 2])
+    return sggx_axial_sigma(layer.kind, params[layer.name("alpha")], _axis_of(layer, params), w)
+
+
+def reduced_phase(layer: Layer, params, wi, wo):
+    """f̄p/ρ of eq. 5: F(h) D(h)/4 for flakes (eq. 4; F = γ Schlick(f0, |h·ωi|)), γ p_HG for hg.
+    0 for ωo = -ωi, where a flake's half vector is undefined."""
+    gamma = params[layer.name("albedo")]
+    if layer.kind == "hg":
+        return gamma * eval_hg({"g": params[layer.name("g")]}, wi, wo)
+    h = wi + wo
+    ok = dot(h, h) > 1e-12
+    h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
+    D = sggx_axial_D(layer.kind, params[layer.name("alpha")], _axis_of(layer, params), h)
+    F = gamma * fresnel_schlick(dot(h, wi), params[layer.name("f0")])
+    return jnp.where(ok, 0.25 * F * D, 0.0)
+
+
+def phase_pdf(layer: Layer, params, wi, wo):
+    """The density of the layer's phase-function sample: D(h)/(4σ(ωi)) (eq. 4), p_HG."""
+    if layer.kind == "hg":
+        return eval_hg({"g": params[layer.name("g")]}, wi, wo)
+    h = wi + wo
+    ok = dot(h, h) > 1e-12
+    h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
+    a = _axis_of(layer, params)
+    alpha = params[layer.name("alpha")]
+    p = safe_div(sggx_axial_D(layer.kind, alpha, a, h),
+                 4.0 * sggx_axial_sigma(layer.kind, alpha, a, wi))
+    return jnp.where(ok, p, 0.0)
+
+
+def sample_phase(layer: Layer, params, wi, u):
+    """ωo from the layer's phase function (u[..., :2])."""
+    if layer.kind == "hg":
+        return sample_hg({"g": params[layer.name("g")]}, wi, u)[0]
+    S = sggx_matrix(layer.kind, params[layer.name("alpha")], _axis_of(layer, params))
+    return reflect(wi, sample_sggx_vndf(S, wi, u))
+
+
+def phi(x):
+    """(1 − e^{−x})/x for x ≥ 0, 1 at 0: −expm1(−x)/x, its series below _PHI_SERIES."""
+    small = x < _PHI_SERIES
+    xs = jnp.where(small, 1.0, x)
+    return jnp.where(small, 1.0 - x * (0.5 - x / 6.0), -jnp.expm1(-xs) / xs)
+
+
+def depths(layers, params, w):
+    """Optical depths d_i = Tρ_i σ_i(w)/|cos θ| of every layer along w, (L, ...)."""
+    mu = jnp.maximum(jnp.abs(w[..., 2]), MU_MIN)
+    return jnp.stack([params[L.name("tau")] * projected_area(L, params, w) / mu for L in layers])
+
+
+def _outside(d, up):
+    """Σ of the depths a direction crosses outside each layer to reach it: the layers above it
+    for a direction above the stack (``up``), below it otherwise; (L, ...)."""
+    above = jnp.cumsum(d, axis=0) - d
+    below = jnp.sum(d, axis=0) - above - d
+    return jnp.where(up, above, below)
+
+
+def single_scattering(layers, params, wi, wo):
+    """Σ over the layers of eq. 10 with G of eq. 12 (same side) or 14 (opposite sides), each
+    attenuated outside its layer (§4.3); the stable forms of the module docstring."""
+    di, do = depths(layers, params, wi), depths(layers, params, wo)
+    up_i, up_o = wi[..., 2] > 0, wo[..., 2] > 0
+    tau = jnp.stack([params[L.name("tau")] * jnp.ones_like(wi[..., 2]) for L in layers])
+    G = tau * jnp.where(up_i == up_o, phi(di + do),
+                        jnp.exp(-jnp.minimum(di, do)) * phi(jnp.abs(di - do)))
+    att = jnp.exp(-(_outside(di, up_i) + _outside(do, up_o)))
+    fp = jnp.stack([reduced_phase(L, params, wi, wo) for L in layers])
+    mu = (jnp.maximum(jnp.abs(wi[..., 2]), MU_MIN) * jnp.maximum(jnp.abs(wo[..., 2]), MU_MIN))
+    return jnp.sum(fp * G * att, axis=0) / mu
+
+
+def delta_transmittance(layers, params, wi):
+    """Weight e^{−Σ d_i(ωi)} of the unscattered transmission δ(ωo + ωi) (§4.4)."""
+    return jnp.exp(-jnp.sum(depths(layers, params, wi), axis=0))
+
+
+def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
+                    delta: bool | None = None) -> Model:
+    """The SpongeCake model of layers ``kinds`` (top first) over ``substrate`` (None: none)."""
+    if not kinds:
+        raise ValueError(f"{NAME}(...) needs at least one layer: {USAGE}")
+    if len(kinds) > MAX_LAYERS:
+        raise ValueError(f"{NAME}(...) takes at most {MAX_LAYERS} layers, got {len(kinds)}")
+    for k in kinds:
+        if k not in KINDS:
+            raise ValueError(f"{NAME}(...): unknown layer {k!r}; layers are "
+                             f"{', '.join(KINDS)} (a substrate is given as substrate=MODEL)")
+    if delta is None:
+        delta = substrate is None
+    if delta and substrate is not None:
+        raise ValueError(f"{NAME}(...,substrate=...): the layers sit on the substrate, so no "
+                         "light leaves unscattered below them; drop delta=true")
+    layers = tuple(Layer(k, i + 1) for i, k in enumerate(kinds))
+    own = tuple(p for L in layers for p in layer_parameters(L))
+    sub_names = substrate.parameter_names if substrate is not None else ()
+    clash = {p.name for p in own} & set(sub_names)
+    if clash:
+        raise ValueError(f"{NAME}(...,substrate={substrate.name}): the substrate already has "
+                         f"parameter(s) {', '.join(sorted(clash))}")
+    sub_options = tuple(o.name for o in substrate.options) if substrate is not None else ()
+
+    def split(params, opts):
+        return ({k: params[k] for k in sub_names},
+                {k: v for k, v in opts.items() if k in sub_options})
+
+    def layers_on(wi, wo):
+        """Where the layers' single scattering applies (above a substrate: both up)."""
+        if substrate is None:
+            return jnp.ones(wi.shape[:-1], bool)
+        return (wi[..., 2] > 0) & (wo[..., 2] > 0)
+
+    def seen_through(params, w):
+        """Transmittance of the whole stack along w for a direction above it, 1 below."""
+        return jnp.where(w[..., 2] > 0, delta_transmittance(layers, params, w), 1.0)
+
+    def eval(params, wi, wo, **opts):
+        f = jnp.where(layers_on(wi, wo), single_scattering(layers, params, wi, wo), 0.0)
+        if substrate is not None:
+            p_s, o_s = split(params, opts)
+            f = f + (substrate.eval(p_s, wi, wo, **o_s)
+                     * seen_through(params, wi) * seen_through(params, wo))
+        return f
+
+    def choice(params, wi):
+        """Probabilities (L [+1], ...) of sampling each layer [and the substrate] for ωi."""
+        d = depths(layers, params, wi)
+        up = wi[..., 2] > 0
+        first = jnp.exp(-_outside(d, up)) * -jnp.expm1(-d)
+        gamma = jnp.stack([params[L.name("albedo")] * jnp.ones_like(wi[..., 2]) for L in layers])
+        mass = first * gamma
+        if substrate is not None:  # light from below meets the substrate alone
+            mass = jnp.concatenate([jnp.where(up, mass, 0.0),
+                                    jnp.where(up, delta_transmittance(layers, params, wi),
+                                              1.0)[None]])
+        n = mass.shape[0]
+        p = safe_div(mass, jnp.sum(mass, axis=0), 1.0 / n) + _P_FLOOR
+        if substrate is not None:
+            p = jnp.where(up, p, (jnp.arange(n) == n - 1).astype(wi.dtype).reshape(
+                (n,) + (1,) * up.ndim))
+        return p / jnp.sum(p, axis=0)
+
+    def pdf(params, wi, wo, **opts):
+        P = choice(params, wi)
+        on = layers_on(wi, wo)
+        p = sum(P[j] * jnp.where(on, phase_pdf(L, params, wi, wo), 0.0)
+                for j, L in enumerate(layers))
+        if substrate is not None:
+            p_s, o_s = split(params, opts)
+            p = p + P[-1] * substrate.pdf(p_s, wi, wo, **o_s)
+        return p
+
+    def sample(params, wi, u, **opts):
+        """A layer (or the substrate) chosen with u[2] by :func:`choice`, then its phase
+        function (u[0:2]) or the substrate's sample (u with u[2] rescaled); weight = f|cos|/pdf
+        of the mixture (§4.5)."""
+        P = choice(params, wi)
+        cdf = jnp.cumsum(P, axis=0)
+        pick = jnp.sum((u[..., 2] >= cdf[:-1]).astype(jnp.int32), axis=0)
+        lo = jnp.where(pick > 0, jnp.take_along_axis(cdf, jnp.maximum(pick - 1, 0)[None], 0)[0],
+                       0.0)
+        width = jnp.take_along_axis(P, pick[None], 0)[0]
+        u2 = jnp.clip(safe_div(u[..., 2] - lo, width), 0.0, 1.0)
+        wo = jnp.zeros_like(wi)
+        valid = jnp.zeros(wi.shape[:-1], bool)
+        for j, L in enumerate(layers):
+            w_j = sample_phase(L, params, wi, u)
+            wo = jnp.where((pick == j)[..., None], w_j, wo)
+            valid = valid | (pick == j)
+        valid = valid & layers_on(wi, wo)
+        if substrate is not None:
+            p_s, o_s = split(params, opts)
+            uu = jnp.concatenate([u[..., :2], u2[..., None]], axis=-1)
+            w_s, _, p_sub = substrate.sample(p_s, wi, uu, **o_s)
+            is_sub = pick == len(layers)
+            wo = jnp.where(is_sub[..., None], w_s, wo)
+            valid = jnp.where(is_sub, p_sub > 0, valid)
+        return sample_result(wo, eval(params, wi, wo, **opts), pdf(params, wi, wo, **opts), valid)
+
+    has_delta = "the unscattered transmission e^{−Σ Tρ σ(ωi)/|cos θi|} δ(ωo + ωi) " \
+        "(spongecake.delta_transmittance)" if delta else ""
+    sub_caps = substrate.capabilities if substrate is not None else Capabilities()
+    flakes = any(L.kind != "hg" for L in layers)
+    return Model(
+        name=canonical_name(kinds, substrate.name if substrate is not None else None, delta),
+        summary=(f"SpongeCake: {len(layers)} volumetric layer(s) ({', '.join(kinds)}) without "
+                 f"interfaces, exact single scattering"
+                 + (f", over {substrate.name}" if substrate is not None else "")),
+        parameters=own + (substrate.parameters if substrate is not None else ()),
+        options=substrate.options if substrate is not None else (),
+        eval=eval,
+        sample=sample,
+        pdf=pdf,
+        capabilities=Capabilities(
+            reflection=True,
+            transmission=substrate is None or sub_caps.transmission,
+            isotropic=not flakes and sub_caps.isotropic,
+            reciprocal=sub_caps.reciprocal,
+            delta="; ".join(d for d in (has_delta, sub_caps.delta if substrate else "") if d),
+        ),
+        reference=("SpongeCake (Wang et al. 2022): eqs 3-5, 7 (SGGX microflakes), eq. 10 with "
+                   "G of eqs 12 and 14 (single scattering), §4.3 (layers), §4.4 (substrate, "
+                   "delta transmission), §4.5 (sampling)"
+                   + (f"; substrate: {substrate.reference}" if substrate is not None else "")),
+    )
+
+
+def canonical_name(kinds, substrate_name=None, delta=None) -> str:
+    args = list(kinds)
+    if substrate_name is not None:
+        args.append(f"substrate={substrate_name}")
+    default_delta = substrate_name is None
+    if delta is not None and delta != default_delta:
+        args.append(f"delta={'true' if delta else 'false'}")
+    return f"{NAME}({','.join(args)})"
+
+
+_BOOL = {"true": True, "false": False}
+
+
+def from_call(call: Call, get_model) -> Model:
+    """Build from the parsed name (models/syntax.py); see :data:`USAGE`."""
+    kwargs = dict(call.kwargs)
+    unknown = set(kwargs) - {"substrate", "delta"}
+    if unknown:
+        raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; "
+                         f"accepted: substrate=MODEL, delta=true|false. {USAGE}")
+    delta = kwargs.get("delta")
+    if delta is not None:
+        if delta.lower() not in _BOOL:
+            raise ValueError(f"{NAME}(...,delta={delta}): delta must be true or false")
+        delta = _BOOL[delta.lower()]
+    substrate = get_model(kwargs["substrate"]) if "substrate" in kwargs else None
+    return _cached(tuple(call.args), substrate, delta)
+
+
+@functools.lru_cache(maxsize=None)
+def _cached(kinds, substrate, delta) -> Model:
+    return make_spongecake(kinds, substrate, delta)
