@@ -67,7 +67,7 @@ MAX_LAYERS = 6
 #: |cos θ| below this is taken as this: the optical depth Tρσ/|cos θ| stays ≤ 1e9, and its
 #: derivative finite in float32, on the horizon itself.
 MU_MIN = 1e-7
-#: φ(x) = −expm1(−x)/x is its series 1 − x/2 + x²/6 below this (error < x³/24).
+#: φ(x) = −expm1(−x)/x is its series 1 − x/2 + x²/6 − x³/24 below this (error < x⁴/120).
 _PHI_SERIES = 1e-3
 #: A layer (or the substrate) is sampled with at least this share of the layer-choice mass.
 _P_FLOOR = 0.05
@@ -171,7 +171,7 @@ def phi(x):
     """(1 − e^{−x})/x for x ≥ 0, 1 at 0: −expm1(−x)/x, its series below _PHI_SERIES."""
     small = x < _PHI_SERIES
     xs = jnp.where(small, 1.0, x)
-    return jnp.where(small, 1.0 - x * (0.5 - x / 6.0), -jnp.expm1(-xs) / xs)
+    return jnp.where(small, 1.0 - x * (0.5 - x * (1.0 / 6.0 - x / 24.0)), -jnp.expm1(-xs) / xs)
 
 
 def depths(layers, params, w):
