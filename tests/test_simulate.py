@@ -39,6 +39,7 @@ INVALID = {
                                          "not possible for this stack: boundary 1 is specular",
     "scene_masking_not_vmf.toml": "stack[0].masking: only a vmf distribution has a masking "
                                   "choice",
+    "scene_flake_f0_not_sggx.toml": "stack[0].flake_f0: only SGGX phases have flake_f0",
     "scene_split_with_points.toml": "effects.split_first_interface: point estimates already "
                                     "take the first crossing's reflection exactly",
     "scene_toml_syntax.toml": "is not valid TOML (Expected ']]' at the end of an array "

@@ -196,6 +196,8 @@ def simulator_scene(layers, theta_i, theta_o, volume_scattering="single", substr
         else:
             item.update(phase=f"sggx_{L['kind']}", roughness=L["alpha"],
                         orientation=np.asarray(sc.axis(L["theta_p"], L["phi_p"])).tolist())
+            if "f0" in L:
+                item["flake_f0"] = L["f0"]
         stack.append(item)
     d = {"stack": stack, "illumination": {"theta_i": list(theta_i)},
          "detector": {"type": "inplane", "theta_o": theta_o, "estimator": "point"},
@@ -230,7 +232,7 @@ def _agree(res, f, z=4.5):
     return float(np.max(np.abs(f - v)[keep] / s[keep]))
 
 
-SURFACE = dict(kind="surface", alpha=0.3, theta_p=15.0, phi_p=40.0, albedo=0.8, tau=1.0)
+SURFACE = dict(kind="surface", alpha=0.3, theta_p=15.0, phi_p=40.0, albedo=0.8, tau=1.0, f0=0.2)
 FIBER = dict(kind="fiber", alpha=0.5, theta_p=90.0, phi_p=30.0, albedo=0.9, tau=2.0)
 HG = dict(kind="hg", g=0.5, albedo=0.7, tau=0.5)
 
@@ -266,3 +268,69 @@ def test_substrate_term_equals_the_simulated_unscattered_substrate():
     v = sub.value[:, 0] + ss.value[:, 0]
     s = np.hypot(sub.sigma[:, 0], ss.sigma[:, 0])
     assert np.all(np.abs(f - v) <= 4.5 * s + 1e-3 * v), np.c_[sub.theta_o, v, f, s]
+
+
+# ----------------------------------------------------------------------------------------------
+# Presets (the paper's Table 2): models, tables and simulator scenes
+# ----------------------------------------------------------------------------------------------
+
+SPONGECAKE_PRESETS = ("window_shade", "fabric", "plant_leaf", "varnished_wood")
+
+
+@pytest.mark.parametrize("name", SPONGECAKE_PRESETS)
+def test_preset_scene_files_are_the_presets(name):
+    from pathlib import Path
+
+    from fitlab.models.presets import preset_scene
+    from fitlab.simulate.scene import load_scene
+
+    path = Path(__file__).resolve().parents[1] / "data_formats" / "examples" / "scenes" / \
+        f"spongecake_{name}.toml"
+    a, b = load_scene(path), scene_from_dict(preset_scene(name))
+    assert (a.media, a.theta_i, a.detector.theta_o, a.effects) == \
+        (b.media, b.theta_i, b.detector.theta_o, b.effects)
+
+
+def test_presets_evaluate_and_tabulate_through_the_cli(tmp_path):
+    import subprocess
+    import sys
+
+    d = tmp_path / "dirs.csv"
+    d.write_text("theta_i,phi_i,theta_o,phi_o\n30,0,30,180\n30,0,140,180\n60,0,20,90\n")
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "eval", "--preset", "fabric",
+                        "--channel", "R", "--directions", str(d)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rows = [line for line in r.stdout.strip().splitlines() if not line.startswith("#")]
+    values = [float(line.split(",")[-1]) for line in rows[1:]]
+    assert len(values) == 3 and all(v > 0 and np.isfinite(v) for v in values)
+    out = tmp_path / "leaf.exr"
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "lut", "model", "--preset", "plant_leaf",
+                        "--size", "16x16", "--check-points", "64", "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert out.exists() and "3 channel(s) (R, G, B)" in r.stderr
+    # an anisotropic preset cannot go into the isotropic (θh, θd) table: exit 2, with the reason
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "lut", "model", "--preset", "fabric",
+                        "--size", "16x16", "--out", str(tmp_path / "f.exr")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "anisotropic" in r.stderr and not (tmp_path / "f.exr").exists()
+
+
+@pytest.mark.slow
+def test_plant_leaf_preset_equals_its_simulated_single_scattering():
+    """The preset's three layers (Schlick flakes, HG, RGB albedo) through the preset scene with
+    single scattering: every channel agrees with the model."""
+    from fitlab.models.presets import preset_scene, rgb_preset
+
+    d = preset_scene("plant_leaf", theta_i=(20.0, 65.0), theta_o=THETA_O)
+    d["effects"]["volume_scattering"] = "single"
+    res = simulate(scene_from_dict(d), samples=200_000, seed=5)
+    model, _, params = rgb_preset("plant_leaf")
+    m = get_model(model)
+    wi = np.stack([_dir(t, f) for t, f in zip(res.theta_i, res.phi_i)])
+    wo = np.stack([_dir(t, f) for t, f in zip(res.theta_o, res.phi_o)])
+    for j, c in enumerate(("R", "G", "B")):
+        f = np.asarray(m.eval({k: jnp.asarray(v) for k, v in params[c].items()}, wi, wo))
+        v, s = res.value[:, j], res.sigma[:, j]
+        keep = v > 1e-3 * v.max()
+        assert np.all(np.abs(f - v)[keep] <= 4.5 * s[keep] + 2e-3 * v[keep]), c

@@ -55,8 +55,9 @@ def add_parser(sub):
     add_option(p, "a model option, e.g. distribution=beckmann (D, albedo and dfg tables read "
                f"distribution={'|'.join(DISTRIBUTIONS)}; fresnel reads "
                f"fresnel={'|'.join(CONDUCTOR_FRESNEL_METHODS)})")
-    p.add_argument("--preset", help="fresnel only: conductor (n, k) per RGB from Elek 2010 "
-                   f"appendix A: {', '.join(CONDUCTOR_PRESETS)}")
+    p.add_argument("--preset", help="fresnel: conductor (n, k) per RGB from Elek 2010 "
+                   f"appendix A ({', '.join(CONDUCTOR_PRESETS)}); model: a layered preset "
+                   "(`fitlab models` lists them), all three channels")
     p.add_argument("--size", metavar="NxN[xN]",
                    help=f"samples per axis, {lut.SIZE_MIN}..{lut.SIZE_MAX} (one number: every "
                    "axis); default per kind; model: a third number adds the phi_d axis "

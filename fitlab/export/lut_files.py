@@ -140,10 +140,13 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
             raise FitlabError("--channel applies to --from-fit only")
         params, options = dict(params or {}), dict(options or {})
     try:
-        if preset:
+        if preset and kind.name == "model":
+            model, options, params = _model_preset(preset, model, options, params)
+        elif preset:
             if kind.preset is None:
                 with_presets = [k.name for k in lut.KINDS.values() if k.preset is not None]
-                raise ValueError(f"--preset applies to {' and '.join(with_presets)} tables only")
+                raise ValueError(f"--preset applies to {' and '.join(with_presets)} tables "
+                                 "(conductors) and model tables (layered presets) only")
             params = kind.preset(preset)
         # what the kind needs from the model's or fit's parameters and options
         options, params = kind.prepare(model, options, params)
@@ -160,6 +163,21 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
                         progress=progress)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
+
+
+def _model_preset(name, model, options, params):
+    """(model, options, {R, G, B: parameters}) of a layered preset (fitlab/models/presets.py);
+    --param values override the preset's (one value: every channel)."""
+    from fitlab.models import get_model
+    from fitlab.models.presets import rgb_preset
+
+    p_model, p_options, p_params = rgb_preset(name)
+    if model and get_model(model).name != get_model(p_model).name:
+        raise ValueError(f"--preset {name} is a {p_model} preset, not {model}; leave out "
+                         "--model")
+    given = params.get("Y", {})
+    return p_model, {**p_options, **options}, {
+        c: {**v, **given, **params.get(c, {})} for c, v in p_params.items()}
 
 
 def write_outputs(table, out, *, shader=True, hlsl=False):

@@ -36,7 +36,7 @@ LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_w
                     "weidlich_wilkie(oren_nayar)", "weidlich_wilkie(rough_conductor)",
                     "thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
                     "spongecake(surface)", "spongecake(fiber,surface)", "spongecake(hg)",
-                    "spongecake(surface,substrate=lambertian)")
+                    "spongecake(fiber_z,surface_z)", "spongecake(surface_z,substrate=lambertian)")
 
 
 def get_model(name: str) -> Model:

@@ -1,21 +1,23 @@
 """SpongeCake: layered volumetric BSDFs without interfaces (Wang, Jin, Hašan, Yan 2022).
 
 ``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false])`` stacks homogeneous
-layers from the top, each ``surface`` or ``fiber`` (SGGX microflakes, eq. 7) or ``hg``
-(Henyey–Greenstein), over an optional substrate, any registry BSDF. There are no interfaces:
+layers from the top, each ``surface`` or ``fiber`` (SGGX microflakes, eq. 7, about a free axis),
+``surface_z`` or ``fiber_z`` (the same with the axis along the macro normal: no orientation
+parameters, an isotropic layer) or ``hg`` (Henyey–Greenstein), over an optional substrate, any
+registry BSDF. There are no interfaces:
 light keeps its direction across the layers' boundaries (§3.4), so the model is the exact
 single scattering of the stack (§4) and the substrate seen through it.
 
 Layer i (1 = top) has parameters, suffixed with i:
 
-* ``alpha`` (surface, fiber): flake roughness α; S = diag(α², α², 1) for surface-like and
+* ``alpha`` (flakes): flake roughness α; S = diag(α², α², 1) for surface-like and
   diag(1, 1, α²) for fiber-like flakes (§3.3) in the frame whose z is the axis ωp;
-* ``theta_p``, ``phi_p`` (surface, fiber): the axis ωp (flake normal / fiber direction) in
+* ``theta_p``, ``phi_p`` (surface, fiber; not the _z kinds): the axis ωp (flake normal / fiber direction) in
   degrees; flakes are two-sided, so ωp and -ωp are the same layer;
 * ``g`` (hg): the mean cosine of the Henyey–Greenstein phase function;
 * ``albedo``: the constant part γ of the reflectance term F(h) = γ · Schlick(f0, |h·ωi|) of
   eq. 5 (Table 2: f0 = 1 means no Fresnel term); for hg, F = γ, the single-scattering albedo;
-* ``f0`` (surface, fiber; named ``f0_i``): the flakes' Schlick reflectance at normal incidence;
+* ``f0`` (flakes; named ``f0_i``): the flakes' Schlick reflectance at normal incidence;
 * ``tau``: the effective thickness Tρ (thickness × flake density, unitless; §4.1 after eq. 12).
   The extinction along ω is ρσ(ω), σ(ω) = sqrt(ωᵀSω) the flakes' projected area (eq. 3),
   so the optical depth of the layer along ω is Tρ σ(ω)/|cos θ|; for hg, σ = 1.
@@ -62,7 +64,10 @@ from fitlab.phase import (eval_hg, sample_hg, sample_sggx_vndf, sggx_axial_D, sg
                           sggx_matrix)
 
 NAME = "spongecake"
-KINDS = ("surface", "fiber", "hg")
+#: surface / fiber: SGGX flakes about a free axis ωp (parameters theta_p, phi_p: anisotropic);
+#: surface_z / fiber_z: the axis is the macro normal (no orientation parameters: isotropic);
+#: hg: Henyey–Greenstein.
+KINDS = ("surface", "fiber", "surface_z", "fiber_z", "hg")
 MAX_LAYERS = 6
 #: |cos θ| below this is taken as this: the optical depth Tρσ/|cos θ| stays ≤ 1e9, and its
 #: derivative finite in float32, on the horizon itself.
@@ -77,8 +82,18 @@ USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false]) with LA
 
 
 class Layer(NamedTuple):
-    kind: str  # surface | fiber | hg
+    kind: str  # one of KINDS
     index: int  # 1 = top
+
+    @property
+    def flakes(self) -> str | None:
+        """"surface" or "fiber" for SGGX layers, None for hg."""
+        return None if self.kind == "hg" else self.kind.removesuffix("_z")
+
+    @property
+    def oriented(self) -> bool:
+        """The axis ωp is a parameter (else the macro normal, or no flakes)."""
+        return self.kind in ("surface", "fiber")
 
     def name(self, base: str) -> str:
         return f"{base}_{self.index}" if base == "f0" else f"{base}{self.index}"
@@ -86,15 +101,18 @@ class Layer(NamedTuple):
 
 def layer_parameters(layer: Layer) -> tuple[Parameter, ...]:
     """The parameters of one layer (the module docstring says what each means)."""
-    i, kind = layer.index, layer.kind
+    i, kind = layer.index, layer.flakes
     own = []
-    if kind == "hg":
+    if kind is None:
         own.append(Parameter(layer.name("g"), -0.95, 0.95, 0.0, "1",
                              f"layer {i}: Henyey–Greenstein mean cosine g", "other"))
     else:
+        where = "" if layer.oriented else " (axis: the macro normal)"
+        own.append(Parameter(layer.name("alpha"), 1e-3, 1.0, 0.3 if kind == "surface" else 0.5,
+                             "1", f"layer {i}: SGGX {kind} flake roughness α (SpongeCake "
+                             f"§3.3){where}", "roughness"))
+    if layer.oriented:
         own += [
-            Parameter(layer.name("alpha"), 1e-3, 1.0, 0.3 if kind == "surface" else 0.5, "1",
-                      f"layer {i}: SGGX {kind} flake roughness α (SpongeCake §3.3)", "roughness"),
             Parameter(layer.name("theta_p"), 0.0, 90.0, 0.0 if kind == "surface" else 90.0,
                       "deg", f"layer {i}: polar angle of the {kind} axis ωp "
                       f"({'flake normal' if kind == 'surface' else 'fiber direction'})", "other"),
@@ -103,7 +121,7 @@ def layer_parameters(layer: Layer) -> tuple[Parameter, ...]:
         ]
     own.append(Parameter(layer.name("albedo"), 0.0, 1.0, 0.8, "1",
                          f"layer {i}: albedo γ of the reflectance term (eq. 5, Table 2)", "albedo"))
-    if kind != "hg":
+    if kind is not None:
         own.append(Parameter(layer.name("f0"), 0.0, 1.0, 1.0, "1",
                              f"layer {i}: Schlick reflectance f0 of the flakes (1 = no Fresnel "
                              "term, Table 2)", "albedo"))
@@ -120,50 +138,54 @@ def axis(theta_p_deg, phi_p_deg):
     return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t) * jnp.ones_like(p)], axis=-1)
 
 
-def _axis_of(layer, params):
-    return axis(params[layer.name("theta_p")], params[layer.name("phi_p")])
+def _axis_of(layer, params, w):
+    """ωp of the layer, broadcast against directions w."""
+    if layer.oriented:
+        return axis(params[layer.name("theta_p")], params[layer.name("phi_p")])
+    return jnp.zeros_like(w).at[..., 2].set(1.0)
 
 
 def projected_area(layer: Layer, params, w):
     """σ(w) of the layer's flakes (eq. 3, SGGX eq. 7); 1 for hg."""
-    if layer.kind == "hg":
+    if layer.flakes is None:
         return jnp.ones_like(w[..., 2])
-    return sggx_axial_sigma(layer.kind, params[layer.name("alpha")], _axis_of(layer, params), w)
+    return sggx_axial_sigma(layer.flakes, params[layer.name("alpha")],
+                            _axis_of(layer, params, w), w)
 
 
 def reduced_phase(layer: Layer, params, wi, wo):
     """f̄p/ρ of eq. 5: F(h) D(h)/4 for flakes (eq. 4; F = γ Schlick(f0, |h·ωi|)), γ p_HG for hg.
     0 for ωo = -ωi, where a flake's half vector is undefined."""
     gamma = params[layer.name("albedo")]
-    if layer.kind == "hg":
+    if layer.flakes is None:
         return gamma * eval_hg({"g": params[layer.name("g")]}, wi, wo)
     h = wi + wo
     ok = dot(h, h) > 1e-12
     h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
-    D = sggx_axial_D(layer.kind, params[layer.name("alpha")], _axis_of(layer, params), h)
+    D = sggx_axial_D(layer.flakes, params[layer.name("alpha")], _axis_of(layer, params, h), h)
     F = gamma * fresnel_schlick(dot(h, wi), params[layer.name("f0")])
     return jnp.where(ok, 0.25 * F * D, 0.0)
 
 
 def phase_pdf(layer: Layer, params, wi, wo):
     """The density of the layer's phase-function sample: D(h)/(4σ(ωi)) (eq. 4), p_HG."""
-    if layer.kind == "hg":
+    if layer.flakes is None:
         return eval_hg({"g": params[layer.name("g")]}, wi, wo)
     h = wi + wo
     ok = dot(h, h) > 1e-12
     h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
-    a = _axis_of(layer, params)
+    a = _axis_of(layer, params, h)
     alpha = params[layer.name("alpha")]
-    p = safe_div(sggx_axial_D(layer.kind, alpha, a, h),
-                 4.0 * sggx_axial_sigma(layer.kind, alpha, a, wi))
+    p = safe_div(sggx_axial_D(layer.flakes, alpha, a, h),
+                 4.0 * sggx_axial_sigma(layer.flakes, alpha, a, wi))
     return jnp.where(ok, p, 0.0)
 
 
 def sample_phase(layer: Layer, params, wi, u):
     """ωo from the layer's phase function (u[..., :2])."""
-    if layer.kind == "hg":
+    if layer.flakes is None:
         return sample_hg({"g": params[layer.name("g")]}, wi, u)[0]
-    S = sggx_matrix(layer.kind, params[layer.name("alpha")], _axis_of(layer, params))
+    S = sggx_matrix(layer.flakes, params[layer.name("alpha")], _axis_of(layer, params, wi))
     return reflect(wi, sample_sggx_vndf(S, wi, u))
 
 
@@ -312,7 +334,7 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
     has_delta = "the unscattered transmission e^{−Σ Tρ σ(ωi)/|cos θi|} δ(ωo + ωi) " \
         "(spongecake.delta_transmittance)" if delta else ""
     sub_caps = substrate.capabilities if substrate is not None else Capabilities()
-    flakes = any(L.kind != "hg" for L in layers)
+    oriented = any(L.oriented for L in layers)
     return Model(
         name=canonical_name(kinds, substrate.name if substrate is not None else None, delta),
         summary=(f"SpongeCake: {len(layers)} volumetric layer(s) ({', '.join(kinds)}) without "
@@ -326,7 +348,7 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
         capabilities=Capabilities(
             reflection=True,
             transmission=substrate is None or sub_caps.transmission,
-            isotropic=not flakes and sub_caps.isotropic,
+            isotropic=not oriented and sub_caps.isotropic,
             reciprocal=sub_caps.reciprocal,
             delta="; ".join(d for d in (has_delta, sub_caps.delta if substrate else "") if d),
         ),
@@ -369,3 +391,39 @@ def from_call(call: Call, get_model) -> Model:
 @functools.lru_cache(maxsize=None)
 def _cached(kinds, substrate, delta) -> Model:
     return make_spongecake(kinds, substrate, delta)
+
+
+def simulator_stack(kinds, channel_params) -> list[dict]:
+    """The layers as the ``[[stack]]`` items of a simulator scene (data_formats/scene_toml.md):
+    index-matched media of thickness Tρ with σs = γ and σa = 1 − γ per channel, so that the
+    extinction along ω is Tρσ(ω)/|cos θ| and the scattering albedo γ as in the model (§3.2),
+    flakes with their roughness, axis and Schlick f0. ``channel_params``: one parameter dict
+    per channel (R, G, B or one); Tρ, α, g and the axis must not differ between channels."""
+    chans = list(channel_params)
+    items = []
+    for L in (Layer(k, i + 1) for i, k in enumerate(kinds)):
+        def grey(base):
+            vals = {float(channel_params[c][L.name(base)]) for c in chans}
+            if len(vals) != 1:
+                raise ValueError(f"{L.name(base)} differs between channels: the simulator's "
+                                 "media take it as one value")
+            return vals.pop()
+
+        def per_channel(base, f=lambda x: x):
+            vals = [f(float(channel_params[c][L.name(base)])) for c in chans]
+            return vals[0] if len(set(vals)) == 1 else vals
+
+        item = {"type": "medium", "index": 1.0, "thickness": grey("tau"),
+                "sigma_s": per_channel("albedo"), "sigma_a": per_channel("albedo", lambda g: round(1.0 - g, 12))}
+        if L.flakes is None:
+            item.update(phase="hg", g=grey("g"))
+        else:
+            if L.oriented:
+                a = axis(jnp.asarray(grey("theta_p")), jnp.asarray(grey("phi_p")))
+                orientation = [round(float(x), 12) + 0.0 for x in a]
+            else:
+                orientation = [0.0, 0.0, 1.0]
+            item.update(phase=f"sggx_{L.flakes}", roughness=grey("alpha"),
+                        orientation=orientation, flake_f0=per_channel("f0"))
+        items.append(item)
+    return items

@@ -60,6 +60,9 @@ class Phase(NamedTuple):
     g: float = 0.0
     roughness: float = 1.0
     orientation: tuple = (0.0, 0.0, 1.0)
+    #: SGGX flakes' Schlick reflectance at normal incidence per channel (SpongeCake eq. 5 and
+    #: Table 2: F(h) = Schlick(f0, |h·ωi|) scales each scattering; 1 = no Fresnel term)
+    f0: tuple = (1.0,)
 
 
 class Medium(NamedTuple):
@@ -329,7 +332,7 @@ def _phase(ctx, table, field):
         ctx.fail(f"{field}.g", f"only phase = \"hg\" has an asymmetry g (phase is {quote(ptype)})",
                  "remove g or set phase = \"hg\"")
     if not ptype.startswith("sggx"):
-        for key in ("roughness", "orientation"):
+        for key in ("roughness", "orientation", "flake_f0"):
             if key in table:
                 ctx.fail(f"{field}.{key}", f"only SGGX phases have {key} (phase is {quote(ptype)})",
                          "remove it or set phase = \"sggx_surface\" / \"sggx_fiber\"")
@@ -349,13 +352,17 @@ def _phase(ctx, table, field):
             if norm == 0:
                 ctx.fail(f"{field}.orientation", "is the zero vector", "give a non-zero direction")
             orient = tuple(x / norm for x in xyz)
+        f0 = _per_channel(ctx, table, field, "flake_f0", default=(1.0,), hi=1.0,
+                          hint="the flakes' Schlick reflectance f0 lies in [0, 1] (one value or "
+                          "R, G, B; 1 = no Fresnel term)")
+        return Phase(ptype, g, rough, orient, f0)
     return Phase(ptype, g, rough, orient)
 
 
 _ROUGHNESS_KEYS = ("distribution", "alpha", "kappa", "alpha_x", "alpha_y", "masking")
 _INTERFACE_KEYS = ("type",) + _ROUGHNESS_KEYS
 _MEDIUM_KEYS = ("type", "index", "thickness", "sigma_a", "sigma_s", "phase", "g", "roughness",
-                "orientation")
+                "orientation", "flake_f0")
 
 
 def _medium(ctx, table, field):
@@ -646,6 +653,7 @@ def scene_from_dict(d: dict, source: str = "<dict>", base_dir=".") -> Scene:
         _check_split(ctx, boundaries[0], detector)
 
     counts = {len(m.sigma_a) for m in media} | {len(m.sigma_s) for m in media} | \
+        {len(m.phase.f0) for m in media} | \
         {len(b.albedo) for b in boundaries if b.albedo} | {len(b.n) for b in boundaries if b.n} | \
         {len(b.k) for b in boundaries if b.k}
     channels = 3 if 3 in counts else 1

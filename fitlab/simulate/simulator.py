@@ -161,6 +161,7 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
     sigma_s_c = np.zeros((R, C))
     hg_g = np.zeros(R)
     S = np.broadcast_to(np.eye(3), (R, 3, 3)).copy()
+    flake_f0 = np.ones((R, C))
     phases = [None] * R
     for j, m in enumerate(scene.media, start=1):
         thickness[j] = m.thickness
@@ -174,6 +175,7 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
             phases[j] = "sggx" if m.phase.type.startswith("sggx") else m.phase.type
         hg_g[j] = m.phase.g
         if m.phase.type.startswith("sggx"):
+            flake_f0[j] = _channel_values(m.phase.f0, C, channel)
             S[j] = np.asarray(sggx_matrix(m.phase.type[5:], jnp.asarray(m.phase.roughness),
                                           jnp.asarray(m.phase.orientation)))
     Bd = len(scene.boundaries)
@@ -214,11 +216,11 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
         force_top=plan.force_top, force_bottom=plan.force_bottom, split_first=plan.split_first,
         max_events=int(max_events), detector=_walk_detector(det),
         theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype,
-        **_point_sides(scene, plan))
+        flake_fresnel=bool(np.any(flake_f0 < 1.0)), **_point_sides(scene, plan))
     dt = jnp.dtype(dtype)
     f = lambda a: jnp.asarray(a, dtype=dt)  # noqa: E731
     arr = WalkArrays(f(thickness), f(sigma_a), f(sigma_s), f(sigma_s_c), f(hg_g), f(S), f(alpha),
-                     f(alpha_y), f(eta), f(albedo), f(cn), f(ck))
+                     f(alpha_y), f(eta), f(albedo), f(cn), f(ck), f(flake_f0))
     return cfg, arr
 
 

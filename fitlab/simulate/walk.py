@@ -57,7 +57,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric
+from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric, fresnel_schlick
 from fitlab.frame import normalize
 from fitlab.models import rough_conductor, rough_dielectric
 from fitlab.models.rough_dielectric import CHOOSE, REFLECT, REFRACT
@@ -104,6 +104,8 @@ class WalkConfig(NamedTuple):
     # splitting at the first interface (effects.EffectPlan.split_first): the walk's first
     # crossing refracts (weight 1 − F); the reflected branch is tallied apart (run_batch)
     split_first: bool = False
+    # SGGX flakes with a Schlick reflectance f0 < 1 somewhere (WalkArrays.flake_f0)
+    flake_fresnel: bool = False
 
 
 class WalkArrays(NamedTuple):
@@ -121,6 +123,7 @@ class WalkArrays(NamedTuple):
     albedo: jax.Array  # (Bd, C)
     cond_n: jax.Array  # (Bd, C) relative to the medium above
     cond_k: jax.Array  # (Bd, C)
+    flake_f0: jax.Array  # (R, C) Schlick reflectance of SGGX flakes (1: none)
 
 
 class Detector(NamedTuple):
@@ -394,6 +397,9 @@ def _step(cfg, arr, key, i, st, pts=None):
     diffuse = st.diffuse
     if cfg.volume:
         w_v = st.prop_wv
+        if cfg.flake_fresnel:
+            weight = weight * jnp.where(scatter[:, None], _flake_F(
+                cfg, arr, st.region, -st.w[:, None], w_v[:, None])[:, 0], 1.0)
         w = jnp.where(scatter[:, None], w_v, w)
         vol_events = vol_events + scatter.astype(jnp.int32)
         diffuse = diffuse | scatter
@@ -561,6 +567,19 @@ def _phase_p(cfg, arr, region, wi, d, kinds=None):
     return p
 
 
+def _flake_F(cfg, arr, region, wi, d):
+    """(B, R, C) reflectance of each lane's region's flakes for the scattering wi → d:
+    Schlick(f0, |h·wi|) with h the flake normal (wi + d normalized), the F(h) of SpongeCake
+    eq. 5 (Table 2: f0 = 1, no Fresnel term); 1 outside SGGX media and without
+    ``cfg.flake_fresnel``."""
+    one = jnp.ones(wi.shape[:1] + d.shape[1:-1] + (cfg.channels,), wi.dtype)
+    if not cfg.flake_fresnel:
+        return one
+    h = normalize(wi + d)
+    c = jnp.abs(jnp.sum(wi * h, axis=-1))[..., None]
+    return fresnel_schlick(c, arr.flake_f0[region][:, None, :])
+
+
 def _sigma_t_along(cfg, arr, region, d):
     """σt (B, R, C) of each lane's region along directions d (B, R, 3): what attenuates an
     unscattered flight in the walk (σs when volume scattering or extinction-only is compiled,
@@ -647,7 +666,8 @@ def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
             r = st.region
             dist = z if side == "up" else arr.thickness[r] - z
             od = ps.depth[r] + ps.sigma_t[r] * (dist[:, None] * inv_dz[None, :])[..., None]
-            pv = _phase_p(cfg, arr, r, wi_full, d)[..., None] * jnp.exp(-od) * ps.chain[None, :, None]
+            pv = (_phase_p(cfg, arr, r, wi_full, d)[..., None] * _flake_F(cfg, arr, r, wi_full, d)
+                  * jnp.exp(-od) * ps.chain[None, :, None])
             value = jnp.where(vol[:, None, None], pv, value)
         value = value * beta[:, None, :]
         value = jnp.where((at_k | vol)[:, None, None], value, 0.0)
@@ -704,7 +724,8 @@ def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k
         p_v = jnp.where(at_far[:, None], pb, p_v)
     if cfg.volume and cfg.region_phase[behind] is not None:
         ph = _phase_p(cfg, arr, st.region, wi_full, dp, kinds={cfg.region_phase[behind]})
-        f_v = jnp.where(vol[:, None, None], ph[..., None], f_v)
+        f_v = jnp.where(vol[:, None, None],
+                        ph[..., None] * _flake_F(cfg, arr, st.region, wi_full, dp), f_v)
         p_v = jnp.where(vol[:, None], ph, p_v)
     # attenuation across `behind` from the vertex to k
     length = jnp.where(at_far, arr.thickness[behind],
