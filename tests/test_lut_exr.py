@@ -302,7 +302,7 @@ def _fit_with(tmp_path, **changes):
     (lambda d: ["model", "--model", "rough_conductor", "--param", "alpha=1e-3", "--param", "n=0.2",
                 "--param", "k=3.9", "--size", "64x8", "--out", f"{d}/x.exr"], "largest half"),
     (lambda d: ["fresnel", "--preset", "gold", "--out", f"{d}/x.exr"], "unknown preset"),
-    (lambda d: ["D", "--preset", "copper", "--out", f"{d}/x.exr"], "fresnel tables only"),
+    (lambda d: ["D", "--preset", "copper", "--out", f"{d}/x.exr"], "--preset applies to fresnel tables (conductors) and model tables"),
     (lambda d: ["dfg", "--option", "distribution=phong", "--out", f"{d}/x.exr"], "phong"),
     (lambda d: ["model", "--from-fit", str(FIT), "--model", "lambertian",
                 "--out", f"{d}/x.exr"], "not both"),

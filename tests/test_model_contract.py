@@ -185,7 +185,9 @@ QUICK_FLOAT32_LAYERED = {"coated(rough_conductor)", "weidlich_wilkie(rough_condu
 #: Models whose every contract case runs in the whole suite only: the thin layer's kernels (its
 #: masking integral in every crossing) take 10-20 s each to compile; tests/test_thin_layer.py
 #: keeps its quick checks.
-SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)"}
+SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
+               # two-layer SpongeCake stacks: their one-layer siblings stay in the quick tier
+               "spongecake(fiber,surface)", "spongecake(fiber_z,surface_z)"}
 
 
 def _marks(name, slow=False):
