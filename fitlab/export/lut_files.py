@@ -140,7 +140,7 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
             raise FitlabError("--channel applies to --from-fit only")
         params, options = dict(params or {}), dict(options or {})
     try:
-        if preset and kind.name == "model":
+        if preset and kind.model_presets:
             model, options, params = _model_preset(preset, model, options, params)
         elif preset:
             if kind.preset is None:

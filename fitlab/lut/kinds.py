@@ -539,6 +539,9 @@ class Kind(NamedTuple):
     #: the accuracy entry (a Spec check returning rms_rel, max_rel, meets_target) by which
     #: :func:`bake_auto` decides whether a table needs its extra axes; None: no auto choice
     auto_check: str | None = None
+    #: ``--preset`` names a layered model preset (fitlab.models.presets): the model and all
+    #: three channels' parameters come from it
+    model_presets: bool = False
 
     @property
     def all_axis_names(self) -> tuple:
@@ -585,7 +588,7 @@ KINDS = {k.name: k for k in (
          "size over (cos θh, cos θd, φd)", 2, (256, 256), ("u8", "linear"),
          "every parameter of the model", ("cos_theta_h", "cos_theta_d"), _make_model,
          _prepare_model, extra_axes=((PHI_D, PHI_D_SIZE, "linear"),),
-         auto_check="parameterization"),
+         auto_check="parameterization", model_presets=True),
 )}
 
 
