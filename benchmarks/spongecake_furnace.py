@@ -1,0 +1,83 @@
+"""White furnace of SpongeCake stacks (issue 16, item 4): the albedo R + T per incidence angle
+of non-absorbing stacks (γ = 1, f0 = 1: every photon leaves), for
+
+* the model's single scattering alone, plus its declared delta transmission
+  (mean sample weight of ``model.sample`` + ``delta_transmittance``),
+* the simulator's single scattering (``volume_scattering = "single"``), the same quantity
+  traced independently,
+* the simulator's full result (every order), which is 1 up to Monte Carlo error.
+
+The gap between the first and the last column is what the multiple-scattering lobes (the paper's
+section 5; not built yet) have to supply. Run: ``python benchmarks/spongecake_furnace.py``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fitlab.models import get_model
+from fitlab.models.spongecake import Layer, delta_transmittance, simulator_stack
+from fitlab.simulate import simulate
+from fitlab.simulate.scene import scene_from_dict
+
+jax.config.update("jax_enable_x64", True)
+
+THETA_I = (0.0, 30.0, 60.0, 80.0)
+STACKS = {
+    "spongecake(surface_z)": {"alpha1": 0.3, "albedo1": 1.0, "f0_1": 1.0, "tau1": 1.0},
+    "spongecake(fiber_z,surface_z)": {"alpha1": 0.5, "albedo1": 1.0, "f0_1": 1.0, "tau1": 1.0,
+                                      "alpha2": 0.8, "albedo2": 1.0, "f0_2": 1.0, "tau2": 3.0},
+    "spongecake(fiber_z)": {"alpha1": 0.1, "albedo1": 1.0, "f0_1": 1.0, "tau1": 3.0},
+}
+N_MODEL, N_SIM = 400_000, 200_000
+
+
+def model_albedo(name, params, theta):
+    m = get_model(name)
+    kinds = tuple(name[name.index("(") + 1:-1].split(","))
+    t = np.radians(theta)
+    wi = jnp.tile(jnp.asarray([np.sin(t), 0.0, np.cos(t)]), (N_MODEL, 1))
+    u = jax.random.uniform(jax.random.PRNGKey(0), (N_MODEL, 3), jnp.float64)
+    _, w, _ = m.sample({k: jnp.asarray(v) for k, v in params.items()}, wi, u)
+    layers = tuple(Layer(k, i + 1) for i, k in enumerate(kinds))
+    delta = float(delta_transmittance(layers, params, wi[0]))
+    return float(jnp.mean(w)), float(jnp.std(w) / np.sqrt(N_MODEL)), delta, kinds
+
+
+def simulated_albedo(kinds, params, scattering):
+    d = {"stack": simulator_stack(kinds, {"Y": params}),
+         "illumination": {"theta_i": list(THETA_I)},
+         "detector": {"type": "hemisphere", "sides": ["reflection", "transmission"],
+                      "theta_bins": 3, "phi_bins": 4},
+         "effects": {"volume_scattering": scattering}}
+    res = simulate(scene_from_dict(d), samples=N_SIM, seed=1)
+    e = res.energy[:, :, 0].sum(axis=1)
+    s = np.sqrt((res.energy_sigma[:, :, 0] ** 2).sum(axis=1))
+    return e, s
+
+
+def main():
+    print(f"# paths: model {N_MODEL:,} samples, simulator {N_SIM:,} per incidence")
+    print("| stack | θi | model single + delta | simulator single (+ delta) | simulator, every "
+          "order | missing from single scattering |")
+    print("|---|---|---|---|---|---|")
+    for name, params in STACKS.items():
+        t0 = time.perf_counter()
+        rows = [model_albedo(name, params, th) for th in THETA_I]
+        kinds = rows[0][3]
+        single, s_single = simulated_albedo(kinds, params, "single")
+        full, s_full = simulated_albedo(kinds, params, "multiple")
+        for j, th in enumerate(THETA_I):
+            a, sa, delta, _ = rows[j]
+            print(f"| `{name}` | {th:.0f}° | {a + delta:.4f} ± {sa:.4f} | {single[j]:.4f} ± "
+                  f"{s_single[j]:.4f} | {full[j]:.4f} ± {s_full[j]:.4f} | "
+                  f"{full[j] - a - delta:.4f} |")
+        print(f"<!-- {name}: {time.perf_counter() - t0:.1f} s -->")
+
+
+if __name__ == "__main__":
+    main()
