@@ -153,15 +153,20 @@ def projected_area(layer: Layer, params, w):
                             _axis_of(layer, params, w), w)
 
 
+def _half(wi, wo):
+    """The flake normal h = (ωi + ωo)/|ωi + ωo| and where it exists (not for ωo = -ωi)."""
+    h = wi + wo
+    ok = dot(h, h) > 1e-12
+    return normalize(jnp.where(ok[..., None], h, jnp.ones_like(h))), ok
+
+
 def reduced_phase(layer: Layer, params, wi, wo):
     """f̄p/ρ of eq. 5: F(h) D(h)/4 for flakes (eq. 4; F = γ Schlick(f0, |h·ωi|)), γ p_HG for hg.
     0 for ωo = -ωi, where a flake's half vector is undefined."""
     gamma = params[layer.name("albedo")]
     if layer.flakes is None:
         return gamma * eval_hg({"g": params[layer.name("g")]}, wi, wo)
-    h = wi + wo
-    ok = dot(h, h) > 1e-12
-    h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
+    h, ok = _half(wi, wo)
     D = sggx_axial_D(layer.flakes, params[layer.name("alpha")], _axis_of(layer, params, h), h)
     F = gamma * fresnel_schlick(dot(h, wi), params[layer.name("f0")])
     return jnp.where(ok, 0.25 * F * D, 0.0)
@@ -171,9 +176,7 @@ def phase_pdf(layer: Layer, params, wi, wo):
     """The density of the layer's phase-function sample: D(h)/(4σ(ωi)) (eq. 4), p_HG."""
     if layer.flakes is None:
         return eval_hg({"g": params[layer.name("g")]}, wi, wo)
-    h = wi + wo
-    ok = dot(h, h) > 1e-12
-    h = normalize(jnp.where(ok[..., None], h, jnp.ones_like(h)))
+    h, ok = _half(wi, wo)
     a = _axis_of(layer, params, h)
     alpha = params[layer.name("alpha")]
     p = safe_div(sggx_axial_D(layer.flakes, alpha, a, h),
