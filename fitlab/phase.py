@@ -155,12 +155,27 @@ def sggx_sigma(S, w):
     return safe_sqrt(_quad(S, w))
 
 
+def _adjugate3(S):
+    """The adjugate (transposed cofactor matrix) and the determinant of 3 × 3 matrices, in
+    closed form: elementwise arithmetic only. jnp.linalg.det / inv lower to LAPACK calls, and a
+    LAPACK call inside the simulator's compiled while loop hung jaxlib 0.10.2's CPU runtime (the
+    executable waited forever, some runs in a few, when other processes ran beside it)."""
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    d, e, f = S[..., 1, 0], S[..., 1, 1], S[..., 1, 2]
+    g, h, i = S[..., 2, 0], S[..., 2, 1], S[..., 2, 2]
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    adj = jnp.stack([jnp.stack([A, c * h - b * i, b * f - c * e], axis=-1),
+                     jnp.stack([B, a * i - c * g, c * d - a * f], axis=-1),
+                     jnp.stack([C, b * g - a * h, a * e - b * d], axis=-1)], axis=-2)
+    return adj, a * A + b * B + c * C
+
+
 def sggx_D(S, m):
-    """SGGX NDF, D(m) = 1 / (π sqrt(det S) (mᵀ S⁻¹ m)²) for unit m (SpongeCake eq. 7)."""
-    det = jnp.linalg.det(S)
-    inv = jnp.linalg.inv(S)
-    q = _quad(inv, m)
-    return safe_div(1.0, jnp.pi * safe_sqrt(det) * q * q)
+    """SGGX NDF, D(m) = 1 / (π sqrt(det S) (mᵀ S⁻¹ m)²) for unit m (SpongeCake eq. 7), with
+    S⁻¹ = adj(S) / det S: D = det^{3/2} / (π (mᵀ adj(S) m)²)."""
+    adj, det = _adjugate3(S)
+    q = _quad(adj, m)
+    return safe_div(det * safe_sqrt(det), jnp.pi * q * q)
 
 
 def eval_sggx(params, wi, wo):
