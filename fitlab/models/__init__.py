@@ -36,14 +36,17 @@ LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_w
                     "weidlich_wilkie(oren_nayar)", "weidlich_wilkie(rough_conductor)",
                     "thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
                     "spongecake(surface)", "spongecake(fiber,surface)", "spongecake(hg)",
-                    "spongecake(fiber_z,surface_z)", "spongecake(surface_z,substrate=lambertian)")
+                    "spongecake(fiber_z,surface_z)", "spongecake(surface_z,substrate=lambertian)",
+                    "spongecake(surface,multiple=lobe)", "spongecake(hg,multiple=only)",
+                    "spongecake(surface_z,substrate=lambertian,multiple=lobe)")
 
 
 def get_model(name: str) -> Model:
     """A registry model by name; ``"a+b"`` is the sum of registry models a and b;
     ``coated(INNER)``, ``weidlich_wilkie(BASE[,layers=K])`` and
     ``thin_layer(BOTTOM[,roughness=kappa|alpha])`` and
-    ``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false])`` are layered models."""
+    ``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false][,multiple=MODE])`` are
+    layered models."""
     parts = split_top_level(name, SEPARATOR)
     if len(parts) > 1:
         return _sum_of(tuple(get_model(n) for n in parts))

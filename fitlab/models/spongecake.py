@@ -77,7 +77,8 @@ _PHI_SERIES = 1e-3
 #: A layer (or the substrate) is sampled with at least this share of the layer-choice mass.
 _P_FLOOR = 0.05
 
-USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false]) with LAYER one of "
+USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false][,multiple=none|lobe|only]) "
+         f"with LAYER one of "
          f"{', '.join(KINDS)} from the top, e.g. {NAME}(fiber,surface,substrate=lambertian)")
 
 
@@ -227,6 +228,15 @@ def single_scattering(layers, params, wi, wo):
     return jnp.sum(fp * G * att, axis=0) / mu
 
 
+def first_scattering(layers, params, wi):
+    """(L, ...): the probability that ωi's light first scatters in each layer (the layers it
+    crosses before, then 1 − e^{−d}) times the layer's albedo: §4.5's layer-choice weights."""
+    d = depths(layers, params, wi)
+    first = jnp.exp(-_outside(d, wi[..., 2] > 0)) * -jnp.expm1(-d)
+    gamma = jnp.stack([params[L.name("albedo")] * jnp.ones_like(wi[..., 2]) for L in layers])
+    return first * gamma
+
+
 def delta_transmittance(layers, params, wi):
     """Weight e^{−Σ d_i(ωi)} of the unscattered transmission δ(ωo + ωi) (§4.4)."""
     return jnp.exp(-jnp.sum(depths(layers, params, wi), axis=0))
@@ -281,11 +291,8 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
 
     def choice(params, wi):
         """Probabilities (L [+1], ...) of sampling each layer [and the substrate] for ωi."""
-        d = depths(layers, params, wi)
         up = wi[..., 2] > 0
-        first = jnp.exp(-_outside(d, up)) * -jnp.expm1(-d)
-        gamma = jnp.stack([params[L.name("albedo")] * jnp.ones_like(wi[..., 2]) for L in layers])
-        mass = first * gamma
+        mass = first_scattering(layers, params, wi)
         if substrate is not None:  # light from below meets the substrate alone
             mass = jnp.concatenate([jnp.where(up, mass, 0.0),
                                     jnp.where(up, delta_transmittance(layers, params, wi),
@@ -362,13 +369,15 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
     )
 
 
-def canonical_name(kinds, substrate_name=None, delta=None) -> str:
+def canonical_name(kinds, substrate_name=None, delta=None, multiple="none") -> str:
     args = list(kinds)
     if substrate_name is not None:
         args.append(f"substrate={substrate_name}")
-    default_delta = substrate_name is None
+    default_delta = substrate_name is None and multiple != "only"
     if delta is not None and delta != default_delta:
         args.append(f"delta={'true' if delta else 'false'}")
+    if multiple != "none":
+        args.append(f"multiple={multiple}")
     return f"{NAME}({','.join(args)})"
 
 
@@ -377,23 +386,64 @@ _BOOL = {"true": True, "false": False}
 
 def from_call(call: Call, get_model) -> Model:
     """Build from the parsed name (models/syntax.py); see :data:`USAGE`."""
+    from fitlab.models.spongecake_multiple import MODES
+
     kwargs = dict(call.kwargs)
-    unknown = set(kwargs) - {"substrate", "delta"}
+    unknown = set(kwargs) - {"substrate", "delta", "multiple"}
     if unknown:
         raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; "
-                         f"accepted: substrate=MODEL, delta=true|false. {USAGE}")
+                         f"accepted: substrate=MODEL, delta=true|false, multiple=none|lobe|only. "
+                         f"{USAGE}")
     delta = kwargs.get("delta")
     if delta is not None:
         if delta.lower() not in _BOOL:
             raise ValueError(f"{NAME}(...,delta={delta}): delta must be true or false")
         delta = _BOOL[delta.lower()]
+    multiple = kwargs.get("multiple", "none").lower()
+    if multiple not in MODES:
+        raise ValueError(f"{NAME}(...,multiple={kwargs['multiple']}): multiple must be none "
+                         "(single scattering), lobe (with the multiple-scattering lobe, §5) or "
+                         "only (that lobe alone, to fit a simulated multiple-scattering part)")
+    if multiple == "only" and delta:
+        raise ValueError(f"{NAME}(...,multiple=only): the multiple-scattering lobe has no "
+                         "unscattered transmission; drop delta=true")
     substrate = get_model(kwargs["substrate"]) if "substrate" in kwargs else None
-    return _cached(tuple(call.args), substrate, delta)
+    return _cached(tuple(call.args), substrate, delta, multiple)
 
 
 @functools.lru_cache(maxsize=None)
-def _cached(kinds, substrate, delta) -> Model:
-    return make_spongecake(kinds, substrate, delta)
+def _cached(kinds, substrate, delta, multiple="none") -> Model:
+    base = make_spongecake(kinds, substrate, False if multiple == "only" else delta)
+    if multiple == "none":
+        return base
+    return _with_multiple(kinds, substrate, base, delta, multiple)
+
+
+def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
+    """``base`` with SpongeCake's multiple-scattering lobe (§5;
+    :mod:`fitlab.models.spongecake_multiple`), or that lobe alone."""
+    from fitlab.models import spongecake_multiple as ms
+
+    layers = tuple(Layer(k, i + 1) for i, k in enumerate(kinds))
+    stack = _cached(kinds, None, False)
+    extra = tuple(p for L in layers for p in layer_parameters(L)
+                  if multiple == "only" and p.name.startswith(("theta_p", "phi_p")))
+    extra += tuple(p for L in layers for p in ms.modified_parameters(layer_parameters(L)))
+    extra += ms.weight_parameters(transmits=substrate is None)
+
+    def stack_mass(p, wi):
+        return jnp.sum(first_scattering(layers, p, wi), axis=0)
+
+    def base_mass(p, wi):
+        m = stack_mass(p, wi)
+        return m if substrate is None else m + delta_transmittance(layers, p, wi)
+
+    name = canonical_name(kinds, substrate.name if substrate is not None else None,
+                          None if multiple == "only" else delta, multiple)
+    return ms.with_multiple(None if multiple == "only" else base, stack, multiple, name,
+                            transmits=substrate is None, above_only=substrate is not None,
+                            extra=extra, stack_mass=stack_mass, base_mass=base_mass,
+                            capabilities=base.capabilities)
 
 
 def simulator_stack(kinds, channel_params) -> list[dict]:

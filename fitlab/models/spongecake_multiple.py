@@ -1,0 +1,189 @@
+"""SpongeCake's multiple-scattering approximation (Wang et al. 2022, §5).
+
+The multiple-scattering part of a SpongeCake stack is approximated by "a second single-scattering
+lobe with modified parameters, as well as a Lambertian term" (§5): the exact single scattering
+of the same layers (same number, kinds and axes ωp) with their own roughness α', albedo γ',
+Schlick f0' (flakes) or g' (hg) and thickness Tρ', weighted W1, plus a Lambertian lobe W2/π.
+fitlab adds a Lambertian transmission lobe W2T/π where the stack transmits (the paper's Fig. 9
+shows both hemispheres; one Lambertian reflection lobe cannot carry the diffuse transmission of
+a thick layer), so
+
+    f = f_ss(p) + W1 · f_ss(p') + W2/π [same side] + W2T/π [other side].
+
+``multiple=lobe`` is that sum; ``multiple=only`` is the approximation alone, f_ss(p') terms and
+Lambertian lobes without the exact single scattering: the model a simulation's
+multiple-scattering component (all orders minus the first) is fitted with
+(:mod:`fitlab.spongecake_lobe`). Its parameters carry the same names, so a fitted lobe plugs
+into ``multiple=lobe``. Layer i's modified parameters are its own names with ``_ms``
+(``alpha1_ms``, ``albedo1_ms``, ``f0_1_ms``, ``tau1_ms``, ``g1_ms``); the axes are the layer's
+(unmodified in the paper). With a substrate the lobe is the stack's alone (the substrate's
+interreflections with the layers are part of what it approximates) and applies, like the
+layers' single scattering, to light from above leaving upward.
+
+f_ss is linear in each layer's albedo (the attenuation does not depend on γ), so W1 and the
+albedos γ' are determined only as products W1·γ'ᵢ; a fit holds one of them (the lobe fit holds
+``albedo1_ms`` = 1).
+
+Sampling: the paper samples single scattering alone (§4.5, "for simplicity"); fitlab samples
+the mixture of the exact lobe (§4.5), the modified lobe (the same sampler at p') and cosine
+lobes on each side with probabilities from their first-scattering masses and the weights W,
+each with at least :data:`_P_FLOOR`, so the pdf is positive wherever f is.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from fitlab.frame import flip_z
+from fitlab.models.base import Capabilities, Model, Parameter, sample_result
+from fitlab.models.diffuse import sample_cosine_hemisphere
+from fitlab.numerics import safe_div
+
+MODES = ("none", "lobe", "only")
+#: each branch of the sampling mixture gets at least this share
+_P_FLOOR = 0.05
+#: the modified parameters of a layer: its own with this suffix
+SUFFIX = "_ms"
+
+
+def modified_parameters(layer_params: tuple[Parameter, ...]) -> tuple[Parameter, ...]:
+    """Layer parameters' ``_ms`` copies (not the axis, which the lobe keeps)."""
+    return tuple(p._replace(name=p.name + SUFFIX,
+                            description=f"multiple-scattering lobe: {p.description}")
+                 for p in layer_params if not p.name.startswith(("theta_p", "phi_p")))
+
+
+def weight_parameters(transmits: bool) -> tuple[Parameter, ...]:
+    """W1 (the modified single-scattering lobe), W2 (Lambertian reflection), W2T (Lambertian
+    transmission, where the stack transmits)."""
+    w = [Parameter("W1", 0.0, 10.0, 1.0, "1", "weight W1 of the modified single-scattering lobe "
+                   "(SpongeCake §5)", "weight"),
+         Parameter("W2", 0.0, 1.0, 0.05, "1", "weight W2 of the Lambertian reflection lobe W2/π "
+                   "(SpongeCake §5)", "weight")]
+    if transmits:
+        w.append(Parameter("W2T", 0.0, 1.0, 0.05, "1", "weight of the Lambertian transmission "
+                           "lobe W2T/π (fitlab's addition to SpongeCake §5)", "weight"))
+    return tuple(w)
+
+
+def lobe_params(params, names):
+    """The plain stack's parameters for the modified lobe: each ``name`` from ``name_ms`` where
+    that exists (the axes keep their own names)."""
+    return {n: params[n + SUFFIX] if n + SUFFIX in params else params[n] for n in names}
+
+
+def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transmits: bool,
+                  above_only: bool, extra: tuple[Parameter, ...], stack_mass, base_mass,
+                  capabilities: Capabilities) -> Model:
+    """The model of ``mode`` ("lobe": base + approximation; "only": the approximation alone).
+    ``stack``: the plain layers (no substrate, no delta) whose single scattering is the lobe;
+    ``stack_mass(params, wi)`` / ``base_mass(params, wi)``: the sampling masses of the stack's
+    single scattering and of the base model (the light that first scatters in it);
+    ``above_only``: the lobes apply to light from above leaving upward (a substrate below);
+    ``extra``: the parameters of ``mode`` besides the base's (axes for "only", ``_ms`` copies,
+    weights); ``capabilities``: the single-scattering model's (its delta is the result's only
+    for "lobe")."""
+    stack_names = stack.parameter_names
+    has_T = transmits
+
+    def on(wi, wo):
+        if above_only:
+            return (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        return jnp.ones(wi.shape[:-1], bool)
+
+    def lambert(params, wi, wo):
+        same = wi[..., 2] * wo[..., 2] > 0
+        f = jnp.where(same, params["W2"], params["W2T"] if has_T else 0.0) / jnp.pi
+        return jnp.where(on(wi, wo), f, 0.0)
+
+    def approx(params, wi, wo):
+        f_ms = stack.eval(lobe_params(params, stack_names), wi, wo)
+        return jnp.where(on(wi, wo), params["W1"] * f_ms, 0.0) + lambert(params, wi, wo)
+
+    def eval(params, wi, wo, **opts):
+        f = approx(params, wi, wo)
+        return f if base is None else f + base.eval(params, wi, wo, **opts)
+
+    def masses(params, wi):
+        """Unnormalized branch probabilities: (base, lobe, cosine same side, cosine other)."""
+        one = jnp.ones_like(wi[..., 2])
+        up = wi[..., 2] > 0
+        live = up if above_only else jnp.ones_like(up)
+        m_lobe = params["W1"] * stack_mass(lobe_params(params, stack_names), wi)
+        m = [jnp.where(live, m_lobe, 0.0), jnp.where(live, params["W2"] * one, 0.0)]
+        m.append(jnp.where(live, params["W2T"] * one, 0.0) if has_T else 0.0 * one)
+        if base is not None:
+            m.insert(0, base_mass(params, wi))
+        return jnp.stack(m)
+
+    def choice(params, wi):
+        m = masses(params, wi)
+        n = m.shape[0]
+        avail = jnp.ones((n,) + wi.shape[:-1], bool)
+        if not has_T:
+            avail = avail.at[-1].set(False)
+        if base is not None and above_only:
+            # light from below meets the substrate alone: the base branch only
+            avail = jnp.where(wi[..., 2] > 0, avail, (jnp.arange(n) == 0).reshape(
+                (n,) + (1,) * (wi.ndim - 1)))
+        p = jnp.where(avail, safe_div(m, jnp.sum(m, axis=0), 1.0) + _P_FLOOR, 0.0)
+        return p / jnp.sum(p, axis=0)
+
+    def branch_pdfs(params, wi, wo, **opts):
+        same = wi[..., 2] * wo[..., 2] > 0
+        cos_o = jnp.abs(wo[..., 2]) / jnp.pi
+        pd = [jnp.where(on(wi, wo), stack.pdf(lobe_params(params, stack_names), wi, wo), 0.0),
+              jnp.where(same & on(wi, wo), cos_o, 0.0),
+              jnp.where(~same & on(wi, wo), cos_o, 0.0)]
+        if base is not None:
+            pd.insert(0, base.pdf(params, wi, wo, **opts))
+        return jnp.stack(pd)
+
+    def pdf(params, wi, wo, **opts):
+        return jnp.sum(choice(params, wi) * branch_pdfs(params, wi, wo, **opts), axis=0)
+
+    def sample(params, wi, u, **opts):
+        """A branch chosen with u[2] by :func:`choice` (u[2] then rescaled into the branch),
+        that branch's sample; weight = f|cos|/pdf of the mixture."""
+        P = choice(params, wi)
+        cdf = jnp.cumsum(P, axis=0)
+        pick = jnp.minimum(jnp.sum((u[..., 2] >= cdf[:-1]).astype(jnp.int32), axis=0),
+                           P.shape[0] - 1)
+        lo = jnp.where(pick > 0, jnp.take_along_axis(cdf, jnp.maximum(pick - 1, 0)[None], 0)[0],
+                       0.0)
+        width = jnp.take_along_axis(P, pick[None], 0)[0]
+        uu = jnp.concatenate([u[..., :2], jnp.clip(safe_div(u[..., 2] - lo, width), 0.0,
+                                                   1.0)[..., None]], axis=-1)
+        k0 = 0 if base is None else 1
+        w_l, _, p_l = stack.sample(lobe_params(params, stack_names), wi, uu)
+        cos = sample_cosine_hemisphere(u[..., :2])
+        w_r = flip_z(cos, jnp.sign(wi[..., 2]))
+        w_t = flip_z(cos, -jnp.sign(wi[..., 2]))
+        wo, ok = w_l, p_l > 0
+        for k, (w_k, ok_k) in enumerate(((w_r, True), (w_t, True)), start=k0 + 1):
+            wo = jnp.where((pick == k)[..., None], w_k, wo)
+            ok = jnp.where(pick == k, ok_k, ok)
+        if base is not None:
+            w_b, _, p_b = base.sample(params, wi, uu, **opts)
+            wo = jnp.where((pick == 0)[..., None], w_b, wo)
+            ok = jnp.where(pick == 0, p_b > 0, ok)
+        return sample_result(wo, eval(params, wi, wo, **opts), pdf(params, wi, wo, **opts), ok)
+
+    params = (base.parameters if base is not None else ()) + extra
+    return Model(
+        name=name,
+        summary=(("SpongeCake with its multiple-scattering lobe (§5): "
+                  + (base.summary if base is not None else ""))
+                 if mode == "lobe" else
+                 f"SpongeCake's multiple-scattering approximation alone (§5) for "
+                 f"{stack.name.split('(', 1)[1].split(',delta')[0].rstrip(')')}"),
+        parameters=params,
+        options=base.options if base is not None else (),
+        eval=eval,
+        sample=sample,
+        pdf=pdf,
+        capabilities=capabilities._replace(energy_conserving=False),
+        reference=((base.reference if base is not None else stack.reference)
+                   + "; multiple scattering: §5, a single-scattering lobe with modified "
+                   "parameters weighted W1 and a Lambertian lobe W2 (+ W2T, transmission)"),
+    )
