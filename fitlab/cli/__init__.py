@@ -13,7 +13,8 @@ from fitlab.cli.common import Parser
 from fitlab.errors import FitlabError
 
 #: The subcommands, in the order ``fitlab --help`` lists them: fitlab.cli.<name>.
-COMMANDS = ("models", "eval", "fit", "compare", "report", "info", "convert", "lut", "simulate")
+COMMANDS = ("models", "eval", "fit", "compare", "report", "info", "convert", "lut", "simulate",
+            "multiple-lobe")
 
 
 def build_parser():
@@ -25,7 +26,7 @@ def build_parser():
     parser.add_argument("--version", action="version", version=f"fitlab {fitlab.__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMANDS:
-        module = importlib.import_module(f"fitlab.cli.{name}")
+        module = importlib.import_module(f"fitlab.cli.{name.replace('-', '_')}")
         module.add_parser(sub).set_defaults(func=module.run)
     return parser
 
