@@ -175,8 +175,8 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         summary=(("SpongeCake with its multiple-scattering lobe (§5): "
                   + (base.summary if base is not None else ""))
                  if mode == "lobe" else
-                 f"SpongeCake's multiple-scattering approximation alone (§5) for "
-                 f"{stack.name.split('(', 1)[1].split(',delta')[0].rstrip(')')}"),
+                 f"SpongeCake's multiple-scattering approximation alone (§5): the lobe of "
+                 f"{stack.name} and Lambertian lobes"),
         parameters=params,
         options=base.options if base is not None else (),
         eval=eval,
