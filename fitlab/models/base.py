@@ -146,6 +146,24 @@ class Model(NamedTuple):
         return {o.name: o.default for o in self.options}
 
 
+def choose_branch(P, u):
+    """The branch k of a mixture with probabilities ``P`` (K, ...) that ``u[..., 2]`` picks, and
+    ``u`` with u[2] rescaled to [0, 1] within that branch's interval (a fresh uniform number
+    for the branch's own sampler). Branches of probability 0 are never picked."""
+    import jax.numpy as jnp
+
+    from fitlab.numerics import safe_div
+
+    cdf = jnp.cumsum(P, axis=0)
+    pick = jnp.minimum(jnp.sum((u[..., 2] >= cdf[:-1]).astype(jnp.int32), axis=0),
+                       P.shape[0] - 1)
+    lo = jnp.where(pick > 0, jnp.take_along_axis(cdf, jnp.maximum(pick - 1, 0)[None], 0)[0],
+                   0.0)
+    width = jnp.take_along_axis(P, pick[None], 0)[0]
+    u2 = jnp.clip(safe_div(u[..., 2] - lo, width), 0.0, 1.0)
+    return pick, jnp.concatenate([u[..., :2], u2[..., None]], axis=-1)
+
+
 def sample_result(wo, f, pdf, valid):
     """What ``sample`` returns for directions ``wo`` drawn with density ``pdf``: (wo, weight,
     pdf) with weight = f|cos θo|/pdf (Walter eq. 37), and weight = pdf = 0 where ``valid`` is

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 
 from fitlab.fresnel import fresnel_schlick
 from fitlab.frame import dot, normalize, reflect
-from fitlab.models.base import Capabilities, Model, Parameter, sample_result
+from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
 from fitlab.models.syntax import Call
 from fitlab.numerics import safe_div
 from fitlab.phase import (eval_hg, sample_hg, sample_sggx_vndf, sggx_axial_D, sggx_axial_sigma,
@@ -318,13 +318,7 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
         """A layer (or the substrate) chosen with u[2] by :func:`choice`, then its phase
         function (u[0:2]) or the substrate's sample (u with u[2] rescaled); weight = f|cos|/pdf
         of the mixture (§4.5)."""
-        P = choice(params, wi)
-        cdf = jnp.cumsum(P, axis=0)
-        pick = jnp.sum((u[..., 2] >= cdf[:-1]).astype(jnp.int32), axis=0)
-        lo = jnp.where(pick > 0, jnp.take_along_axis(cdf, jnp.maximum(pick - 1, 0)[None], 0)[0],
-                       0.0)
-        width = jnp.take_along_axis(P, pick[None], 0)[0]
-        u2 = jnp.clip(safe_div(u[..., 2] - lo, width), 0.0, 1.0)
+        pick, uu = choose_branch(choice(params, wi), u)
         wo = jnp.zeros_like(wi)
         valid = jnp.zeros(wi.shape[:-1], bool)
         for j, L in enumerate(layers):
@@ -334,7 +328,6 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
         valid = valid & layers_on(wi, wo)
         if substrate is not None:
             p_s, o_s = split(params, opts)
-            uu = jnp.concatenate([u[..., :2], u2[..., None]], axis=-1)
             w_s, _, p_sub = substrate.sample(p_s, wi, uu, **o_s)
             is_sub = pick == len(layers)
             wo = jnp.where(is_sub[..., None], w_s, wo)

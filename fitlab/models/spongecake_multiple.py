@@ -35,7 +35,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from fitlab.frame import flip_z
-from fitlab.models.base import Capabilities, Model, Parameter, sample_result
+from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
 from fitlab.models.diffuse import sample_cosine_hemisphere
 from fitlab.numerics import safe_div
 
@@ -145,15 +145,7 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
     def sample(params, wi, u, **opts):
         """A branch chosen with u[2] by :func:`choice` (u[2] then rescaled into the branch),
         that branch's sample; weight = f|cos|/pdf of the mixture."""
-        P = choice(params, wi)
-        cdf = jnp.cumsum(P, axis=0)
-        pick = jnp.minimum(jnp.sum((u[..., 2] >= cdf[:-1]).astype(jnp.int32), axis=0),
-                           P.shape[0] - 1)
-        lo = jnp.where(pick > 0, jnp.take_along_axis(cdf, jnp.maximum(pick - 1, 0)[None], 0)[0],
-                       0.0)
-        width = jnp.take_along_axis(P, pick[None], 0)[0]
-        uu = jnp.concatenate([u[..., :2], jnp.clip(safe_div(u[..., 2] - lo, width), 0.0,
-                                                   1.0)[..., None]], axis=-1)
+        pick, uu = choose_branch(choice(params, wi), u)
         k0 = 0 if base is None else 1
         w_l, _, p_l = stack.sample(lobe_params(params, stack_names), wi, uu)
         cos = sample_cosine_hemisphere(u[..., :2])
