@@ -59,7 +59,8 @@ def stack_scene(kinds, channel_params: dict, *, theta_i=THETA_I, theta_bins=THET
             "name": f"SpongeCake stack {','.join(kinds)}",
             "stack": spongecake.simulator_stack(kinds, channel_params),
             "illumination": {"theta_i": [float(t) for t in theta_i]},
-            "detector": {"type": "hemisphere", "sides": ["reflection", "transmission"], "theta_bins": int(theta_bins),
+            "detector": {"type": "hemisphere", "sides": ["reflection", "transmission"],
+                         "theta_bins": int(theta_bins),
                          "phi_bins": int(phi_bins), "estimator": "point"},
             "effects": {"delta": False, "volume_scattering": "multiple"}}
 

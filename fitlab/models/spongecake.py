@@ -77,7 +77,8 @@ _PHI_SERIES = 1e-3
 #: A layer (or the substrate) is sampled with at least this share of the layer-choice mass.
 _P_FLOOR = 0.05
 
-USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false][,multiple=none|lobe|only]) "
+USAGE = (f"{NAME}(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false]"
+         f"[,multiple=none|lobe|only|learned]) "
          f"with LAYER one of "
          f"{', '.join(KINDS)} from the top, e.g. {NAME}(fiber,surface,substrate=lambertian)")
 
@@ -385,7 +386,8 @@ def from_call(call: Call, get_model) -> Model:
     unknown = set(kwargs) - {"substrate", "delta", "multiple"}
     if unknown:
         raise ValueError(f"{NAME}(...): unknown keyword(s) {', '.join(sorted(unknown))}; "
-                         f"accepted: substrate=MODEL, delta=true|false, multiple=none|lobe|only. "
+                         "accepted: substrate=MODEL, delta=true|false, "
+                         f"multiple=none|lobe|only|learned. "
                          f"{USAGE}")
     delta = kwargs.get("delta")
     if delta is not None:
@@ -395,8 +397,9 @@ def from_call(call: Call, get_model) -> Model:
     multiple = kwargs.get("multiple", "none").lower()
     if multiple not in MODES:
         raise ValueError(f"{NAME}(...,multiple={kwargs['multiple']}): multiple must be none "
-                         "(single scattering), lobe (with the multiple-scattering lobe, §5) or "
-                         "only (that lobe alone, to fit a simulated multiple-scattering part)")
+                         "(single scattering), lobe (with the multiple-scattering lobe, §5), "
+                         "only (that lobe alone, to fit a simulated multiple-scattering part) or "
+                         "learned (the lobe from the parameter-mapping network)")
     if multiple == "only" and delta:
         raise ValueError(f"{NAME}(...,multiple=only): the multiple-scattering lobe has no "
                          "unscattered transmission; drop delta=true")
@@ -409,7 +412,38 @@ def _cached(kinds, substrate, delta, multiple="none") -> Model:
     base = make_spongecake(kinds, substrate, False if multiple == "only" else delta)
     if multiple == "none":
         return base
+    if multiple == "learned":
+        return _with_learned(kinds, substrate, base, delta)
     return _with_multiple(kinds, substrate, base, delta, multiple)
+
+
+def _with_learned(kinds, substrate, base, delta) -> Model:
+    """``base`` with the multiple-scattering lobe from the shipped parameter-mapping network
+    (fitlab.spongecake_learned): one flake layer, no substrate (what it was trained on)."""
+    from fitlab import spongecake_learned as sl
+    from fitlab.models import spongecake_multiple as ms
+
+    if len(kinds) != 1 or kinds[0] == "hg" or substrate is not None:
+        raise ValueError(f"{NAME}(...,multiple=learned): the network is trained for one layer of "
+                         "flakes (surface, fiber, surface_z or fiber_z) without a substrate; for "
+                         "other stacks fit the lobe (multiple=lobe, `fitlab multiple-lobe`)")
+    layer = Layer(kinds[0], 1)
+    weights = sl.load_weights()
+    is_fiber = float(layer.flakes == "fiber")
+
+    def lobe_of(params):
+        cos_p = (jnp.cos(jnp.radians(params["theta_p1"])) if layer.oriented
+                 else jnp.ones_like(jnp.asarray(params["alpha1"])))
+        x = sl.network_inputs(is_fiber, params["alpha1"], params["albedo1"], params["tau1"],
+                              params["f0_1"], cos_p)
+        return sl.lobe_from_outputs(sl.mlp_apply(weights, x))
+
+    lobe = _with_multiple(kinds, substrate, base, delta, "lobe")
+    name = canonical_name(kinds, None, delta, "learned")
+    p = sl.provenance()
+    return ms.with_learned(lobe, base, name, lobe_of,
+                           f"{p['dataset']['stacks']} simulated stacks, held-out relative MAE "
+                           f"{p['errors']['held_out_loss']:.3g}")
 
 
 def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:

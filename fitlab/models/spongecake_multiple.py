@@ -39,7 +39,7 @@ from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sa
 from fitlab.models.diffuse import sample_cosine_hemisphere
 from fitlab.numerics import safe_div
 
-MODES = ("none", "lobe", "only")
+MODES = ("none", "lobe", "only", "learned")
 #: each branch of the sampling mixture gets at least this share
 _P_FLOOR = 0.05
 #: the modified parameters of a layer: its own with this suffix
@@ -178,4 +178,25 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         reference=((base.reference if base is not None else stack.reference)
                    + "; multiple scattering: §5, a single-scattering lobe with modified "
                    "parameters weighted W1 and a Lambertian lobe W2 (+ W2T, transmission)"),
+    )
+
+
+def with_learned(lobe: Model, base: Model, name: str, lobe_of, provenance: str) -> Model:
+    """``lobe`` (the ``multiple=lobe`` model) with its lobe parameters computed from the layer's
+    own by ``lobe_of(params)`` (the parameter-mapping network, fitlab.spongecake_learned): the
+    parameters are the single-scattering model's (``base``)."""
+
+    def full(params):
+        return {**params, **lobe_of(params)}
+
+    return Model(
+        name=name,
+        summary=f"SpongeCake with its learned multiple-scattering lobe (§5): {base.summary}",
+        parameters=base.parameters,
+        options=base.options,
+        eval=lambda params, wi, wo, **o: lobe.eval(full(params), wi, wo, **o),
+        sample=lambda params, wi, u, **o: lobe.sample(full(params), wi, u, **o),
+        pdf=lambda params, wi, wo, **o: lobe.pdf(full(params), wi, wo, **o),
+        capabilities=lobe.capabilities,
+        reference=lobe.reference + f"; lobe parameters from the network ({provenance})",
     )
