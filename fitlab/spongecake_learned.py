@@ -351,7 +351,7 @@ def evaluate(weights: dict, data: dict) -> dict:
     return out
 
 
-def learn(directory, out, *, stacks: int = 1000, samples: int = SAMPLES, steps: int = 4000,
+def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: int = 8000,
           seed: int = 0, progress=None) -> dict:
     """The one command (``fitlab learn-lobe``): make the missing training stacks in
     ``directory``, train, write the weights ``out`` (.npz) and their provenance (``out`` with
