@@ -78,8 +78,11 @@ def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p):
     """The network's input vector (..., 6)."""
     import jax.numpy as jnp
 
-    parts = [alpha, albedo, jnp.log10(tau), f0, kind_is_fiber, cos_theta_p]
-    parts = jnp.broadcast_arrays(*[jnp.asarray(x, dtype=jnp.result_type(float)) for x in parts])
+    dtype = jnp.result_type(alpha, albedo, tau, f0, cos_theta_p)  # the parameters' precision
+    if not jnp.issubdtype(dtype, jnp.floating):
+        dtype = jnp.result_type(float)
+    parts = [alpha, albedo, jnp.log10(jnp.asarray(tau, dtype)), f0, kind_is_fiber, cos_theta_p]
+    parts = jnp.broadcast_arrays(*[jnp.asarray(x, dtype=dtype) for x in parts])
     return jnp.stack(parts, axis=-1)
 
 
@@ -169,9 +172,10 @@ def mlp_apply(weights: dict, x):
     import jax
     import jax.numpy as jnp
 
-    h = (x - weights["x_mean"]) / weights["x_scale"]
+    w = {k: jnp.asarray(v, dtype=x.dtype) for k, v in weights.items()}  # evaluated in x's
+    h = (x - w["x_mean"]) / w["x_scale"]                                 # precision
     for i in range(DEPTH + 1):
-        h = h @ weights[f"W{i}"].T + weights[f"b{i}"]
+        h = h @ w[f"W{i}"].T + w[f"b{i}"]
         if i < DEPTH:
             h = jax.nn.relu(h)
     return h
