@@ -4,7 +4,8 @@ model evaluation per direction pair, and the simulator's time to the same error.
 
 Options: single scattering alone (``spongecake(...)``) and single scattering + the lobe fitted
 per material (``multiple=lobe``, ``fitlab.spongecake_lobe.fit_lobe`` on its own simulation:
-20,000 paths, seed 7). The parameter-mapping network of §5 is not built (issue 16, item 3b).
+20,000 paths, seed 7), and for one flake layer the lobe the shipped network predicts
+(``multiple=learned``; the two-layer network is not built).
 
 Peer, in the same run: the simulator (``fitlab simulate``), every order, point estimates at the
 centres of the 6 × 12 grid per side at θi = 0, 20, 40, 60, 75° (the lobe fit's grid), 100,000
@@ -27,6 +28,7 @@ import jax
 import numpy as np
 from layered_validation import _machine, compare, eval_time_us
 
+from fitlab.models import get_model
 from fitlab.models.presets import preset_params
 from fitlab.simulate import scene_from_dict, simulate
 from fitlab.spongecake_lobe import (THETA_I, fit_lobe, lobe_model_name, lobe_parameters,
@@ -78,9 +80,14 @@ def main():
         with_lobe = lobe_parameters(fit, {"Y": params})["Y"]
         ref, t_inc = reference(name, params)
         rows = ref.n // len(THETA_I)
-        for option, model, p in (("single", name, params),
-                                 ("single + fitted lobe", lobe_model_name(name, "lobe"),
-                                  with_lobe)):
+        options = [("single", name, params),
+                   ("single + fitted lobe", lobe_model_name(name, "lobe"), with_lobe)]
+        try:  # the shipped network: one flake layer
+            get_model(lobe_model_name(name, "learned"))
+            options.append(("single + learned lobe", lobe_model_name(name, "learned"), params))
+        except ValueError:
+            pass
+        for option, model, p in options:
             e = errors(model, p, ref)
             t_eval = eval_time_us(model, p, {})
             t_sim = t_inc * (e["rms_rel_noise"] / max(e["rms_rel_error"], 1e-12)) ** 2
