@@ -107,6 +107,7 @@ def _synthetic(n=60, rows=96, seed=0):
     return data
 
 
+@pytest.mark.slow
 def test_training_learns_a_known_mapping():
     """On stacks made by a known mapping, training lowers the loss from its start by far and the
     held-out stacks follow."""
