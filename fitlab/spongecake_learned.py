@@ -31,9 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-#: where the shipped weights and their provenance live
-WEIGHTS = Path(__file__).parent / "models" / "data" / "spongecake_ms_1layer.npz"
-N_IN, N_OUT, WIDTH, DEPTH = 6, 6, 128, 3
+#: where the shipped weights and their provenance live, per number of layers
+WEIGHTS = {n: Path(__file__).parent / "models" / "data" / f"spongecake_ms_{n}layer.npz"
+           for n in (1, 2)}
+#: the networks: one per number of layers (the paper's Figs. 5 and 6)
+LAYERS = tuple(WEIGHTS)
+WIDTH, DEPTH = 128, 3
+#: inputs per layer: α, γ, log10 Tρ, f0, k, cos θp
+PER_LAYER_IN = 6
 #: parameter ranges of the training stacks
 ALPHA_RANGE = (0.05, 1.0)
 ALBEDO_RANGE = (0.2, 1.0)
@@ -51,10 +56,24 @@ def _logit(p):
     return math.log(p / (1.0 - p))
 
 
-#: the output layer's initial bias: α' 0.5, f0' 0.5, Tρ' 1, W1 1, W2 0.05, W2T 0.05
-START_LOGITS = (_logit((0.5 - 1e-3) / (1 - 1e-3)), 0.0,
-                _logit((0.0 - LOG_TAU[0]) / (LOG_TAU[1] - LOG_TAU[0])), 0.0,
-                math.log(0.05), math.log(0.05))
+def n_inputs(layers: int) -> int:
+    """Per layer (α, γ, log10 Tρ, f0, k, cos θp), then cos Δφp of each layer below the first
+    against the first (the stack's turn about the normal does not enter)."""
+    return PER_LAYER_IN * layers + layers - 1
+
+
+def n_outputs(layers: int) -> int:
+    """Per layer (α', f0', log Tρ'), then γ' of each layer below the first (the first's is 1),
+    then W1, W2, W2T."""
+    return 3 * layers + (layers - 1) + 3
+
+
+def start_logits(layers: int) -> tuple:
+    """The output layer's initial bias: α' 0.5, f0' 0.5, Tρ' 1 per layer, γ' 0.5 below the
+    first, W1 1, W2 0.05, W2T 0.05."""
+    per_layer = (_logit((0.5 - 1e-3) / (1 - 1e-3)), 0.0,
+                 _logit((0.0 - LOG_TAU[0]) / (LOG_TAU[1] - LOG_TAU[0])))
+    return per_layer * layers + (0.0,) * (layers - 1) + (0.0, math.log(0.05), math.log(0.05))
 
 
 # --------------------------------------------------------------------------------------------
@@ -62,20 +81,26 @@ START_LOGITS = (_logit((0.5 - 1e-3) / (1 - 1e-3)), 0.0,
 # --------------------------------------------------------------------------------------------
 
 
-def stack_parameters(index: int, seed: int) -> tuple[str, dict]:
-    """(kind, parameters of ``spongecake(KIND)``) of training stack ``index``: log-uniform α and
-    Tρ, uniform γ, f0 and cos θp, φp = 0; the same for every run with this seed."""
-    rng = np.random.default_rng([seed, index])
-    kind = KINDS[int(rng.integers(2))]
+def stack_parameters(index: int, seed: int, layers: int = 1) -> tuple[tuple[str, ...], dict]:
+    """(kinds, parameters of ``spongecake(KIND[,KIND])``) of training stack ``index``: per
+    layer log-uniform α and Tρ, uniform γ, f0 and cos θp; φp = 0 for the first layer, uniform
+    in [0°, 180°) below it; the same for every run with this seed."""
+    rng = np.random.default_rng([seed, index] if layers == 1 else [seed, index, layers])
     log_u = lambda lo, hi: float(np.exp(rng.uniform(np.log(lo), np.log(hi))))  # noqa: E731
-    p = {"alpha1": log_u(*ALPHA_RANGE), "theta_p1": float(np.degrees(np.arccos(rng.uniform()))),
-         "phi_p1": 0.0, "albedo1": float(rng.uniform(*ALBEDO_RANGE)),
-         "f0_1": float(rng.uniform(*F0_RANGE)), "tau1": log_u(*TAU_RANGE)}
-    return kind, p
+    kinds, p = [], {}
+    for i in range(1, layers + 1):
+        kinds.append(KINDS[int(rng.integers(2))])
+        p.update({f"alpha{i}": log_u(*ALPHA_RANGE),
+                  f"theta_p{i}": float(np.degrees(np.arccos(rng.uniform()))),
+                  f"phi_p{i}": 0.0 if i == 1 else float(rng.uniform(0.0, 180.0)),
+                  f"albedo{i}": float(rng.uniform(*ALBEDO_RANGE)),
+                  f"f0_{i}": float(rng.uniform(*F0_RANGE)), f"tau{i}": log_u(*TAU_RANGE)})
+    return tuple(kinds), p
 
 
-def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p):
-    """The network's input vector (..., 6)."""
+def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p, cos_dphi=None):
+    """The network's input vector (..., n_inputs(L)) from per-layer arrays (..., L) and
+    ``cos_dphi`` (..., L - 1), cos(φp_i − φp_1) of the layers below the first."""
     import jax.numpy as jnp
 
     dtype = jnp.result_type(alpha, albedo, tau, f0, cos_theta_p)  # the parameters' precision
@@ -83,10 +108,16 @@ def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p):
         dtype = jnp.result_type(float)
     parts = [alpha, albedo, jnp.log10(jnp.asarray(tau, dtype)), f0, kind_is_fiber, cos_theta_p]
     parts = jnp.broadcast_arrays(*[jnp.asarray(x, dtype=dtype) for x in parts])
-    return jnp.stack(parts, axis=-1)
+    x = jnp.stack(parts, axis=-1)                    # (..., L, 6)
+    x = x.reshape(x.shape[:-2] + (x.shape[-2] * PER_LAYER_IN,))
+    if x.shape[-1] > PER_LAYER_IN:
+        x = jnp.concatenate([x, jnp.broadcast_to(jnp.asarray(cos_dphi, dtype),
+                                                 x.shape[:-1] + (x.shape[-1] // PER_LAYER_IN
+                                                                 - 1,))], axis=-1)
+    return x
 
 
-def make_stack(directory, index: int, seed: int, samples: int = SAMPLES) -> Path:
+def make_stack(directory, index: int, seed: int, samples: int = SAMPLES, layers: int = 1) -> Path:
     """Simulate training stack ``index`` and write its file (skipped when it exists)."""
     from fitlab.export.paramfile import chain_bytes
     from fitlab.io.atomic import atomic_open
@@ -95,13 +126,20 @@ def make_stack(directory, index: int, seed: int, samples: int = SAMPLES) -> Path
     path = Path(directory) / f"stack_{index:05d}.npz"
     if path.exists():
         return path
-    kind, p = stack_parameters(index, seed)
-    ms, _ = multiple_scattering_part(f"spongecake({kind})", {"Y": p}, samples=samples,
-                                     seed=seed * 1_000_003 + index, theta_i=THETA_I,
-                                     theta_bins=GRID[0], phi_bins=GRID[1])
-    arrays = dict(kind_is_fiber=float(kind == "fiber"), alpha=p["alpha1"], albedo=p["albedo1"],
-                  tau=p["tau1"], f0=p["f0_1"], cos_theta_p=math.cos(math.radians(p["theta_p1"])),
-                  theta_p=p["theta_p1"], wi=ms.wi, wo=ms.wo, value=ms.value, sigma=ms.sigma,
+    kinds, p = stack_parameters(index, seed, layers)
+    ms, _ = multiple_scattering_part(f"spongecake({','.join(kinds)})", {"Y": p},
+                                     samples=samples, seed=seed * 1_000_003 + index,
+                                     theta_i=THETA_I, theta_bins=GRID[0], phi_bins=GRID[1])
+    per = lambda key: [p[f"{key}{i}"] for i in range(1, layers + 1)]  # noqa: E731
+    layer = dict(kind_is_fiber=[float(k == "fiber") for k in kinds], alpha=per("alpha"),
+                 albedo=per("albedo"), tau=per("tau"), f0=per("f0_"),
+                 cos_theta_p=[math.cos(math.radians(t)) for t in per("theta_p")],
+                 theta_p=per("theta_p"))
+    if layers == 1:   # one layer: scalars (the shipped dataset's files)
+        layer = {k: v[0] for k, v in layer.items()}
+    else:
+        layer["phi_p"] = per("phi_p")
+    arrays = dict(**layer, wi=ms.wi, wo=ms.wo, value=ms.value, sigma=ms.sigma,
                   samples=samples, seed=seed)
     with atomic_open(path, "wb") as fh:
         fh.write(chain_bytes(arrays))
@@ -109,18 +147,27 @@ def make_stack(directory, index: int, seed: int, samples: int = SAMPLES) -> Path
 
 
 def make_dataset(directory, n_stacks: int, seed: int = 0, samples: int = SAMPLES,
-                 progress=None) -> list[Path]:
+                 progress=None, layers: int = 1, shard: tuple[int, int] = (0, 1)) -> list[Path]:
     """Every stack 0..n_stacks-1 in ``directory``, making only the missing ones;
-    ``progress(done, n_stacks, made)`` after each (``made``: how many this call simulated)."""
+    ``progress(done, n_stacks, made)`` after each (``made``: how many this call simulated).
+    ``shard`` (k, n): make only the indices ≡ k mod n (n processes share the work; the files
+    are the same whichever process makes them)."""
     Path(directory).mkdir(parents=True, exist_ok=True)
     out, made = [], 0
     for k in range(n_stacks):
-        existed = (Path(directory) / f"stack_{k:05d}.npz").exists()
-        out.append(make_stack(directory, k, seed, samples))
-        made += not existed
+        path = Path(directory) / f"stack_{k:05d}.npz"
+        existed = path.exists()
+        if k % shard[1] == shard[0]:
+            make_stack(directory, k, seed, samples, layers)
+            made += not existed
+        out.append(path)
         if progress is not None:
             progress(k + 1, n_stacks, made)
     return out
+
+
+#: the members that hold one value per layer
+LAYER_KEYS = ("kind_is_fiber", "alpha", "albedo", "tau", "f0", "cos_theta_p", "theta_p")
 
 
 def load_dataset(paths) -> dict:
@@ -129,8 +176,7 @@ def load_dataset(paths) -> dict:
     from fitlab.errors import InputFileError
     from fitlab.io.validate import read_npz
 
-    keys = ("kind_is_fiber", "alpha", "albedo", "tau", "f0", "cos_theta_p", "theta_p", "wi", "wo",
-            "value", "sigma")
+    keys = LAYER_KEYS + ("wi", "wo", "value", "sigma")
     rows = []
     for p in paths:
         r = read_npz(p, what="a SpongeCake training stack",
@@ -152,10 +198,20 @@ def load_dataset(paths) -> dict:
                 or r["sigma"].shape != r["value"].shape:
             raise InputFileError(p, "holds arrays of inconsistent shapes",
                                  hint="delete the file; `fitlab learn-lobe` makes it again")
+    layers = {np.asarray(r["alpha"]).size for r in rows}
+    if len(layers) > 1:
+        raise InputFileError(paths[0], f"the folder mixes stacks of {sorted(layers)} layers",
+                             hint="give each number of layers its own --dir")
     kept = [i for i, n in enumerate(sizes) if n == R]
     rows = [rows[i] for i in kept]
     cat = lambda k: np.stack([np.asarray(r[k], dtype=float) for r in rows])  # noqa: E731
     out = {k: cat(k) for k in keys}
+    # per-layer members as (S, L); one-layer files hold scalars and no φp (it is 0)
+    for k in LAYER_KEYS:
+        out[k] = out[k].reshape(len(rows), -1)
+    L = out["alpha"].shape[1]
+    out["phi_p"] = (np.stack([np.asarray(r["phi_p"], dtype=float).reshape(L) for r in rows])
+                    if L > 1 else np.zeros((len(rows), 1)))
     out["index"] = np.asarray(kept)
     out["skipped"] = len(paths) - len(kept)
     return out
@@ -181,18 +237,26 @@ def mlp_apply(weights: dict, x):
     return h
 
 
-def lobe_from_outputs(y):
-    """Network outputs (..., 6) → the lobe parameters ({"alpha1_ms", ...} with albedo1_ms = 1)."""
+def lobe_from_outputs(y, layers: int = 1):
+    """Network outputs (..., n_outputs(layers)) → the lobe parameters ({"alpha1_ms", ...};
+    albedo1_ms = 1, only W1·γ'₁ being determined)."""
     import jax
     import jax.numpy as jnp
 
     s = jax.nn.sigmoid(y)
-    return {"alpha1_ms": 1e-3 + (1.0 - 1e-3) * s[..., 0], "albedo1_ms": jnp.ones_like(s[..., 0]),
-            "f0_1_ms": s[..., 1],
-            "tau1_ms": jnp.clip(jnp.exp(LOG_TAU[0] + (LOG_TAU[1] - LOG_TAU[0]) * s[..., 2]),
-                                1e-4, 100.0),
-            "W1": _soft_exp(y[..., 3], 10.0), "W2": _soft_exp(y[..., 4], 1.0),
-            "W2T": _soft_exp(y[..., 5], 1.0)}
+    out = {}
+    for i in range(1, layers + 1):
+        j = 3 * (i - 1)
+        out[f"alpha{i}_ms"] = 1e-3 + (1.0 - 1e-3) * s[..., j]
+        out[f"f0_{i}_ms"] = s[..., j + 1]
+        out[f"tau{i}_ms"] = jnp.clip(jnp.exp(LOG_TAU[0] + (LOG_TAU[1] - LOG_TAU[0])
+                                             * s[..., j + 2]), 1e-4, 100.0)
+        out[f"albedo{i}_ms"] = (jnp.ones_like(s[..., 0]) if i == 1
+                                else s[..., 3 * layers + i - 2])
+    w = 3 * layers + layers - 1
+    out.update(W1=_soft_exp(y[..., w], 10.0), W2=_soft_exp(y[..., w + 1], 1.0),
+               W2T=_soft_exp(y[..., w + 2], 1.0))
+    return out
 
 
 def _soft_exp(y, upper):
@@ -204,17 +268,19 @@ def _soft_exp(y, upper):
     return upper * jax.numpy.exp(-jax.nn.softplus(math.log(upper) - y))
 
 
-def load_weights(path=None) -> dict:
-    """The weight arrays (as jax arrays) of a weights file (default: the shipped ones)."""
+def load_weights(layers: int = 1, path=None) -> dict:
+    """The weight arrays (as jax arrays) of a weights file (default: the shipped ones for
+    ``layers`` layers)."""
     import jax.numpy as jnp
 
-    with np.load(path or WEIGHTS) as z:
+    with np.load(path or WEIGHTS[layers]) as z:
         return {k: jnp.asarray(z[k]) for k in z.files}
 
 
-def provenance(path=None) -> dict:
+def provenance(layers: int = 1, path=None) -> dict:
     """The provenance record beside a weights file (default: the shipped ones)."""
-    return json.loads(Path(path or WEIGHTS).with_suffix(".json").read_text(encoding="utf-8"))
+    return json.loads(Path(path or WEIGHTS[layers]).with_suffix(".json")
+                      .read_text(encoding="utf-8"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,27 +294,43 @@ def held_out(index) -> np.ndarray:
     return np.asarray(index) % 10 == 9
 
 
-def _only_models():
+def _only_models(layers: int):
+    """{kinds: ``spongecake(KINDS,multiple=only)``} for every combination of flake kinds."""
+    import itertools
+
     from fitlab.models import get_model
 
-    return {k: get_model(f"spongecake({k},multiple=only)") for k in KINDS}
+    return {kinds: get_model(f"spongecake({','.join(kinds)},multiple=only)")
+            for kinds in itertools.product(KINDS, repeat=layers)}
+
+
+def _inputs(data, idx):
+    import jax.numpy as jnp
+
+    d = {k: jnp.asarray(data[k][idx]) for k in LAYER_KEYS + ("phi_p",)}
+    cos_dphi = jnp.cos(jnp.radians(d["phi_p"][:, 1:] - d["phi_p"][:, :1]))
+    return network_inputs(d["kind_is_fiber"], d["alpha"], d["albedo"], d["tau"], d["f0"],
+                          d["cos_theta_p"], cos_dphi), d
 
 
 def predict(weights, data, idx):
     """The learned lobe's f (S, R) at stacks ``idx`` of ``data`` (load_dataset)."""
     import jax.numpy as jnp
 
-    x = network_inputs(*(jnp.asarray(data[k][idx]) for k in
-                         ("kind_is_fiber", "alpha", "albedo", "tau", "f0", "cos_theta_p")))
-    lobe = lobe_from_outputs(mlp_apply(weights, x))
+    x, d = _inputs(data, idx)
+    layers = d["alpha"].shape[1]
+    lobe = lobe_from_outputs(mlp_apply(weights, x), layers)
     params = {k: v[:, None] for k, v in lobe.items()}
-    params["theta_p1"] = jnp.asarray(data["theta_p"][idx])[:, None]
-    params["phi_p1"] = jnp.zeros_like(params["theta_p1"])
+    for i in range(layers):
+        params[f"theta_p{i + 1}"] = d["theta_p"][:, i, None]
+        params[f"phi_p{i + 1}"] = d["phi_p"][:, i, None]
     wi, wo = jnp.asarray(data["wi"][idx]), jnp.asarray(data["wo"][idx])
-    models = _only_models()
-    f_s = models["surface"].eval(params, wi, wo)
-    f_f = models["fiber"].eval(params, wi, wo)
-    return jnp.where(jnp.asarray(data["kind_is_fiber"][idx])[:, None] > 0.5, f_f, f_s)
+    fiber = d["kind_is_fiber"] > 0.5
+    f = 0.0
+    for kinds, model in _only_models(layers).items():
+        mask = jnp.all(fiber == jnp.asarray([k == "fiber" for k in kinds]), axis=-1)
+        f = f + jnp.where(mask[:, None], model.eval(params, wi, wo), 0.0)
+    return f
 
 
 def stack_errors(f, value):
@@ -285,19 +367,20 @@ def train(data: dict, *, steps: int = 4000, batch: int = 32, learning_rate: floa
 
     test = held_out(data["index"])
     train_idx = np.flatnonzero(~test)
-    x_all = np.asarray(network_inputs(*(data[k] for k in ("kind_is_fiber", "alpha", "albedo",
-                                                          "tau", "f0", "cos_theta_p"))))
+    layers = data["alpha"].shape[1]
+    x_all = np.asarray(_inputs(data, np.arange(len(data["alpha"])))[0])
     x_mean = x_all[train_idx].mean(axis=0)
     x_scale = x_all[train_idx].std(axis=0) + 1e-6
     key = jax.random.PRNGKey(seed)
     key, init = jax.random.split(key)
-    model = eqx.nn.MLP(N_IN, N_OUT, WIDTH, DEPTH, activation=jax.nn.relu, key=init)
+    model = eqx.nn.MLP(n_inputs(layers), n_outputs(layers), WIDTH, DEPTH,
+                       activation=jax.nn.relu, key=init)
     # start near a plausible lobe (α' 0.5, f0' 0.5, Tρ' 1, W1 1, W2 = W2T = 0.05) with small
     # output weights: from sigmoid(0) everywhere (W1 = 5) the first steps' huge losses drove
     # the outputs into saturation, where the gradient vanishes
     last = model.layers[-1]
     model = eqx.tree_at(lambda m: (m.layers[-1].weight, m.layers[-1].bias), model,
-                        (0.1 * last.weight, jnp.asarray(START_LOGITS)))
+                        (0.1 * last.weight, jnp.asarray(start_logits(layers))))
     opt = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(learning_rate))
     state = opt.init(eqx.filter(model, eqx.is_array))
     jdata = {k: jnp.asarray(v) for k, v in data.items() if k != "skipped"}
@@ -355,11 +438,65 @@ def evaluate(weights: dict, data: dict) -> dict:
     return out
 
 
+def input_names(layers: int) -> list[str]:
+    one = ["alpha", "albedo", "log10 tau", "f0", "k (1 = fiber)", "cos theta_p"]
+    if layers == 1:
+        return one
+    return ([f"{n} of layer {i}" for i in range(1, layers + 1) for n in one]
+            + [f"cos(phi_p{i} - phi_p1)" for i in range(2, layers + 1)])
+
+
+def output_names(layers: int) -> list[str]:
+    if layers == 1:
+        return ["alpha_ms", "f0_ms", "log tau_ms", "W1", "W2", "W2T"]
+    return ([n for i in range(1, layers + 1) for n in (f"alpha{i}_ms", f"f0_{i}_ms",
+                                                       f"log tau{i}_ms")]
+            + [f"albedo{i}_ms" for i in range(2, layers + 1)] + ["W1", "W2", "W2T"])
+
+
+def make_dataset_parallel(directory, n_stacks: int, seed: int = 0, samples: int = SAMPLES,
+                          progress=None, layers: int = 1, jobs: int = 1) -> list[Path]:
+    """:func:`make_dataset` in ``jobs`` processes (each a shard of the indices; the files do not
+    depend on which process makes them). ``progress(done, n_stacks, made)`` counts the files
+    present, from this process."""
+    import multiprocessing
+
+    if jobs <= 1:
+        return make_dataset(directory, n_stacks, seed, samples, progress, layers)
+    Path(directory).mkdir(parents=True, exist_ok=True)
+    names = [Path(directory) / f"stack_{k:05d}.npz" for k in range(n_stacks)]
+    before = sum(p.exists() for p in names)
+    ctx = multiprocessing.get_context("spawn")     # JAX's threads do not survive a fork
+    workers = [ctx.Process(target=make_dataset, args=(directory, n_stacks, seed, samples, None,
+                                                      layers, (k, jobs)), daemon=True)
+               for k in range(1, jobs)]
+    for w in workers:
+        w.start()
+    try:
+        def mine(k, n, made):
+            if progress is not None:
+                done = sum(p.exists() for p in names)
+                progress(min(done, n_stacks - 1), n_stacks, done - before)
+        make_dataset(directory, n_stacks, seed, samples, mine, layers, (0, jobs))
+        for w in workers:
+            w.join()
+    finally:
+        for w in workers:
+            if w.is_alive():
+                w.terminate()
+    if any(w.exitcode != 0 for w in workers):
+        raise RuntimeError(f"a dataset worker failed (exit status "
+                           f"{[w.exitcode for w in workers]}); rerun: the stacks made are kept")
+    if progress is not None:
+        progress(n_stacks, n_stacks, sum(p.exists() for p in names) - before)
+    return names
+
+
 def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: int = 8000,
-          seed: int = 0, progress=None) -> dict:
-    """The one command (``fitlab learn-lobe``): make the missing training stacks in
-    ``directory``, train, write the weights ``out`` (.npz) and their provenance (``out`` with
-    .json) atomically. Returns the provenance."""
+          seed: int = 0, progress=None, layers: int = 1, jobs: int = 1) -> dict:
+    """The one command (``fitlab learn-lobe``): make the missing training stacks of ``layers``
+    layers in ``directory`` (in ``jobs`` processes), train, write the weights ``out`` (.npz)
+    and their provenance (``out`` with .json) atomically. Returns the provenance."""
     import hashlib
 
     import equinox
@@ -369,26 +506,33 @@ def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: 
     from fitlab.export.paramfile import chain_bytes
     from fitlab.io.atomic import atomic_open, atomic_write_text
 
+    if layers not in LAYERS:
+        raise ValueError(f"layers must be one of {', '.join(map(str, LAYERS))}")
     say = progress or (lambda *a: None)
-    paths = make_dataset(directory, stacks, seed, samples,
-                         progress=lambda k, n, made: say("dataset", k, n, made))
+    paths = make_dataset_parallel(directory, stacks, seed, samples,
+                                  progress=lambda k, n, made: say("dataset", k, n, made),
+                                  layers=layers, jobs=jobs)
     data = load_dataset(paths)
+    if data["alpha"].shape[1] != layers:
+        raise ValueError(f"{directory} holds stacks of {data['alpha'].shape[1]} layer(s), not "
+                         f"{layers}; give each number of layers its own --dir")
     weights, report = train(data, steps=steps, seed=seed,
                             progress=lambda k, n, loss: say("training", k, n, k, loss))
     blob = chain_bytes(weights)
     prov = {
         "format": "fitlab-spongecake-network", "version": 1,
-        "network": {"inputs": ["alpha", "albedo", "log10 tau", "f0", "k (1 = fiber)",
-                               "cos theta_p"],
-                    "outputs": ["alpha_ms", "f0_ms", "log tau_ms", "W1", "W2", "W2T"],
+        "network": {"inputs": input_names(layers), "outputs": output_names(layers),
                     "hidden_layers": [WIDTH] * DEPTH, "activation": "relu",
-                    "reference": "SpongeCake (Wang et al. 2022) §5, Fig. 5"},
-        "dataset": {"stacks": int(len(data["value"])), "skipped_empty_cells": int(data["skipped"]),
+                    "reference": f"SpongeCake (Wang et al. 2022) §5, Fig. {4 + layers}"},
+        "dataset": {"layers": layers, "stacks": int(len(data["value"])),
+                    "skipped_empty_cells": int(data["skipped"]),
                     "held_out": int(held_out(data["index"]).sum()), "seed": seed,
                     "samples_per_incidence": samples, "theta_i_deg": list(THETA_I),
                     "grid_per_side": list(GRID), "rows_per_stack": int(data["value"].shape[1]),
                     "ranges": {"alpha": ALPHA_RANGE, "albedo": ALBEDO_RANGE, "tau": TAU_RANGE,
-                               "f0": F0_RANGE, "cos_theta_p": [0, 1], "kinds": list(KINDS)},
+                               "f0": F0_RANGE, "cos_theta_p": [0, 1], "kinds": list(KINDS),
+                               **({"phi_p_below_first_deg": [0, 180]} if layers > 1
+                                  else {})},
                     "paper": "4,000 one-layer and 12,000 two-layer stacks, 32 x 32 directions, "
                              "100K paths per direction"},
         "training": {"steps": steps, "batch": 32, "learning_rate": 1e-3,

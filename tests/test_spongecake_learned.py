@@ -19,38 +19,62 @@ from fitlab.errors import InputFileError
 from fitlab.models import get_model
 
 
-def test_plain_jax_network_equals_equinox():
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_plain_jax_network_equals_equinox(layers):
     """mlp_apply (what the model evaluates, without equinox) gives the equinox MLP's outputs."""
     eqx = pytest.importorskip("equinox")
-    m = eqx.nn.MLP(sl.N_IN, sl.N_OUT, sl.WIDTH, sl.DEPTH, activation=jax.nn.relu,
+    n_in, n_out = sl.n_inputs(layers), sl.n_outputs(layers)
+    m = eqx.nn.MLP(n_in, n_out, sl.WIDTH, sl.DEPTH, activation=jax.nn.relu,
                    key=jax.random.PRNGKey(3))
-    x = jax.random.normal(jax.random.PRNGKey(4), (50, sl.N_IN))
-    mean, scale = np.full(sl.N_IN, 0.3), np.full(sl.N_IN, 2.0)
+    x = jax.random.normal(jax.random.PRNGKey(4), (50, n_in))
+    mean, scale = np.full(n_in, 0.3), np.full(n_in, 2.0)
     w = {k: jnp.asarray(v) for k, v in sl.to_weights(m, mean, scale).items()}
     np.testing.assert_allclose(np.asarray(sl.mlp_apply(w, x)),
                                np.asarray(jax.vmap(m)((x - mean) / scale)), rtol=1e-6, atol=1e-6)
 
 
-def test_outputs_map_into_the_lobe_bounds():
-    y = jnp.asarray(np.random.default_rng(0).normal(0, 30, (2000, sl.N_OUT)))
-    lobe = sl.lobe_from_outputs(y)
-    model = get_model("spongecake(surface,multiple=only)")
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_outputs_map_into_the_lobe_bounds(layers):
+    y = jnp.asarray(np.random.default_rng(0).normal(0, 30, (2000, sl.n_outputs(layers))))
+    lobe = sl.lobe_from_outputs(y, layers)
+    model = get_model(f"spongecake({','.join(['surface'] * layers)},multiple=only)")
     bounds = {p.name: (p.lower, p.upper) for p in model.parameters}
+    held = {"theta_p", "phi_p"}
+    assert set(lobe) == {p.name for p in model.parameters
+                         if not p.name.rstrip("0123456789") in held}
+    assert len(sl.input_names(layers)) == sl.n_inputs(layers)
+    assert len(sl.output_names(layers)) == sl.n_outputs(layers)
     for k, v in lobe.items():
         v = np.asarray(v)
         assert np.all(np.isfinite(v)) and np.all(v >= bounds[k][0]) and np.all(v <= bounds[k][1]), k
 
 
-def test_training_stacks_are_deterministic_and_in_range():
-    a = [sl.stack_parameters(i, 0) for i in range(200)]
-    assert a == [sl.stack_parameters(i, 0) for i in range(200)]
-    assert a != [sl.stack_parameters(i, 1) for i in range(200)]
-    assert {k for k, _ in a} == set(sl.KINDS)
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_training_stacks_are_deterministic_and_in_range(layers):
+    a = [sl.stack_parameters(i, 0, layers) for i in range(200)]
+    assert a == [sl.stack_parameters(i, 0, layers) for i in range(200)]
+    assert a != [sl.stack_parameters(i, 1, layers) for i in range(200)]
+    assert {k for k, _ in a} == set(__import__("itertools").product(sl.KINDS, repeat=layers))
     for _, p in a:
-        assert sl.ALPHA_RANGE[0] <= p["alpha1"] <= sl.ALPHA_RANGE[1]
-        assert sl.TAU_RANGE[0] <= p["tau1"] <= sl.TAU_RANGE[1]
-        assert 0 <= p["theta_p1"] <= 90
+        for i in range(1, layers + 1):
+            assert sl.ALPHA_RANGE[0] <= p[f"alpha{i}"] <= sl.ALPHA_RANGE[1]
+            assert sl.TAU_RANGE[0] <= p[f"tau{i}"] <= sl.TAU_RANGE[1]
+            assert 0 <= p[f"theta_p{i}"] <= 90
+        assert p["phi_p1"] == 0
+    if layers == 2:
+        assert 0 < np.std([p["phi_p2"] for _, p in a]) and max(p["phi_p2"] for _, p in a) < 180
     assert sl.held_out(np.arange(100)).sum() == 10
+
+
+def test_one_layer_stacks_are_the_shipped_datasets():
+    """Adding two-layer stacks left the one-layer draws (the shipped weights' dataset) as they
+    were: stack 0 of seed 0."""
+    kinds, p = sl.stack_parameters(0, 0)
+    assert kinds in {("surface",), ("fiber",)} and set(p) == {
+        "alpha1", "theta_p1", "phi_p1", "albedo1", "f0_1", "tau1"}
+    rng = np.random.default_rng([0, 0])
+    assert kinds == (sl.KINDS[int(rng.integers(2))],)
+    assert p["alpha1"] == float(np.exp(rng.uniform(np.log(0.05), np.log(1.0))))
 
 
 def test_dataset_is_resumable_byte_identical_and_validated(tmp_path):
@@ -76,31 +100,75 @@ def test_dataset_is_resumable_byte_identical_and_validated(tmp_path):
         sl.load_dataset(sorted(d.glob("*.npz")))
 
 
-def _synthetic(n=60, rows=96, seed=0):
+def test_two_layer_stacks_read_per_layer_and_do_not_mix(tmp_path):
+    d = tmp_path / "two"
+    paths = sl.make_dataset(d, 2, seed=0, samples=200, layers=2)
+    data = sl.load_dataset(paths)
+    kinds, p = sl.stack_parameters(1, 0, 2)
+    assert data["alpha"].shape == (2, 2) and data["phi_p"].shape == (2, 2)
+    np.testing.assert_allclose(data["alpha"][1], [p["alpha1"], p["alpha2"]])
+    np.testing.assert_allclose(data["phi_p"][1], [0.0, p["phi_p2"]])
+    np.testing.assert_allclose(data["kind_is_fiber"][1], [k == "fiber" for k in kinds])
+    one = sl.make_dataset(tmp_path / "one", 1, seed=0, samples=200)
+    with pytest.raises(InputFileError, match="mixes stacks"):
+        sl.load_dataset(paths + one)
+
+
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_predict_evaluates_each_stack_with_its_own_kinds(layers):
+    """A network whose output is a constant (zero weights, a known bias) gives each stack the
+    lobe of ``spongecake(ITS KINDS,multiple=only)`` at the constant's parameters."""
+    rng = np.random.default_rng(7)
+    n_in, n_out = sl.n_inputs(layers), sl.n_outputs(layers)
+    bias = rng.normal(0, 1, n_out)
+    w = {"x_mean": np.zeros(n_in), "x_scale": np.ones(n_in)}
+    for i in range(sl.DEPTH + 1):
+        shape = (n_out if i == sl.DEPTH else sl.WIDTH, n_in if i == 0 else sl.WIDTH)
+        w[f"W{i}"], w[f"b{i}"] = np.zeros(shape), np.zeros(shape[0])
+    w[f"b{sl.DEPTH}"] = bias
+    w = {k: jnp.asarray(v) for k, v in w.items()}
+    data = _synthetic(n=8, rows=20, layers=layers)
+    f = np.asarray(sl.predict(w, data, np.arange(8)))
+    lobe = {k: float(v) for k, v in sl.lobe_from_outputs(jnp.asarray(bias), layers).items()}
+    for s_ in range(8):
+        kinds = tuple("fiber" if x > 0.5 else "surface" for x in data["kind_is_fiber"][s_])
+        m = get_model(f"spongecake({','.join(kinds)},multiple=only)")
+        p = dict(lobe)
+        for i in range(layers):
+            p[f"theta_p{i + 1}"], p[f"phi_p{i + 1}"] = data["theta_p"][s_, i], data["phi_p"][s_, i]
+        want = m.eval({k: jnp.asarray(v) for k, v in p.items()}, jnp.asarray(data["wi"][s_]),
+                      jnp.asarray(data["wo"][s_]))
+        np.testing.assert_allclose(f[s_], np.asarray(want), rtol=1e-10, atol=1e-14)
+
+
+def _synthetic(n=60, rows=96, seed=0, layers=1):
     """Stacks whose 'multiple scattering' is the only-model at a known smooth mapping of the
-    layer's parameters: a problem the network can learn exactly."""
+    layers' parameters: a problem the network can learn exactly."""
     rng = np.random.default_rng(seed)
-    only = {k: get_model(f"spongecake({k},multiple=only)") for k in sl.KINDS}
-    out = {k: [] for k in ("kind_is_fiber", "alpha", "albedo", "tau", "f0", "cos_theta_p",
-                           "theta_p", "wi", "wo", "value", "sigma")}
+    out = {k: [] for k in sl.LAYER_KEYS + ("phi_p", "wi", "wo", "value", "sigma")}
     for i in range(n):
-        kind, p = sl.stack_parameters(i, seed)
+        kinds, p = sl.stack_parameters(i, seed, layers)
+        only = get_model(f"spongecake({','.join(kinds)},multiple=only)")
         mu = rng.uniform(0.05, 1, (2, rows))
         ph = rng.uniform(0, 2 * np.pi, (2, rows))
         sgn = np.where(rng.uniform(size=rows) < 0.5, 1.0, -1.0)
         d = np.stack([np.sqrt(1 - mu**2) * np.cos(ph), np.sqrt(1 - mu**2) * np.sin(ph), mu], -1)
         wi, wo = d[0], d[1] * np.array([1, 1, 1.0])
         wo[:, 2] *= sgn
-        truth = {"theta_p1": p["theta_p1"], "phi_p1": 0.0, "alpha1_ms": 0.3 + 0.5 * p["alpha1"],
-                 "albedo1_ms": 1.0, "f0_1_ms": p["f0_1"], "tau1_ms": 2 * p["tau1"],
-                 "W1": 0.5 * p["albedo1"], "W2": 0.1 * p["albedo1"], "W2T": 0.05}
-        v = np.asarray(only[kind].eval({k: jnp.asarray(x) for k, x in truth.items()},
-                                       jnp.asarray(wi), jnp.asarray(wo)))
-        for k, x in (("kind_is_fiber", float(kind == "fiber")), ("alpha", p["alpha1"]),
-                     ("albedo", p["albedo1"]), ("tau", p["tau1"]), ("f0", p["f0_1"]),
-                     ("cos_theta_p", np.cos(np.radians(p["theta_p1"]))),
-                     ("theta_p", p["theta_p1"]), ("wi", wi), ("wo", wo), ("value", v),
-                     ("sigma", 0.01 * v)):
+        truth = {"W1": 0.5 * p["albedo1"], "W2": 0.1 * p["albedo1"], "W2T": 0.05}
+        for j in range(1, layers + 1):
+            truth.update({f"theta_p{j}": p[f"theta_p{j}"], f"phi_p{j}": p[f"phi_p{j}"],
+                          f"alpha{j}_ms": 0.3 + 0.5 * p[f"alpha{j}"],
+                          f"albedo{j}_ms": 1.0 if j == 1 else 0.5 * p[f"albedo{j}"],
+                          f"f0_{j}_ms": p[f"f0_{j}"], f"tau{j}_ms": 2 * p[f"tau{j}"]})
+        v = np.asarray(only.eval({k: jnp.asarray(x) for k, x in truth.items()},
+                                 jnp.asarray(wi), jnp.asarray(wo)))
+        per = lambda key: [p[f"{key}{j}"] for j in range(1, layers + 1)]  # noqa: E731
+        for k, x in (("kind_is_fiber", [float(k == "fiber") for k in kinds]),
+                     ("alpha", per("alpha")), ("albedo", per("albedo")), ("tau", per("tau")),
+                     ("f0", per("f0_")), ("cos_theta_p", np.cos(np.radians(per("theta_p")))),
+                     ("theta_p", per("theta_p")), ("phi_p", per("phi_p")), ("wi", wi),
+                     ("wo", wo), ("value", v), ("sigma", 0.01 * v)):
             out[k].append(x)
     data = {k: np.asarray(v, dtype=float) for k, v in out.items()}
     data["index"], data["skipped"] = np.arange(n), 0
@@ -108,11 +176,12 @@ def _synthetic(n=60, rows=96, seed=0):
 
 
 @pytest.mark.slow
-def test_training_learns_a_known_mapping():
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_training_learns_a_known_mapping(layers):
     """On stacks made by a known mapping, training lowers the loss from its start by far and the
     held-out stacks follow."""
     pytest.importorskip("equinox")
-    data = _synthetic()
+    data = _synthetic(layers=layers)
     losses = []
     _, report = sl.train(data, steps=600, seed=1,
                          progress=lambda k, n, loss: losses.append(loss))
@@ -120,19 +189,24 @@ def test_training_learns_a_known_mapping():
     assert report["held_out_loss"] < 0.3 and report["train_loss"] < 0.3, report
 
 
-def test_shipped_weights_match_their_provenance():
-    prov = sl.provenance()
-    assert hashlib.sha256(sl.WEIGHTS.read_bytes()).hexdigest() == prov["weights_sha256"]
+@pytest.mark.parametrize("layers", sl.LAYERS)
+def test_shipped_weights_match_their_provenance(layers):
+    prov = sl.provenance(layers)
+    assert hashlib.sha256(sl.WEIGHTS[layers].read_bytes()).hexdigest() == prov["weights_sha256"]
     assert prov["dataset"]["stacks"] >= 1000 and prov["errors"]["held_out_stacks"] > 0
-    w = sl.load_weights()
-    assert w["W0"].shape == (sl.WIDTH, sl.N_IN) and w[f"W{sl.DEPTH}"].shape == (sl.N_OUT, sl.WIDTH)
+    assert prov["dataset"]["layers"] == layers
+    assert prov["network"]["inputs"] == sl.input_names(layers)
+    w = sl.load_weights(layers)
+    assert w["W0"].shape == (sl.WIDTH, sl.n_inputs(layers))
+    assert w[f"W{sl.DEPTH}"].shape == (sl.n_outputs(layers), sl.WIDTH)
 
 
+@pytest.mark.parametrize("kinds", ["fiber", "surface,fiber", "fiber_z,surface"])
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_learned_model_values_and_gradients_are_finite(dtype):
+def test_learned_model_values_and_gradients_are_finite(dtype, kinds):
     """multiple=learned: the network inside the model, differentiable, on the hard cases."""
-    m = get_model("spongecake(fiber,multiple=learned)")
-    assert m.parameter_names == get_model("spongecake(fiber)").parameter_names
+    m = get_model(f"spongecake({kinds},multiple=learned)")
+    assert m.parameter_names == get_model(f"spongecake({kinds})").parameter_names
     rng = np.random.default_rng(2)
     t_i, t_o = rng.uniform(0, 89.99, 64), rng.uniform(0, 179.99, 64)
     from fitlab.io.directions import degrees_to_direction
@@ -140,8 +214,9 @@ def test_learned_model_values_and_gradients_are_finite(dtype):
     wo = jnp.asarray(degrees_to_direction(t_o, rng.uniform(-180, 180, 64)), dtype=dtype)
     for alpha, tau in ((1e-3, 1e-4), (0.3, 1.0), (1.0, 100.0)):
         p = {"alpha1": alpha, "theta_p1": 60.0, "phi_p1": 10.0, "albedo1": 0.9, "f0_1": 0.5,
-             "tau1": tau}
-        p = {k: jnp.asarray(v, dtype=dtype) for k, v in p.items()}
+             "tau1": tau, "alpha2": 0.5, "theta_p2": 0.0, "phi_p2": 100.0, "albedo2": 0.7,
+             "f0_2": 0.3, "tau2": 2.0}
+        p = {k: jnp.asarray(v, dtype=dtype) for k, v in p.items() if k in m.parameter_names}
         f = m.eval(p, wi, wo)
         g = jax.grad(lambda q: jnp.sum(m.eval(q, wi, wo)))(p)
         assert np.all(np.isfinite(np.asarray(f))) and np.all(np.asarray(f) >= 0)
@@ -150,10 +225,11 @@ def test_learned_model_values_and_gradients_are_finite(dtype):
 
 
 @pytest.mark.parametrize("name", ["spongecake(hg,multiple=learned)",
-                                  "spongecake(surface,surface,multiple=learned)",
+                                  "spongecake(surface,hg,multiple=learned)",
+                                  "spongecake(surface,surface,fiber,multiple=learned)",
                                   "spongecake(surface,substrate=lambertian,multiple=learned)"])
 def test_learned_refuses_what_it_was_not_trained_on(name):
-    with pytest.raises(ValueError, match="trained for one layer of flakes"):
+    with pytest.raises(ValueError, match="trained for one or two layers of flakes"):
         get_model(name)
 
 

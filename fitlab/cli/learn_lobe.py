@@ -11,12 +11,12 @@ from fitlab.errors import FitlabError
 
 
 def add_parser(sub):
-    from fitlab.spongecake_learned import GRID, SAMPLES, THETA_I
+    from fitlab.spongecake_learned import GRID, LAYERS, SAMPLES, THETA_I
 
     p = sub.add_parser(
         "learn-lobe", help="train SpongeCake's multiple-scattering network on simulated stacks",
         description="Make the training stacks that DIR lacks (one simulated one-layer SGGX "
-        f"stack per file, random parameters from the seed and its index; {len(THETA_I)} "
+        f"stack per file (or two-layer, --layers 2), random parameters from the seed and its index; {len(THETA_I)} "
         f"incidences, a {GRID[0]}x{GRID[1]} grid per side), then train the parameter-mapping "
         "network of SpongeCake section 5 (3 hidden layers of 128; equinox + optax: pip install "
         "'fitlab[learn]') on 90% of them and write its weights and their provenance (dataset, "
@@ -26,8 +26,14 @@ def add_parser(sub):
         "ms.json; with the defaults and seed 0 these are the shipped weights, "
         "fitlab/models/data/spongecake_ms_1layer.npz; about 30 min here)")
     p.add_argument("--dir", required=True, metavar="DIR", help="the training stacks' folder")
+    p.add_argument("--layers", type=int, choices=LAYERS, default=1,
+                   help="flake layers per stack: one network per number of layers, as in the "
+                   "paper (default 1)")
     p.add_argument("--stacks", type=int, default=4000, help="stacks in the dataset "
-                   "(default 4000, the shipped weights'; every tenth is held out)")
+                   "(default 4000, the shipped weights' for one and for two layers; every tenth "
+                   "is held out)")
+    p.add_argument("--jobs", type=int, default=1, help="processes that simulate the stacks "
+                   "(default 1; the files do not depend on it)")
     p.add_argument("--samples", type=int, default=SAMPLES,
                    help=f"paths per incidence of each stack (default {SAMPLES})")
     p.add_argument("--steps", type=int, default=8000,
@@ -42,8 +48,8 @@ def add_parser(sub):
 def run(args):
     if args.stacks < 10:
         raise FitlabError("--stacks must be at least 10 (every tenth is held out)")
-    if args.samples < 2 or args.steps < 1:
-        raise FitlabError("--samples must be at least 2 and --steps at least 1")
+    if args.samples < 2 or args.steps < 1 or args.jobs < 1:
+        raise FitlabError("--samples must be at least 2, --steps and --jobs at least 1")
     if not str(args.out).endswith(".npz"):
         raise FitlabError(f"--out {args.out}: give a .npz file name (WEIGHTS.json is written "
                           "beside it)")
@@ -72,7 +78,8 @@ def run(args):
 
     try:
         prov = learn(args.dir, args.out, stacks=args.stacks, samples=args.samples,
-                     steps=args.steps, seed=args.seed, progress=progress)
+                     steps=args.steps, seed=args.seed, progress=progress, layers=args.layers,
+                     jobs=args.jobs)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     if not args.quiet:

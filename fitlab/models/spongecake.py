@@ -419,31 +419,42 @@ def _cached(kinds, substrate, delta, multiple="none") -> Model:
 
 def _with_learned(kinds, substrate, base, delta) -> Model:
     """``base`` with the multiple-scattering lobe from the shipped parameter-mapping network
-    (fitlab.spongecake_learned): one flake layer, no substrate (what it was trained on)."""
+    (fitlab.spongecake_learned): one or two flake layers, no substrate (what it was trained
+    on; the paper trains one network per number of layers, its Figs. 5 and 6)."""
     from fitlab import spongecake_learned as sl
     from fitlab.models import spongecake_multiple as ms
 
-    if len(kinds) != 1 or kinds[0] == "hg" or substrate is not None:
-        raise ValueError(f"{NAME}(...,multiple=learned): the network is trained for one layer of "
-                         "flakes (surface, fiber, surface_z or fiber_z) without a substrate; for "
-                         "other stacks fit the lobe (multiple=lobe, `fitlab multiple-lobe`)")
-    layer = Layer(kinds[0], 1)
-    weights = sl.load_weights()
-    is_fiber = float(layer.flakes == "fiber")
+    if len(kinds) not in sl.LAYERS or "hg" in kinds or substrate is not None:
+        raise ValueError(f"{NAME}(...,multiple=learned): the networks are trained for one or two "
+                         "layers of flakes (surface, fiber, surface_z or fiber_z) without a "
+                         "substrate; for other stacks fit the lobe (multiple=lobe, "
+                         "`fitlab multiple-lobe`)")
+    layers = tuple(Layer(k, i + 1) for i, k in enumerate(kinds))
+    weights = sl.load_weights(len(layers))
+    is_fiber = jnp.asarray([float(L.flakes == "fiber") for L in layers])
 
     def lobe_of(params):
-        cos_p = (jnp.cos(jnp.radians(params["theta_p1"])) if layer.oriented
-                 else jnp.ones_like(jnp.asarray(params["alpha1"])))
-        x = sl.network_inputs(is_fiber, params["alpha1"], params["albedo1"], params["tau1"],
-                              params["f0_1"], cos_p)
-        return sl.lobe_from_outputs(sl.mlp_apply(weights, x))
+        one = jnp.ones_like(jnp.asarray(params["alpha1"]))
+        per = lambda key: jnp.stack([jnp.asarray(params[f"{key}{L.index}"]) * one  # noqa: E731
+                                     for L in layers], axis=-1)
+        cos_p = jnp.stack([jnp.cos(jnp.radians(params[f"theta_p{L.index}"])) * one
+                           if L.oriented else one for L in layers], axis=-1)
+        # a layer whose axis is the normal has no azimuth: cos Δφ = 1 stands for any
+        phi = [jnp.radians(params[f"phi_p{L.index}"]) * one if L.oriented else None
+               for L in layers]
+        cos_dphi = jnp.stack([one if phi[0] is None or phi[i] is None
+                              else jnp.cos(phi[i] - phi[0]) for i in range(1, len(layers))]
+                             + [one], axis=-1)[..., :len(layers) - 1]
+        x = sl.network_inputs(is_fiber, per("alpha"), per("albedo"), per("tau"), per("f0_"),
+                              cos_p, cos_dphi)
+        return sl.lobe_from_outputs(sl.mlp_apply(weights, x), len(layers))
 
     lobe = _with_multiple(kinds, substrate, base, delta, "lobe")
     name = canonical_name(kinds, None, delta, "learned")
-    p = sl.provenance()
+    p = sl.provenance(len(layers))
     return ms.with_learned(lobe, base, name, lobe_of,
-                           f"{p['dataset']['stacks']} simulated stacks, held-out relative MAE "
-                           f"{p['errors']['held_out_loss']:.3g}")
+                           f"{p['dataset']['stacks']} simulated {len(layers)}-layer stacks, "
+                           f"held-out relative MAE {p['errors']['held_out_loss']:.3g}")
 
 
 def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
