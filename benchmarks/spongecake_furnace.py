@@ -8,8 +8,8 @@ of non-absorbing stacks (γ = 1, f0 = 1: every photon leaves), for
 * the model with its multiple-scattering lobe (§5, ``multiple=lobe``) fitted to this stack by
   ``fitlab.spongecake_lobe.fit_lobe`` (the simulator's multiple-scattering part on a 6 × 12
   grid per side at 5 incidences, 20,000 paths each, its own seed), plus the delta,
-* the model with the lobe the shipped network predicts (``multiple=learned``; one flake layer
-  only: the two-layer network is not built), plus the delta,
+* the model with the lobe the shipped networks predict (``multiple=learned``; one or two flake
+  layers), plus the delta,
 * the simulator's full result (every order), which is 1 up to Monte Carlo error.
 
 The gap between the first and the last column is what the multiple-scattering lobe has to
@@ -86,18 +86,14 @@ def main():
         rows = [model_albedo(name, params, th, kinds) for th in THETA_I]
         with_lobe = [model_albedo(lobe_model_name(name, "lobe"), lobe, th, kinds)
                      for th in THETA_I]
-        try:  # the network is trained for one flake layer
-            learned = [model_albedo(lobe_model_name(name, "learned"), params, th, kinds)
-                       for th in THETA_I]
-        except ValueError:
-            learned = None
+        learned = [model_albedo(lobe_model_name(name, "learned"), params, th, kinds)
+                   for th in THETA_I]
         single, s_single = simulated_albedo(kinds, params, "single")
         full, s_full = simulated_albedo(kinds, params, "multiple")
         for j, th in enumerate(THETA_I):
             a, sa, delta = rows[j]
             b, sb, _ = with_lobe[j]
-            c = "n/a (two layers)" if learned is None else \
-                f"{learned[j][0] + delta:.4f} ± {learned[j][1]:.4f}"
+            c = f"{learned[j][0] + delta:.4f} ± {learned[j][1]:.4f}"
             print(f"| `{name}` | {th:.0f}° | {a + delta:.4f} ± {sa:.4f} | {single[j]:.4f} ± "
                   f"{s_single[j]:.4f} | {b + delta:.4f} ± {sb:.4f} | {c} | {full[j]:.4f} ± "
                   f"{s_full[j]:.4f} | {full[j] - a - delta:.4f} |")

@@ -1,8 +1,8 @@
 """SpongeCake's multiple-scattering lobe two ways on the same held-out stacks (issue 16, item 3):
 (a) fitted per material (``fitlab.spongecake_lobe.fit_lobe``: global search + Levenberg–Marquardt
 on the stack's own simulated multiple-scattering part) and (b) predicted by the shipped network
-(``spongecake(K,multiple=learned)``, fitlab/models/data/spongecake_ms_1layer.npz), which never
-saw these stacks.
+(``spongecake(K[,K2],multiple=learned)``, fitlab/models/data/spongecake_ms_1layer.npz or
+spongecake_ms_2layer.npz, by the dataset's number of layers), which never saw these stacks.
 
 Errors per stack against its simulated multiple-scattering part: the training loss (mean
 |f − data| / mean |data|) and the RMS relative error over rows above 1e-3 of the largest; the
@@ -53,31 +53,39 @@ def main(argv=None):
     paths = sorted(Path(a.dir).glob("stack_*.npz"))
     d = sl.load_dataset(paths)
     held = np.flatnonzero(sl.held_out(d["index"]))[: a.stacks]
-    w = sl.load_weights()
+    layers = d["alpha"].shape[1]
+    w = sl.load_weights(layers)
     np.asarray(sl.predict(w, d, held))  # compiled once
     t0 = time.perf_counter()
     f_net = np.asarray(sl.predict(w, d, held))
     t_net = (time.perf_counter() - t0) / len(held)
     mae_b, rms_b = (np.asarray(x) for x in sl.stack_errors(jnp.asarray(f_net),
                                                           jnp.asarray(d["value"][held])))
-    print("| stack | kind | α | γ | Tρ | f0 | θp | noise | (a) fit: loss, RMS rel. | "
+    print("| stack | kinds | α | γ | Tρ | f0 | θp | noise | (a) fit: loss, RMS rel. | "
           "(b) network: loss, RMS rel. | fit s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for n, j in enumerate(held):
-        kind = "fiber" if d["kind_is_fiber"][j] > 0.5 else "surface"
-        p = {"alpha1": d["alpha"][j], "theta_p1": d["theta_p"][j], "phi_p1": 0.0,
-             "albedo1": d["albedo"][j], "f0_1": d["f0"][j], "tau1": d["tau"][j]}
+        kinds = ["fiber" if x > 0.5 else "surface" for x in d["kind_is_fiber"][j]]
+        p = {}
+        for i in range(layers):
+            p.update({f"alpha{i + 1}": d["alpha"][j, i], f"theta_p{i + 1}": d["theta_p"][j, i],
+                      f"phi_p{i + 1}": d["phi_p"][j, i], f"albedo{i + 1}": d["albedo"][j, i],
+                      f"f0_{i + 1}": d["f0"][j, i], f"tau{i + 1}": d["tau"][j, i]})
         t1 = time.perf_counter()
-        fit, m = fit_lobe(f"spongecake({kind})", {"Y": p}, measurement=measurement(d, j))
+        fit, m = fit_lobe(f"spongecake({','.join(kinds)})", {"Y": p},
+                          measurement=measurement(d, j))
         t_fit = time.perf_counter() - t1
         f_fit = np.asarray(fit.predict(m.wi, m.wo, "Y"))
         mae_a, rms_a = (float(np.asarray(x)[0]) for x in sl.stack_errors(
             jnp.asarray(f_fit)[None], jnp.asarray(d["value"][j])[None]))
         noise = float(np.mean(d["sigma"][j]) * np.sqrt(2 / np.pi) / np.mean(np.abs(d["value"][j])))
         rows.append((noise, mae_a, rms_a, mae_b[n], rms_b[n], t_fit))
-        print(f"| {int(d['index'][j])} | {kind} | {p['alpha1']:.3f} | {p['albedo1']:.2f} | "
-              f"{p['tau1']:.2f} | {p['f0_1']:.2f} | {p['theta_p1']:.0f}° | {noise:.3f} | "
+        per = lambda key, fmt: ", ".join(format(p[f"{key}{i + 1}"], fmt)  # noqa: E731
+                                         for i in range(layers))
+        print(f"| {int(d['index'][j])} | {','.join(kinds)} | {per('alpha', '.3f')} | "
+              f"{per('albedo', '.2f')} | {per('tau', '.2f')} | {per('f0_', '.2f')} | "
+              f"{per('theta_p', '.0f')}° | {noise:.3f} | "
               f"{mae_a:.3f}, {rms_a:.3f} | {mae_b[n]:.3f}, {rms_b[n]:.3f} | {t_fit:.1f} |")
     r = np.array(rows)
     print(f"\nmedian over {len(held)} held-out stacks: noise {np.median(r[:, 0]):.3f}; (a) fit loss "

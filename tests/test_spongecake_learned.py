@@ -257,6 +257,13 @@ def test_cli_learns_resumes_and_repeats_byte_for_byte(tmp_path, capsys):
     assert main([*args, "--out", str(b), "--quiet"]) == 0
     assert {p.name: p.stat().st_mtime_ns for p in d.glob("*.npz")} == stamp  # nothing remade
     assert a.read_bytes() == b.read_bytes()
+    # two processes remake what is missing, byte for byte
+    stacks = {p.name: p.read_bytes() for p in d.glob("*.npz")}
+    for name in ("stack_00003.npz", "stack_00004.npz", "stack_00008.npz"):
+        (d / name).unlink()
+    assert main([*args, "--out", str(b), "--quiet", "--jobs", "2"]) == 0
+    assert {p.name: p.read_bytes() for p in d.glob("*.npz")} == stacks
+    assert a.read_bytes() == b.read_bytes()
     prov = json.loads(a.with_suffix(".json").read_text())
     assert prov["dataset"]["stacks"] == 10 and prov["errors"]["held_out_stacks"] == 1
     assert str(tmp_path) not in a.with_suffix(".json").read_text()

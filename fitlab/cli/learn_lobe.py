@@ -22,9 +22,11 @@ def add_parser(sub):
         "'fitlab[learn]') on 90% of them and write its weights and their provenance (dataset, "
         "seeds, held-out error). Interrupted, it resumes: rerun the same command. Models use "
         "the weights as spongecake(K,multiple=learned) (data_formats/layered_models.md).",
-        epilog="example: fitlab learn-lobe --dir lobe_data --out ms.npz (writes ms.npz and "
+        epilog="examples: fitlab learn-lobe --dir lobe_data --out ms.npz (writes ms.npz and "
         "ms.json; with the defaults and seed 0 these are the shipped weights, "
-        "fitlab/models/data/spongecake_ms_1layer.npz; about 30 min here)")
+        "fitlab/models/data/spongecake_ms_1layer.npz; about 30 min here); fitlab learn-lobe "
+        "--layers 2 --jobs 2 --dir lobe_data_2 --out ms2.npz (the shipped two-layer weights, "
+        "spongecake_ms_2layer.npz)")
     p.add_argument("--dir", required=True, metavar="DIR", help="the training stacks' folder")
     p.add_argument("--layers", type=int, choices=LAYERS, default=1,
                    help="flake layers per stack: one network per number of layers, as in the "
