@@ -4,8 +4,8 @@ model evaluation per direction pair, and the simulator's time to the same error.
 
 Options: single scattering alone (``spongecake(...)``) and single scattering + the lobe fitted
 per material (``multiple=lobe``, ``fitlab.spongecake_lobe.fit_lobe`` on its own simulation:
-20,000 paths, seed 7), and for one flake layer the lobe the shipped network predicts
-(``multiple=learned``; the two-layer network is not built).
+20,000 paths, seed 7), and for one or two flake layers the lobe the shipped networks predict
+(``multiple=learned``; none for the plant leaf's hg layer).
 
 Peer, in the same run: the simulator (``fitlab simulate``), every order, point estimates at the
 centres of the 6 × 12 grid per side at θi = 0, 20, 40, 60, 75° (the lobe fit's grid), 100,000

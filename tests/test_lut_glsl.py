@@ -131,7 +131,17 @@ TABLES = {
                 "G": {"albedo": 0.4, "alpha": 0.3, "n": 1.0, "k": 2.6}}),
     # the brown vinyl Weidlich–Wilkie fit with the φd axis (slices stacked along the height)
     "model_phi_d": lambda: lut.make_spec("model", size=(64, 32, 8), **_vinyl()),
+    # the thin layer's real-time form: five channels in two textures, log κ axes
+    "thin_layer": lambda: _thin_layer_spec(),
 }
+
+
+def _thin_layer_spec():
+    return lut.make_spec("thin_layer", model="thin_layer(rough_conductor)", size=(6, 8, 8),
+                         params={c: {"eta": 1.5, "tau": t, "n2": n, "k2": k} for c, t, n, k in
+                                 (("R", 0.1, 0.2, 3.9), ("G", 0.3, 1.0, 2.6),
+                                  ("B", 0.6, 1.2, 2.4))},
+                         orders={"n_u": 12, "n_phi": 8})
 
 
 def _vinyl():
@@ -142,7 +152,7 @@ def _vinyl():
 
 #: Direct evaluation of the quadrature tables (a fresh quadrature per point, E_avg included)
 #: at 4096 points would dominate the test time: they are compared at the first points only.
-N_DIRECT = {"albedo_conductor": 64, "dfg": 128, "albedo_dielectric": 12}
+N_DIRECT = {"albedo_conductor": 64, "dfg": 128, "albedo_dielectric": 12, "thin_layer": 16}
 _DIRECT, _BAKED = {}, {}
 
 
@@ -331,3 +341,78 @@ def test_glsl_model_reader_computes_and_folds_the_coordinates(gl, tmp_path, name
           f"{np.sqrt(np.mean(e_gpu ** 2)):.3g} (emulated lookup: RMS "
           f"{np.sqrt(np.mean(e_emu ** 2)):.3g})")
     assert np.sqrt(np.mean(e_gpu ** 2)) <= np.sqrt(np.mean(e_emu ** 2)) * 1.01 + 1e-4
+
+
+# --------------------------------------------------------------------------------------------
+# the thin layer's reader: fitlab_thin_layer(tex0, tex1, wi, kappa1, kappa2, mean, kappa, E)
+# --------------------------------------------------------------------------------------------
+
+
+def test_glsl_thin_layer_reader_builds_the_lobe(gl, tmp_path):
+    """The convenience reader turns the table's channels into the lobe a pre-filtered
+    environment lookup needs: the unit mean direction in the plane of incidence on the mirror
+    side (from sin_theta_mean), κ̂ = 10^log10_kappa and E per channel, equal to the same
+    construction from the float64 lookup."""
+    baked = lut.bake(_thin_layer_spec(), "half", check_points=0)
+    exr.write_exr(tmp_path / "t.exr", baked)
+    table = exr.read_exr(tmp_path / "t.exr")
+    code = shader.glsl(table)
+    frag = ("#version 330\nuniform sampler2D lut0;\nuniform sampler2D lut1;\n"
+            "uniform sampler2D coords;\nuniform sampler2D dirs;\n"
+            "layout(location = 0) out vec4 out0;\nlayout(location = 1) out vec4 out1;\n"
+            f"{code}\nvoid main() {{\n"
+            "    vec4 c = texelFetch(coords, ivec2(gl_FragCoord.xy), 0);\n"
+            "    vec3 wi = texelFetch(dirs, ivec2(gl_FragCoord.xy), 0).xyz;\n"
+            "    vec3 mean; float kappa; vec3 E;\n"
+            "    fitlab_thin_layer(lut0, lut1, wi, c.y, c.z, mean, kappa, E);\n"
+            "    out0 = vec4(mean, kappa); out1 = vec4(E, 0.0);\n}\n")
+    prog = gl.program(vertex_shader=VERT, fragment_shader=frag)
+    rng = np.random.default_rng(5)
+    n = N_SIDE * N_SIDE
+    pts = _points(table)
+    mu = np.sqrt(rng.random(n))
+    phi = 2 * np.pi * rng.random(n)
+    s = np.sqrt(1 - mu * mu)
+    wi = np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1).astype(np.float32).astype(float)
+    objs = []
+    for g, chans in enumerate(shader.texture_groups(table)):
+        idx = [table.channels.index(c) for c in chans]
+        data = np.ascontiguousarray(table.values[:, :, idx].astype(np.float32))
+        h, w, c = data.shape
+        t = gl.texture((w, h), c, data.tobytes(), dtype="f4")
+        t.filter = (gl.LINEAR, gl.LINEAR)
+        t.repeat_x = t.repeat_y = False
+        t.use(location=g)
+        prog[f"lut{g}"] = g
+        objs.append(t)
+    for loc, (name, d) in enumerate((("coords", pts), ("dirs", wi)), start=4):
+        px = np.zeros((n, 4), np.float32)
+        px[:, :3] = d
+        t = gl.texture((N_SIDE, N_SIDE), 4, px.tobytes(), dtype="f4")
+        t.filter = (gl.NEAREST, gl.NEAREST)
+        t.use(location=loc)
+        prog[name] = loc
+        objs.append(t)
+    targets = [gl.texture((N_SIDE, N_SIDE), 4, dtype="f4") for _ in range(2)]
+    fbo = gl.framebuffer(color_attachments=targets)
+    vbo = gl.buffer(np.array([-1, -1, 3, -1, -1, 3], np.float32).tobytes())
+    vao = gl.vertex_array(prog, [(vbo, "2f", "pos")])
+    fbo.use()
+    gl.viewport = (0, 0, N_SIDE, N_SIDE)
+    vao.render(mode=gl.TRIANGLES)
+    out = [np.frombuffer(fbo.read(components=4, dtype="f4", attachment=g), np.float32)
+           .reshape(-1, 4).astype(float) for g in range(2)]
+    for obj in objs + targets + [fbo, vbo, vao, prog]:
+        obj.release()
+    v = lut.lookup(table, np.stack([wi[:, 2], pts[:, 1], pts[:, 2]], -1))
+    sn = np.clip(v[:, 0], -1, 1)
+    d = -wi[:, :2] / np.linalg.norm(wi[:, :2], axis=1, keepdims=True)
+    mean = np.column_stack([sn[:, None] * d, np.sqrt(1 - sn * sn)])
+    np.testing.assert_allclose(np.linalg.norm(out[0][:, :3], axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(out[0][:, :3], mean, atol=2e-4)
+    np.testing.assert_allclose(out[0][:, 3], 10 ** v[:, 1], rtol=1e-3)
+    np.testing.assert_allclose(out[1][:, :3], v[:, 2:5], rtol=1e-3, atol=1e-6)
+    # the mean lies on the mirror side of the plane of incidence: (mean.xy) · (wi.xy) <= 0
+    # where the lobe leans that way (sin_theta_mean > 0)
+    lean = sn > 1e-3
+    assert np.all(np.sum(out[0][lean, :2] * wi[lean, :2], axis=1) <= 1e-6)

@@ -42,7 +42,10 @@ def add_parser(sub):
         "--out metal.exr; fitlab lut model --from-fit "
         "fits/brown_vinyl_weidlich_wilkie_lambert.json --phi-d auto --out vinyl.exr (a phi_d "
         "axis if the 2D table misses the target); fitlab lut model --model oren_nayar --param "
-        "albedo=0.5 --param sigma=0.3 --size 128x128x16 --out on.exr (3D)",
+        "albedo=0.5 --param sigma=0.3 --size 128x128x16 --out on.exr (3D); fitlab lut thin_layer "
+        "--model 'thin_layer(rough_conductor)' --param eta=1.5 --param tau=0.2 --param "
+        "n2=0.2,1.0,1.2 --param k2=3.9,2.6,2.4 --out film.exr (the subsurface lobe's mean, "
+        "kappa and albedo over (mu, kappa1, kappa2) for a pre-filtered environment map)",
     )
     p.add_argument("kind", metavar="KIND", help=f"table kind: {', '.join(lut.KINDS)}")
     p.add_argument("--from-fit", metavar="FIT.json",
@@ -80,6 +83,9 @@ def add_parser(sub):
     p.add_argument("--eta-range", metavar="LO:HI",
                    help="albedo_dielectric: range of eta = n_inside/n_outside within [1.001, 5] "
                    "(default 1.05:3; incidence from inside covers 1/eta)")
+    p.add_argument("--kappa-range", metavar="LO:HI",
+                   help="thin_layer: range of the kappa1 and kappa2 axes within [0.01, 1e7] "
+                   "(default 1:1e6)")
     p.add_argument("--dtype", choices=("half", "float"), default="half",
                    help="EXR channel type (default half; half refuses values above 65504)")
     p.add_argument("--check-points", type=int, metavar="N",
@@ -126,6 +132,11 @@ def _print_summary(table, written):
                if len(table.axes) == 2 else ")"))
         print(f"  lookup vs the model at random direction pairs ({how}): max rel "
               f"{p['max_rel']:.3g}, RMS rel {p['rms_rel']:.3g}{miss}", file=sys.stderr)
+    if "vmf_lobe" in acc:
+        v = acc["vmf_lobe"]
+        print(f"  the lobe as one vMF (mean, kappa, E) vs the model's lobe at {v['points']} "
+              f"random points, relative L2: median {v['median']:.3g}, 90th percentile "
+              f"{v['p90']:.3g}, max {v['max']:.3g}", file=sys.stderr)
     if "auto" in acc:
         print(f"  axes chosen by measurement: {acc['auto']['reason']}", file=sys.stderr)
 
@@ -148,7 +159,8 @@ def run(args) -> int:
     table = build_table(args.kind, fit=args.from_fit, channel=args.channel, model=model,
                         params=channel_params(args.param), options=options, preset=args.preset,
                         size=args.size, mapping_items=args.mapping, alpha_range=args.alpha_range,
-                        eta_range=args.eta_range, dtype=args.dtype,
+                        eta_range=args.eta_range, kappa_range=args.kappa_range,
+                        dtype=args.dtype,
                         check_points=args.check_points, progress=progress,
                         phi_d=args.phi_d)
     written = write_outputs(table, out, shader=not args.no_shader, hlsl=args.hlsl)

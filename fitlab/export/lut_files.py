@@ -92,7 +92,7 @@ def from_fit(path, channel=None):
 
 def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, options=None,
                 preset=None, size=None, mapping_items=None, alpha_range=None, eta_range=None,
-                dtype="half", check_points=None, progress=None, phi_d=None):
+                dtype="half", check_points=None, progress=None, phi_d=None, kappa_range=None):
     """Validate the inputs of `fitlab lut` and bake the table (nothing written). ``model`` is a
     registry name, ``params`` {channel: {name: value}} and ``options`` the model's options
     (the command line parses them: fitlab.cli.common); ``fit`` a parameter file instead.
@@ -152,7 +152,8 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
         options, params = kind.prepare(model, options, params)
         spec_args = dict(model=model, params=params, options=options,
                          alpha_range=parse_range(alpha_range, "alpha"),
-                         eta_range=parse_range(eta_range, "eta"))
+                         eta_range=parse_range(eta_range, "eta"),
+                         kappa_range=parse_range(kappa_range, "kappa"))
         source = str(fit) if fit else None
         if phi_d == "auto":
             return lut.bake_auto(kind.name, size=sizes, mappings=mappings, dtype=dtype,

@@ -150,7 +150,7 @@ def _generate(table: Table, p: str, source: str, lang: str) -> str:
             L.append("    return mix(a, b, pz - k);")
         L.append("}")
         L.append("")
-    L += _convenience(table, p, tex_arg, tex_pass, coord_args, args)
+    L += _convenience(table, p, tex_arg, tex_pass, coord_args, args, lang)
     text = "\n".join(L) + "\n"
     if lang == "hlsl":
         for pat, rep in _HLSL:
@@ -159,9 +159,11 @@ def _generate(table: Table, p: str, source: str, lang: str) -> str:
     return text
 
 
-def _convenience(table, p, tex_arg, tex_pass, coord_args, args):
+def _convenience(table, p, tex_arg, tex_pass, coord_args, args, lang="glsl"):
     call = ", ".join(args)
     k = table.kind
+    if k == "thin_layer":
+        return _thin_layer_convenience(table, p, lang)
     if k == "D":
         a = table.axes[1]
         return [
@@ -214,6 +216,43 @@ def _convenience(table, p, tex_arg, tex_pass, coord_args, args):
             "}",
         ]
     return [f"vec4 {p}({tex_arg}, {coord_args}) {{ return {p}_tex0({tex_pass}, {call}); }}"]
+
+
+def _thin_layer_convenience(table, p, lang):
+    """The lobe for a pre-filtered environment lookup: mean direction, κ̂ and E (≤ 3 channels)."""
+    n_tex = len(texture_groups(table))
+    if lang == "hlsl":
+        decl = ", ".join(f"Texture2D tex{g}" for g in range(n_tex)) + ", SamplerState smp"
+        pass_ = [f"tex{g}, smp" for g in range(n_tex)]
+    else:
+        decl = ", ".join(f"sampler2D tex{g}" for g in range(n_tex))
+        pass_ = [f"tex{g}" for g in range(n_tex)]
+    n_E = min(3, len(table.channels) - 2)
+    slots = [f"v{(2 + j) // 4}.{'xyzw'[(2 + j) % 4]}" for j in range(n_E)] + ["0.0"] * (3 - n_E)
+    L = [
+        "// The thin layer's subsurface lobe for incidence wi (unit, local frame, normal = +z) and",
+        "// boundary concentrations kappa1, kappa2 (clamped to the table's range by the lookup):",
+        "// its mean direction (unit; sin_theta_mean toward the mirror azimuth, in the plane of",
+        "// incidence), its vMF concentration kappa_hat and its albedo E of the first <= 3 channels",
+        f"// ({', '.join(table.channels[2:2 + n_E])}). Read a pre-filtered environment map at",
+        "// `mean` with a vMF of kappa_hat and multiply by E (Guo et al. 2015 section 5.5).",
+        f"void {p}({decl}, vec3 wi, float kappa1, float kappa2,",
+        "        out vec3 mean, out float kappa_hat, out vec3 E) {",
+        "    float mu = clamp(wi.z, 0.0, 1.0);",
+    ]
+    for g in range(n_tex):
+        L.append(f"    vec4 v{g} = {p}_tex{g}({pass_[g]}, mu, kappa1, kappa2);")
+    L += [
+        "    float s = clamp(v0.x, -1.0, 1.0);",
+        "    vec2 t = -wi.xy;",
+        "    float l = length(t);",
+        "    vec2 d = l > 0.0 ? t / l : vec2(0.0, 0.0);",
+        "    mean = vec3(s * d.x, s * d.y, sqrt(max(1.0 - s * s, 0.0)));",
+        "    kappa_hat = pow(10.0, v0.y);",
+        f"    E = vec3({', '.join(slots)});",
+        "}",
+    ]
+    return L
 
 
 __all__ = ["glsl", "hlsl", "texture_groups"]

@@ -406,6 +406,144 @@ def meets_phi_d_target(stats) -> bool:
                 and stats["max_rel"] <= PHI_D_TARGET["max_rel"])
 
 
+#: Default range of the thin_layer table's κ1 and κ2 axes (the validation grid's: 1 to 1e6).
+KAPPA_RANGE = (1.0, 1e6)
+#: Points per call of the thin-layer lobe quadrature (each with ORDERS nodes of wo).
+LOBE_CHUNK = 64
+
+
+def _thin_layer_roughness(model):
+    """(κ1, κ2) → the model's roughness parameters: κ (thin_layer(...)) or α = sqrt(2/κ)
+    (thin_layer(...,roughness=alpha)); a model with neither has no thin-layer lobe."""
+    names = set(model.parameter_names)
+    if {"kappa1", "kappa2"} <= names:
+        return lambda k1, k2: {"kappa1": k1, "kappa2": k2}
+    if {"alpha1", "alpha2"} <= names:
+        return lambda k1, k2: {"alpha1": jnp.sqrt(2.0 / k1), "alpha2": jnp.sqrt(2.0 / k2)}
+    raise ValueError(f"a thin_layer table needs a thin_layer(...) model (two boundaries, kappa1 "
+                     f"and kappa2 or alpha1 and alpha2); {model.name} has neither")
+
+
+def spec_thin_layer(model_name, params, options=None, size=(16, 32, 32),
+                    mappings=("linear", "log", "log"), kappa_range=KAPPA_RANGE, orders=None):
+    """The real-time form of the thin layer (Guo et al. 2015 section 5.5): over (μ = cos θi,
+    κ1, κ2) for the fit's η, bottom and absorption, the subsurface lobe's mean direction
+    (sin θ toward the mirror azimuth), log10 of its concentration κ̂ (moment-matched: A3(κ̂) =
+    |mean resultant|, eq. 18) and its albedo E per channel (the remaining terms), integrated
+    over outgoing directions by :mod:`fitlab.lut.lobe`. ``params`` {channel: parameters
+    without the roughnesses}."""
+    from fitlab.lut.lobe import ORDERS, lobe_moments, vmf_lobe_error
+    from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO, exit_concentration
+
+    model = fitlab.get_model(model_name)
+    rough = _thin_layer_roughness(model)
+    opts = dict(fitlab.api.resolve_options(model, options))
+    if "subsurface" not in next((o.choices for o in model.options if o.name == "component"), ()):
+        raise ValueError(f"a thin_layer table needs a model with subsurface orders; "
+                         f"{model.name} has none")
+    opts["component"] = "subsurface"
+    orders = {**ORDERS, **(orders or {})}
+    lo, hi = kappa_range
+    if lo < KAPPA_LO or hi > KAPPA_HI:
+        raise ValueError(f"axes kappa1, kappa2: the range must lie within [{KAPPA_LO:g}, "
+                         f"{KAPPA_HI:g}], got [{lo:g}, {hi:g}]")
+    free = set(rough(1.0, 1.0))
+    clean = {}
+    for ch, p in params.items():
+        p = {k: float(v) for k, v in p.items() if k in model.parameter_names and k not in free}
+        fitlab.api.check_params(model, {**p, **{k: float(v) for k, v in rough(
+            jnp.asarray(100.0), jnp.asarray(100.0)).items()}})
+        clean[ch] = p
+    if not clean:
+        raise ValueError("a thin_layer table needs the model's parameters (eta, tau and the "
+                         "bottom's index) for at least one channel")
+    etas = {p["eta"] for p in clean.values()}
+    if len(etas) != 1:
+        raise ValueError(f"a thin_layer table is made for one η (its lobe's direction and "
+                         f"concentration are shared by the channels); the channels have "
+                         f"{', '.join(f'{e:g}' for e in sorted(etas))}")
+    eta = etas.pop()
+    axes = (mu_axis(size[0], mappings[0]),
+            make_axis("kappa1", lo, hi, size[1], mappings[1],
+                      "vMF concentration κ1 of the top boundary (κ ≈ 2/α²)"),
+            make_axis("kappa2", lo, hi, size[2], mappings[2],
+                      "vMF concentration κ2 of the bottom boundary (κ ≈ 2/α²)"))
+    channels = ("sin_theta_mean", "log10_kappa") + tuple(f"E_{ch}" for ch in clean)
+    const = [{k: jnp.asarray(v) for k, v in p.items()} for p in clean.values()]
+
+    def f(pq, wi, wo):
+        r = rough(pq["kappa1"], pq["kappa2"])
+        return jnp.stack([model.eval({**c, **r}, wi, wo, **opts) for c in const], axis=-1)
+
+    def geometry(coords):
+        mu = np.clip(coords[:, 0], MU_MIN, 1.0)
+        s = np.sqrt((1.0 - mu) * (1.0 + mu))
+        wi = np.stack([s, np.zeros_like(s), mu], axis=-1)
+        mirror = wi * np.array([-1.0, 1.0, 1.0])
+        k0 = np.asarray(exit_concentration(jnp.asarray(mu), eta, jnp.asarray(coords[:, 1]),
+                                           jnp.asarray(coords[:, 2])))
+        return wi, mirror, k0
+
+    def chunks(*arrays):
+        """(start, rows, the arrays' rows padded to LOBE_CHUNK: one compiled shape)."""
+        for start in range(0, len(arrays[0]), LOBE_CHUNK):
+            parts = [a[start:start + LOBE_CHUNK] for a in arrays]
+            pad = LOBE_CHUNK - len(parts[0])
+            yield start, len(parts[0]), [np.concatenate([q, np.repeat(q[-1:], pad, 0)])
+                                         for q in parts]
+
+    def evaluate(coords):
+        coords = np.asarray(coords, float)
+        vals, errs = [], []
+        for _, m, (part,) in chunks(coords):
+            wi, mirror, k0 = geometry(part)
+            kap = {"kappa1": part[:, 1], "kappa2": part[:, 2]}
+            E, mean, k, (dE, dm, dk) = lobe_moments(f, wi, mirror, k0, kap, orders)
+            vals.append(np.column_stack([-mean[:, 0], np.log10(k), E])[:m])
+            errs.append(np.column_stack([dm, dk, dE])[:m])
+        return np.concatenate(vals), np.concatenate(errs)
+
+    def vmf_check(table, spec, n, seed=2):
+        """The real-time form's own error: the model's subsurface lobe against its albedo times
+        the vMF of the table's mean and κ̂, at random (μ, κ1, κ2) of the table's range."""
+        rng = np.random.default_rng(seed)
+        t = rng.random((n, len(table.axes)))
+        coords = np.stack([a.to_x(t[:, j]) for j, a in enumerate(table.axes)], axis=-1)
+        look = lookup(table, coords)
+        errs = []
+        for _, m, (part, v) in chunks(coords, look):
+            wi, mirror, k0 = geometry(part)
+            sn = np.clip(v[:, 0], -1.0, 1.0)
+            mean = np.stack([-sn, np.zeros_like(sn), np.sqrt((1 - sn) * (1 + sn))], axis=-1)
+            kap = {"kappa1": part[:, 1], "kappa2": part[:, 2]}
+            errs.append(vmf_lobe_error(f, wi, mirror, k0, kap, v[:, 2:].sum(axis=1), mean,
+                                       10.0 ** v[:, 1], orders)[:m])
+        e = np.concatenate(errs)
+        return {"points": n, "seed": seed,
+                "measure": "sqrt(∫ (g - ĝ)² dω / ∫ g² dω), g = Σ_c f_c cos θo of the model's "
+                "subsurface lobe, ĝ = (Σ_c E_c) vMF(ωo; mean, κ̂) from the table",
+                "median": float(np.median(e)), "p90": float(np.quantile(e, 0.9)),
+                "max": float(e.max())}
+
+    return Spec("thin_layer", channels, axes, evaluate,
+                f"real-time form of the subsurface lobe of {model.name} (Guo et al. 2015 "
+                f"section 5.5) for η = {eta:g}: sin_theta_mean = sine of the lobe's mean "
+                "direction's polar angle, positive toward the mirror azimuth (the mean lies in "
+                "the plane of incidence); log10_kappa = log10 κ̂, the vMF concentration over "
+                "outgoing directions with A3(κ̂) = |mean resultant| (eq. 18); E_<channel> = "
+                "∫ f cos θo dωo, the lobe's albedo (the remaining terms). Integrals of the "
+                "subsurface component of f cos θo over the upper hemisphere",
+                {"name": model.name, "options": opts}, clean,
+                f"quadrature over outgoing directions adapted to the tree's vMF (fitlab.lut.lobe:"
+                f" {orders['n_u']} Gauss-Legendre nodes in the inverse-CDF coordinate × "
+                f"{orders['n_phi']} midpoint nodes in azimuth); error estimate = the difference "
+                "from 2/3 of those orders",
+                ("a shader reads a pre-filtered environment map at the mean direction with a "
+                 "vMF of κ̂ and multiplies by E (section 5.5); accuracy.vmf_lobe gives the error "
+                 "of that single-vMF form against the model's lobe",),
+                n_check=64, orders=orders, checks=(("vmf_lobe", vmf_check),))
+
+
 # --------------------------------------------------------------------------------------------
 # What a kind needs from a model's or fit's parameters
 # --------------------------------------------------------------------------------------------
@@ -502,6 +640,18 @@ def _make_albedo_dielectric(size, mappings, *, options, alpha_range, eta_range, 
         alpha_range, eta_range, orders)
 
 
+def _prepare_thin_layer(model, options, params):
+    if not model:
+        raise ValueError("a thin_layer table needs a thin_layer model: --from-fit FILE.json or "
+                         "--model 'thin_layer(rough_conductor)' --param eta=... --param n2=...")
+    return options, params
+
+
+def _make_thin_layer(size, mappings, *, model, params, options, kappa_range, orders, **_):
+    return spec_thin_layer(model, params, options, size, mappings,
+                           kappa_range or KAPPA_RANGE, orders)
+
+
 def _make_model(size, mappings, *, model, params, options, **_):
     if model is None:
         raise ValueError("a model table needs a model (--model NAME --param ... or --from-fit)")
@@ -524,7 +674,8 @@ class Kind(NamedTuple):
     default_mappings: tuple
     needs: str  # which parameters the table needs from a model / fit (for help texts)
     axis_names: tuple
-    #: make(size, mappings, *, model, params, options, alpha_range, eta_range, orders) -> Spec
+    #: make(size, mappings, *, model, params, options, alpha_range, eta_range, orders,
+    #: kappa_range) -> Spec
     make: Callable
     #: prepare(model name or None, options, {channel: params}) -> (options, params): the
     #: table's inputs from a model's or fit's (ValueError when they lack what the table needs)
@@ -589,6 +740,11 @@ KINDS = {k.name: k for k in (
          "every parameter of the model", ("cos_theta_h", "cos_theta_d"), _make_model,
          _prepare_model, extra_axes=((PHI_D, PHI_D_SIZE, "linear"),),
          auto_check="parameterization", model_presets=True),
+    Kind("thin_layer", "the thin layer's subsurface lobe for a pre-filtered environment map "
+         "(Guo et al. 2015 section 5.5): mean direction, log10 κ̂ and albedo per channel over "
+         "(μ, κ1, κ2)", 3, (16, 32, 32), ("linear", "log", "log"),
+         "a thin_layer model's eta, tau and bottom index (κ1, κ2 are the axes)",
+         ("mu", "kappa1", "kappa2"), _make_thin_layer, _prepare_thin_layer),
 )}
 
 
@@ -600,7 +756,7 @@ def get_kind(name: str) -> Kind:
 
 
 def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, options=None,
-              alpha_range=None, eta_range=None, orders=None) -> Spec:
+              alpha_range=None, eta_range=None, orders=None, kappa_range=None) -> Spec:
     """The :class:`Spec` of a table kind from uniform arguments (what the CLI and the EXR
     reader use): ``model`` a registry name or None, ``params`` {channel: {name: value}},
     ``options`` the model options (``distribution``, ``fresnel``). Each kind's ``make`` takes
@@ -618,7 +774,8 @@ def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, o
     mappings = mappings[:len(size)]
     return k.make(size, mappings, model=model, params=params or {}, options=dict(options or {}),
                   alpha_range=tuple(alpha_range or (ALPHA_MIN, 1.0)),
-                  eta_range=tuple(eta_range or ETA_RANGE), orders=orders)
+                  eta_range=tuple(eta_range or ETA_RANGE), orders=orders,
+                  kappa_range=tuple(kappa_range) if kappa_range else None)
 
 
 def _axes_text(k: Kind) -> str:
@@ -638,6 +795,7 @@ def spec_of_table(table: Table) -> Spec:
                      model=model.get("name"), params=table.params, options=model.get("options"),
                      alpha_range=(by["alpha"].lo, by["alpha"].hi) if "alpha" in by else None,
                      eta_range=(by["eta"].lo, by["eta"].hi) if "eta" in by else None,
+                     kappa_range=(by["kappa1"].lo, by["kappa1"].hi) if "kappa1" in by else None,
                      orders=orders)
 
 

@@ -372,3 +372,13 @@ def from_call(call, get_model) -> Model:
 @functools.lru_cache(maxsize=None)
 def _cached(bottom: Model, roughness: str) -> Model:
     return make_thin_layer(bottom, roughness)
+
+
+def exit_concentration(cos_theta, eta, kappa1, kappa2, order: int = 1):
+    """κ̂ of subsurface order ``order``'s lobe over outgoing directions for incidence cos θ: the
+    joint warping of eq. 18 through the NDF tree of eq. 26 (the ENDF's κ_m = 4 cos θ κ̂, eq. 19).
+    What a pre-filtered environment map is read with (section 5.5)."""
+    side = _Incidence(jnp.asarray(cos_theta), eta)
+    k1 = jnp.clip(kappa1, vmf.KAPPA_MIN, vmf.KAPPA_MAX)
+    k2 = jnp.clip(kappa2, vmf.KAPPA_MIN, vmf.KAPPA_MAX)
+    return _kappa_of_nu(4.0 * side.c * _lobe_nu(side, eta, k1, k2, order))
