@@ -328,6 +328,13 @@ def test_documented_examples(tmp_path, capsys):
     t = exr.read_exr(EXAMPLES / "lut_fresnel_copper.exr")
     assert t.kind == "fresnel" and t.channels == ("R", "G", "B")
     assert (EXAMPLES / "lut_fresnel_copper.glsl").read_text().startswith("// fitlab lookup table")
+    thin = exr.read_exr(EXAMPLES / "lut_thin_layer_chromium.exr")
+    assert thin.kind == "thin_layer" and thin.channels == ("sin_theta_mean", "log10_kappa", "E_R",
+                                                           "E_G", "E_B")
+    assert "void fitlab_thin_layer(sampler2D tex0, sampler2D tex1" in (
+        EXAMPLES / "lut_thin_layer_chromium.glsl").read_text()
+    with pytest.raises(InputFileError, match="has the axes mu, kappa1, kappa2"):
+        exr.read_exr(EXAMPLES / "invalid" / "lut_thin_layer_axes.exr")
     for bad in sorted((EXAMPLES / "invalid").glob("lut_*.exr")):
         copy = tmp_path / bad.name
         shutil.copy(bad, copy)

@@ -156,9 +156,10 @@ N_DIRECT = {"albedo_conductor": 64, "dfg": 128, "albedo_dielectric": 12, "thin_l
 _DIRECT, _BAKED = {}, {}
 
 
-#: The dielectric albedo table (three axes, a quadrature per texel) is the costliest to bake and
-#: to evaluate directly: whole suite only; its GLSL path is the same 3D one as model_phi_d's.
-SLOW_TABLES = {"albedo_dielectric"}
+#: The dielectric albedo and thin-layer tables (three axes, a quadrature per texel) are the
+#: costliest to bake and to evaluate directly: whole suite only; their GLSL path is the same 3D
+#: one as model_phi_d's.
+SLOW_TABLES = {"albedo_dielectric", "thin_layer"}
 
 
 @pytest.mark.parametrize("texelfetch", [False, True], ids=["hw_bilinear", "texelfetch"])
@@ -348,6 +349,7 @@ def test_glsl_model_reader_computes_and_folds_the_coordinates(gl, tmp_path, name
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_glsl_thin_layer_reader_builds_the_lobe(gl, tmp_path):
     """The convenience reader turns the table's channels into the lobe a pre-filtered
     environment lookup needs: the unit mean direction in the plane of incidence on the mirror

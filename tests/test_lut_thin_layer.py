@@ -57,6 +57,7 @@ def test_sharp_boundaries_give_the_closed_form_albedo_and_the_tree_concentration
     assert np.all(err < 1e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mu,k1,k2", [(0.8, 100.0, 30.0), (0.3, 1000.0, 10.0)])
 def test_moments_agree_with_the_models_sampling(mu, k1, k2):
     """Albedo, mean direction and κ̂ by the table's quadrature equal the same moments of the
@@ -97,6 +98,7 @@ def test_refusals_say_what_to_do(kw, message):
         lut.make_spec("thin_layer", size=(4, 4, 4), **args)
 
 
+@pytest.mark.slow
 def test_cli_bakes_it_and_refuses_a_model_without_two_boundaries(tmp_path, capsys):
     from fitlab.cli import main
 

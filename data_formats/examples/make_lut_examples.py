@@ -6,12 +6,19 @@
 - invalid/lut_wrong_version.exr: the same with fitlab.schema_version = 2;
 - invalid/lut_truncated.exr: its first half only;
 - invalid/lut_nan.exr: one texel of channel G set to NaN;
-- invalid/lut_plain.exr: an OpenEXR image without fitlab.* attributes.
+- invalid/lut_plain.exr: an OpenEXR image without fitlab.* attributes;
+- lut_thin_layer_chromium.exr / .glsl: the thin layer's real-time table (a clear layer of
+  η 1.5, τ 0.05 / 0.9 / 1.2, over rough chromium), 4 x 6 x 6, half (what `fitlab lut thin_layer
+  --model 'thin_layer(rough_conductor)' --param eta=1.5 --param tau=0.05,0.9,1.2 --param
+  n2=3.84,3.18,1.99 --param k2=4.37,4.41,4.22 --size 4x6x6 --out ...` writes);
+- invalid/lut_thin_layer_axes.exr: the same with its second axis named alpha instead of kappa1.
 
     python data_formats/examples/make_lut_examples.py
 """
 
 from pathlib import Path
+
+import json
 
 import numpy as np
 import OpenEXR
@@ -48,6 +55,18 @@ def main():
     ch["G"][0, 5] = np.nan
     _rewrite(good, inv / "lut_nan.exr", channels=ch)
     _rewrite(good, inv / "lut_plain.exr", drop_fitlab=True)
+
+    params = {c: {"eta": 1.5, "tau": t, "n2": n, "k2": k} for c, t, n, k in
+              (("R", 0.05, 3.84, 4.37), ("G", 0.9, 3.18, 4.41), ("B", 1.2, 1.99, 4.22))}
+    thin = lut.bake(lut.make_spec("thin_layer", model="thin_layer(rough_conductor)",
+                                  params=params, size=(4, 6, 6)), "half")
+    good = HERE / "lut_thin_layer_chromium.exr"
+    exr.write_exr(good, thin)
+    good.with_suffix(".glsl").write_text(shader.glsl(thin, source=good.name))
+    with OpenEXR.File(str(good), separate_channels=True) as f:
+        axes = json.loads(f.header()["fitlab.axes"])
+    axes[1]["name"] = "alpha"
+    _rewrite(good, inv / "lut_thin_layer_axes.exr", header={"fitlab.axes": json.dumps(axes)})
 
 
 if __name__ == "__main__":

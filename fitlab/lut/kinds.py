@@ -424,7 +424,7 @@ def _thin_layer_roughness(model):
                      f"and kappa2 or alpha1 and alpha2); {model.name} has neither")
 
 
-def spec_thin_layer(model_name, params, options=None, size=(16, 32, 32),
+def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
                     mappings=("linear", "log", "log"), kappa_range=KAPPA_RANGE, orders=None):
     """The real-time form of the thin layer (Guo et al. 2015 section 5.5): over (μ = cos θi,
     κ1, κ2) for the fit's η, bottom and absorption, the subsurface lobe's mean direction
@@ -742,7 +742,7 @@ KINDS = {k.name: k for k in (
          auto_check="parameterization", model_presets=True),
     Kind("thin_layer", "the thin layer's subsurface lobe for a pre-filtered environment map "
          "(Guo et al. 2015 section 5.5): mean direction, log10 κ̂ and albedo per channel over "
-         "(μ, κ1, κ2)", 3, (16, 32, 32), ("linear", "log", "log"),
+         "(μ, κ1, κ2)", 3, (16, 16, 16), ("linear", "log", "log"),
          "a thin_layer model's eta, tau and bottom index (κ1, κ2 are the axes)",
          ("mu", "kappa1", "kappa2"), _make_thin_layer, _prepare_thin_layer),
 )}
