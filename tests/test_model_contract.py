@@ -187,7 +187,8 @@ QUICK_FLOAT32_LAYERED = {"coated(rough_conductor)", "weidlich_wilkie(rough_condu
 #: keeps its quick checks.
 SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
                # two-layer SpongeCake stacks: their one-layer siblings stay in the quick tier
-               "spongecake(fiber,surface)", "spongecake(fiber_z,surface_z)"}
+               "spongecake(fiber,surface)", "spongecake(fiber_z,surface_z)",
+               "spongecake(fiber,surface,multiple=learned)"}
 
 
 def _marks(name, slow=False):

@@ -39,7 +39,8 @@ LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_w
                     "spongecake(fiber_z,surface_z)", "spongecake(surface_z,substrate=lambertian)",
                     "spongecake(surface,multiple=lobe)", "spongecake(hg,multiple=only)",
                     "spongecake(surface_z,substrate=lambertian,multiple=lobe)",
-                    "spongecake(fiber,multiple=learned)")
+                    "spongecake(fiber,multiple=learned)",
+                    "spongecake(fiber,surface,multiple=learned)")
 
 
 def get_model(name: str) -> Model:
