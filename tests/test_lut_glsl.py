@@ -64,13 +64,11 @@ def _frag(table, code, texelfetch):
             f"    vec4 c = texelFetch(coords, ivec2(gl_FragCoord.xy), 0);\n    {body}\n}}\n")
 
 
-def run_on_gpu(ctx, table, points, texelfetch=False):
-    """Evaluate the generated GLSL at ``points`` (P = N_SIDE², n_axes) → (P, C)."""
-    code = shader.glsl(table)
-    prog = ctx.program(vertex_shader=VERT, fragment_shader=_frag(table, code, texelfetch))
-    groups = shader.texture_groups(table)
+def upload_table(ctx, prog, table):
+    """The table's channels as the documented textures lut0, lut1, ... (four channels each,
+    float32, bilinear, clamped), bound to ``prog``; returns them for release."""
     textures = []
-    for g, chans in enumerate(groups):
+    for g, chans in enumerate(shader.texture_groups(table)):
         idx = [table.channels.index(c) for c in chans]
         data = np.ascontiguousarray(table.values[:, :, idx].astype(np.float32))
         h, w, c = data.shape
@@ -80,6 +78,15 @@ def run_on_gpu(ctx, table, points, texelfetch=False):
         tex.use(location=g)
         prog[f"lut{g}"] = g
         textures.append(tex)
+    return textures
+
+
+def run_on_gpu(ctx, table, points, texelfetch=False):
+    """Evaluate the generated GLSL at ``points`` (P = N_SIDE², n_axes) → (P, C)."""
+    code = shader.glsl(table)
+    prog = ctx.program(vertex_shader=VERT, fragment_shader=_frag(table, code, texelfetch))
+    groups = shader.texture_groups(table)
+    textures = upload_table(ctx, prog, table)
     pts = np.zeros((N_SIDE * N_SIDE, 4), np.float32)
     pts[:, : points.shape[1]] = points
     ctex = ctx.texture((N_SIDE, N_SIDE), 4, pts.tobytes(), dtype="f4")
@@ -248,14 +255,7 @@ def run_directions_on_gpu(ctx, table, wi, wo, texelfetch=False):
     """fitlab_model(lut0, wi, wo) of the generated GLSL at N_SIDE² direction pairs → (P, C)."""
     prog = ctx.program(vertex_shader=VERT,
                        fragment_shader=_frag_directions(shader.glsl(table), texelfetch))
-    data = np.ascontiguousarray(table.values.astype(np.float32))
-    h, w, c = data.shape
-    lut_tex = ctx.texture((w, h), c, data.tobytes(), dtype="f4")
-    lut_tex.filter = (ctx.LINEAR, ctx.LINEAR)
-    lut_tex.repeat_x = lut_tex.repeat_y = False
-    lut_tex.use(location=0)
-    prog["lut0"] = 0
-    objs = [lut_tex]
+    objs = upload_table(ctx, prog, table)
     for loc, (name, d) in enumerate((("dir_i", wi), ("dir_o", wo)), start=1):
         px = np.zeros((N_SIDE * N_SIDE, 4), np.float32)
         px[:, :3] = d
@@ -376,17 +376,7 @@ def test_glsl_thin_layer_reader_builds_the_lobe(gl, tmp_path):
     phi = 2 * np.pi * rng.random(n)
     s = np.sqrt(1 - mu * mu)
     wi = np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1).astype(np.float32).astype(float)
-    objs = []
-    for g, chans in enumerate(shader.texture_groups(table)):
-        idx = [table.channels.index(c) for c in chans]
-        data = np.ascontiguousarray(table.values[:, :, idx].astype(np.float32))
-        h, w, c = data.shape
-        t = gl.texture((w, h), c, data.tobytes(), dtype="f4")
-        t.filter = (gl.LINEAR, gl.LINEAR)
-        t.repeat_x = t.repeat_y = False
-        t.use(location=g)
-        prog[f"lut{g}"] = g
-        objs.append(t)
+    objs = upload_table(gl, prog, table)
     for loc, (name, d) in enumerate((("coords", pts), ("dirs", wi)), start=4):
         px = np.zeros((n, 4), np.float32)
         px[:, :3] = d
