@@ -457,25 +457,28 @@ def test_every_kind_makes_its_own_spec_through_the_registry():
     from fitlab.microfacet import DISTRIBUTIONS
 
     params = {"fresnel": {"Y": {"eta": 1.5}},
-              "model": {"Y": {"alpha": 0.3, "n": 1.2, "k": 3.0}}}
+              "model": {"Y": {"alpha": 0.3, "n": 1.2, "k": 3.0}},
+              "thin_layer": {"Y": {"eta": 1.5, "tau": 0.1, "n2": 1.2, "k2": 3.0}}}
+    models = {"thin_layer": "thin_layer(rough_conductor)"}
     for name, kind in lut.KINDS.items():
+        model = models.get(name, "rough_conductor")
         assert kind.name == name and len(kind.axis_names) == kind.n_axes
         assert len(kind.default_size) == len(kind.default_mappings) == kind.n_axes
         assert kind.axis_counts == tuple(range(kind.n_axes, len(kind.all_axis_names) + 1))
         assert (kind.auto_check is None) == (not kind.extra_axes)
         assert set(kind.distributions) <= set(DISTRIBUTIONS)  # names from the registry
         sizes = (3,) * kind.n_axes
-        options, p = kind.prepare("rough_conductor", {}, params.get(name, {}))
-        spec = kind.make(sizes, kind.default_mappings, model="rough_conductor", params=p,
+        options, p = kind.prepare(model, {}, params.get(name, {}))
+        spec = kind.make(sizes, kind.default_mappings, model=model, params=p,
                          options=options, alpha_range=(0.01, 1.0), eta_range=(1.1, 2.0),
                          orders=SMALL)
         assert isinstance(spec, lut.Spec) and spec.kind == name
         assert tuple(a.name for a in spec.axes) == kind.axis_names
-        assert lut.make_spec(name, size=sizes, model="rough_conductor", params=p,
+        assert lut.make_spec(name, size=sizes, model=model, params=p,
                              options=options, orders=SMALL).kind == name
         if kind.extra_axes:  # the optional axes: more sizes, their names from the registry
             full = lut.make_spec(name, size=(3,) * len(kind.all_axis_names),
-                                 model="rough_conductor", params=p, options=options)
+                                 model=model, params=p, options=options)
             assert tuple(a.name for a in full.axes) == kind.all_axis_names
             assert tuple(a.mapping for a in full.axes) == kind.all_default_mappings
     assert lut.KINDS["model"].extra_axes == (("phi_d", lut.PHI_D_SIZE, "linear"),)

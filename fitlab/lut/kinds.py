@@ -647,7 +647,7 @@ def _prepare_thin_layer(model, options, params):
     return options, params
 
 
-def _make_thin_layer(size, mappings, *, model, params, options, kappa_range, orders, **_):
+def _make_thin_layer(size, mappings, *, model, params, options, orders, kappa_range=None, **_):
     return spec_thin_layer(model, params, options, size, mappings,
                            kappa_range or KAPPA_RANGE, orders)
 
