@@ -438,7 +438,8 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
     model = fitlab.get_model(model_name)
     rough = _thin_layer_roughness(model)
     opts = dict(fitlab.api.resolve_options(model, options))
-    if "subsurface" not in next((o.choices for o in model.options if o.name == "component"), ()):
+    choices = {o.name: o.choices for o in model.options}
+    if "subsurface" not in choices.get("component", ()):
         raise ValueError(f"a thin_layer table needs a model with subsurface orders; "
                          f"{model.name} has none")
     opts["component"] = "subsurface"
