@@ -56,8 +56,9 @@ def vmf_directions(mean, kappa, u, phi):
     return d, p
 
 
-@functools.partial(jax.jit, static_argnums=(0, 5, 6))
-def _moments(f, wi, mean, kappa, params, n_u, n_phi):
+def _integrand(f, wi, mean, kappa, params, n_u, n_phi):
+    """At the rule's nodes about (``mean``, ``kappa``): (u, φ', directions (P, Q, 3), f cos θo
+    (P, Q, C), 0 below the horizon, and the weights w/p (P, Q) that integrate it)."""
     u, phi, w = (jnp.asarray(a) for a in vmf_rule(n_u, n_phi))
     wo, p = vmf_directions(mean, kappa, u, phi)
     P, Q = wo.shape[:2]
@@ -65,7 +66,13 @@ def _moments(f, wi, mean, kappa, params, n_u, n_phi):
     pq = {k: jnp.broadcast_to(v[:, None, ...], (P, Q) + v.shape[1:]) for k, v in params.items()}
     up = wo[..., 2] > 0
     g = jnp.where(up[..., None], f(pq, wi_q, wo) * jnp.maximum(wo[..., 2], 0.0)[..., None], 0.0)
-    g = g * (w[None, :] / p)[..., None]  # (P, Q, C)
+    return u, phi, wo, g, w[None, :] / p
+
+
+@functools.partial(jax.jit, static_argnums=(0, 5, 6))
+def _moments(f, wi, mean, kappa, params, n_u, n_phi):
+    u, phi, _, g, wq = _integrand(f, wi, mean, kappa, params, n_u, n_phi)
+    g = g * wq[..., None]  # (P, Q, C)
     E = jnp.sum(g, axis=1)  # (P, C)
     # the channel-summed first moment in the rule's frame, as (1 - cos θ', sin θ' cos φ'):
     # 1 - cos θ' straight from the inverse CDF, so 1 - |mean| keeps its digits for κ ~ 1e7
@@ -121,18 +128,12 @@ def summarize(E, a, b, mean, kappa):
 
 @functools.partial(jax.jit, static_argnums=(0, 8, 9))
 def _vmf_residual(f, wi, mean0, kappa0, params, total, mean, kappa, n_u, n_phi):
-    u, phi, w = (jnp.asarray(a) for a in vmf_rule(n_u, n_phi))
-    wo, p = vmf_directions(mean0, kappa0, u, phi)
-    P, Q = wo.shape[:2]
-    wi_q = jnp.broadcast_to(wi[:, None, :], (P, Q, 3))
-    pq = {k: jnp.broadcast_to(v[:, None, ...], (P, Q) + v.shape[1:]) for k, v in params.items()}
-    up = wo[..., 2] > 0
-    g = jnp.where(up, jnp.sum(f(pq, wi_q, wo), axis=-1) * jnp.maximum(wo[..., 2], 0.0), 0.0)
+    _, _, wo, g, wq = _integrand(f, wi, mean0, kappa0, params, n_u, n_phi)
+    g = jnp.sum(g, axis=-1)
     k = kappa[:, None]
     c = jnp.sum(wo * mean[:, None, :], axis=-1)
     vmf_density = k * jnp.exp(k * (c - 1.0)) / (2.0 * jnp.pi * -jnp.expm1(-2.0 * k))
     g_hat = total[:, None] * vmf_density
-    wq = w[None, :] / p
     return jnp.sum(wq * (g - g_hat) ** 2, axis=1), jnp.sum(wq * g * g, axis=1)
 
 
