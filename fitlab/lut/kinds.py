@@ -452,8 +452,8 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
     clean = {}
     for ch, p in params.items():
         p = {k: float(v) for k, v in p.items() if k in model.parameter_names and k not in free}
-        fitlab.api.check_params(model, {**p, **{k: float(v) for k, v in rough(
-            jnp.asarray(100.0), jnp.asarray(100.0)).items()}})
+        fitlab.api.check_params(model, {**p, **{k: float(v) for k, v in
+                                                rough(100.0, 100.0).items()}})
         clean[ch] = p
     if not clean:
         raise ValueError("a thin_layer table needs the model's parameters (eta, tau and the "
@@ -486,17 +486,17 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
         return wi, mirror, k0
 
     def chunks(*arrays):
-        """(start, rows, the arrays' rows padded to LOBE_CHUNK: one compiled shape)."""
+        """(rows, the arrays' rows padded to LOBE_CHUNK: one compiled shape) per chunk."""
         for start in range(0, len(arrays[0]), LOBE_CHUNK):
             parts = [a[start:start + LOBE_CHUNK] for a in arrays]
             pad = LOBE_CHUNK - len(parts[0])
-            yield start, len(parts[0]), [np.concatenate([q, np.repeat(q[-1:], pad, 0)])
+            yield len(parts[0]), [np.concatenate([q, np.repeat(q[-1:], pad, 0)])
                                          for q in parts]
 
     def evaluate(coords):
         coords = np.asarray(coords, float)
         vals, errs = [], []
-        for _, m, (part,) in chunks(coords):
+        for m, (part,) in chunks(coords):
             wi, mirror, k0 = geometry(part)
             kap = {"kappa1": part[:, 1], "kappa2": part[:, 2]}
             E, mean, k, (dE, dm, dk) = lobe_moments(f, wi, mirror, k0, kap, orders)
@@ -512,7 +512,7 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
         coords = np.stack([a.to_x(t[:, j]) for j, a in enumerate(table.axes)], axis=-1)
         look = lookup(table, coords)
         errs = []
-        for _, m, (part, v) in chunks(coords, look):
+        for m, (part, v) in chunks(coords, look):
             wi, mirror, k0 = geometry(part)
             sn = np.clip(v[:, 0], -1.0, 1.0)
             mean = np.stack([-sn, np.zeros_like(sn), np.sqrt((1 - sn) * (1 + sn))], axis=-1)
