@@ -74,10 +74,16 @@ def _exchangeable(components, pnames, onames) -> tuple[Exchangeable, ...]:
     return tuple(out)
 
 
-def make_sum(components: tuple[Model, ...]) -> Model:
+def sum_names(components) -> tuple[list[list[str]], list[list[str]]]:
+    """The names of each component's parameters and options in the sum of ``components``
+    (the rule of this module's docstring), component by component, in declaration order."""
     suffixes = occurrence_suffixes(components)
-    pnames = _names(components, "parameters", suffixes)
-    onames = _names(components, "options", suffixes)
+    return (_names(components, "parameters", suffixes),
+            _names(components, "options", suffixes))
+
+
+def make_sum(components: tuple[Model, ...]) -> Model:
+    pnames, onames = sum_names(components)
     parameters = tuple(p._replace(name=n) for m, names in zip(components, pnames)
                        for p, n in zip(m.parameters, names))
     options = tuple(o._replace(name=n) for m, names in zip(components, onames)
@@ -126,4 +132,4 @@ def make_sum(components: tuple[Model, ...]) -> Model:
     )
 
 
-__all__ = ["make_sum", "occurrence_suffixes", "SEPARATOR", "Parameter", "Option"]
+__all__ = ["make_sum", "sum_names", "occurrence_suffixes", "SEPARATOR", "Parameter", "Option"]

@@ -1,0 +1,101 @@
+"""What a renderer export starts from: a *material*, i.e. a registry model, its options and its
+parameter values per colour channel, taken from a fit's parameter file or given directly.
+
+A fit of relative data carries a ``scale`` (the instrument's unknown factor); a material is the
+absolute model f, so the scale is left out (as ``fitlab convert`` does). Renderers work in RGB:
+a fit of one channel (``Y``, ``Visible``, a band) is grey, a fit of ``R``, ``G``, ``B`` gives
+each parameter as an RGB triple; other channel sets (``X,Y,Z``, several bands) are refused with
+what to do (``channel=`` picks one).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+
+#: The channels of an RGB material, in order.
+RGB = ("R", "G", "B")
+
+
+class ExportError(FitlabError):
+    """A material that an export format cannot represent; the message says what and what to do."""
+
+
+class Material(NamedTuple):
+    """A registry model with its options and, per channel, its parameters (absolute f)."""
+
+    model: str
+    options: dict
+    #: {channel: {parameter: value}}; one channel (grey) or R, G, B
+    channels: dict
+    #: where it came from, for messages and the exported file's provenance ("FILE.json", "model")
+    source: str = "model"
+
+    @property
+    def rgb(self) -> bool:
+        return tuple(self.channels) == RGB
+
+    def values(self, name: str) -> np.ndarray:
+        """Parameter ``name`` as an RGB triple (a grey material repeats its one value)."""
+        vals = [float(self.channels[c][name]) for c in self.channels]
+        return np.asarray(vals * 3 if len(vals) == 1 else vals, dtype=float)
+
+    def scalar(self, name: str, *, what: str) -> float:
+        """Parameter ``name`` where a format needs one value for every channel; refused (with
+        ``what`` the format's name) when the channels differ."""
+        v = self.values(name)
+        if np.ptp(v) > 1e-12 * max(1.0, float(np.max(np.abs(v)))):
+            raise ExportError(
+                f"{what} takes one value of {name!r} for every colour channel, but this material "
+                f"has {', '.join(f'{c}={self.channels[c][name]:.6g}' for c in self.channels)}; "
+                "fit the channels with that parameter shared (fitlab fit --share "
+                f"{name}), or export one channel with --channel")
+        return float(v[0])
+
+
+def _check_channels(channels: dict, source: str) -> dict:
+    names = tuple(channels)
+    if len(names) == 1 or names == RGB:
+        return channels
+    if set(names) == set(RGB):
+        return {c: channels[c] for c in RGB}
+    raise ExportError(f"{source}: channels {', '.join(names)}: renderers take one channel (grey) "
+                      "or R, G, B; export one of them with --channel")
+
+
+def material_from_fit(result, channel: str | None = None) -> Material:
+    """The material of a :class:`fitlab.FitResult` (``channel``: only that one, as grey)."""
+    from fitlab.fitting.space import SCALE
+
+    source = result.path or "fit"
+    params = {c: {k: v for k, v in p.items() if k != SCALE}
+              for c, p in result.parameters.items()}
+    if channel is not None:
+        if channel not in params:
+            raise ExportError(f"{source}: no channel {channel!r}; channels: "
+                              f"{', '.join(params)}")
+        params = {channel: params[channel]}
+    return Material(result.model, dict(result.options), _check_channels(params, source),
+                    source)
+
+
+def material_from_model(model: str, channels: dict, options: dict | None = None) -> Material:
+    """The material of registry ``model`` with ``channels`` = {channel: params} (checked) and
+    ``options`` (defaults filled in)."""
+    import fitlab
+    from fitlab.api import check_params, resolve_options
+
+    try:
+        m = fitlab.get_model(model)
+        opts = resolve_options(m, options)
+        for params in channels.values():
+            check_params(m, params)
+    except ValueError as exc:
+        raise ExportError(str(exc)) from None
+    return Material(m.name, opts, _check_channels(dict(channels), "--model"), "model")
+
+
+__all__ = ["RGB", "ExportError", "Material", "material_from_fit", "material_from_model"]
