@@ -181,6 +181,8 @@ def register(name: str = PLUGIN) -> None:
                 if key in ("id", "type"):
                     continue
                 values[key] = props[key]
+            if "fit" in values:  # relative to the scene file, like Mitsuba's own file names
+                values["fit"] = str(mi.Thread.thread().file_resolver().resolve(values["fit"]))
             self._key = tuple(sorted((k, v if isinstance(v, str) else float(v))
                                      for k, v in values.items()))
             k = _kernels_of(self._key)
@@ -286,8 +288,6 @@ def render(scene, *, spp: int | None = None, seed: int = 0):
     return np.array(image)
 
 
-__all__ = ["PLUGIN", "Kernels", "evaluated_mode", "material_of_properties", "register",
-           "render"]
 
 
 # ------------------------------------------------------------------------------------------
@@ -345,3 +345,60 @@ def furnace_scene(bsdf: dict, wo, *, spp: int = 256, pixels: int = 4) -> dict:
     scene["integrator"] = {"type": "path", "max_depth": 2}
     scene["environment"] = {"type": "constant", "radiance": 1.0}
     return scene
+
+
+#: Geometries of :func:`conversion_error`: incidences 0-80° in the plane φi = 0, views over the
+#: hemisphere (θo 0-80°, six azimuths), fixed so that the figures are comparable between runs.
+CHECK_THETA_I = (0.0, 20.0, 40.0, 60.0, 80.0)
+CHECK_THETA_O = (5.0, 30.0, 55.0, 80.0)
+CHECK_PHI_O = (0.0, 60.0, 120.0, 180.0, 240.0, 300.0)
+
+
+def check_geometries() -> tuple[np.ndarray, np.ndarray]:
+    """(wi, wo) of :func:`conversion_error` (120 reflection pairs)."""
+    t_i, t_o, p_o = np.meshgrid(np.radians(CHECK_THETA_I), np.radians(CHECK_THETA_O),
+                                np.radians(CHECK_PHI_O), indexing="ij")
+    wi = np.stack([np.sin(t_i), np.zeros_like(t_i), np.cos(t_i)], -1).reshape(-1, 3)
+    wo = np.stack([np.sin(t_o) * np.cos(p_o), np.sin(t_o) * np.sin(p_o), np.cos(t_o)],
+                  -1).reshape(-1, 3)
+    return wi, wo
+
+
+def conversion_error(material, bsdf: dict) -> dict:
+    """How far Mitsuba's render of ``bsdf`` is from fitlab's f·cos θi of ``material`` on the
+    goniometer at :func:`check_geometries`: relative RMS and largest relative difference (over
+    the pairs where fitlab's value is above 1e-6 of its largest), per channel combined."""
+    import fitlab
+
+    wi, wo = check_geometries()
+    rendered = goniometer(bsdf, wi, wo)
+    cols = [np.asarray(fitlab.eval_bsdf(material.model, p, wi, wo, material.options))
+            * wi[:, 2] for p in material.channels.values()]
+    expected = np.stack(cols * 3 if len(cols) == 1 else cols, axis=-1)
+    keep = expected > 1e-6 * expected.max()
+    rel = np.abs(rendered - expected)[keep] / expected[keep]
+    return {"pairs": int(wi.shape[0]), "relative_rms": float(np.sqrt(np.mean(rel ** 2))),
+            "relative_max": float(rel.max()),
+            "geometry": "theta_i " + ",".join(f"{t:g}" for t in CHECK_THETA_I) + "; theta_o "
+            + ",".join(f"{t:g}" for t in CHECK_THETA_O) + "; phi_o "
+            + ",".join(f"{t:g}" for t in CHECK_PHI_O) + " (degrees)",
+            "renderer": f"Mitsuba {_mitsuba()[0].__version__} {_mitsuba()[0].variant()}"}
+
+
+def ensure_variant() -> str:
+    """The Mitsuba variant in use, choosing one if none is set: ``llvm_ad_rgb`` (vectorized,
+    needs libLLVM), else ``scalar_rgb``; the plugin registered for it."""
+    import mitsuba as mi
+
+    if not mi.variant():
+        try:
+            mi.set_variant("llvm_ad_rgb")
+        except Exception:  # noqa: BLE001 - no libLLVM: Mitsuba raises a plain exception
+            mi.set_variant("scalar_rgb")
+    register()
+    return mi.variant()
+
+
+__all__ = ["PLUGIN", "Kernels", "evaluated_mode", "material_of_properties", "register", "render",
+           "goniometer_scene", "goniometer", "furnace_scene", "check_geometries",
+           "conversion_error", "ensure_variant"]

@@ -1,0 +1,91 @@
+"""fitlab export: a fit (or a registry model) as a file a renderer loads: Mitsuba 3 scene XML or
+dictionary (Mitsuba's own plugins, or fitlab's plugin for any model), a glTF 2.0 material."""
+
+from __future__ import annotations
+
+import sys
+
+from fitlab.assignments import parse_assignments
+from fitlab.cli.common import add_channel, add_model, add_option, add_quiet, channel_params
+from fitlab.errors import FitlabError
+
+
+def add_parser(sub):
+    from fitlab.export.renderers import EXPORTERS
+
+    formats = "; ".join(f"{e.name}: {e.description} ({' or '.join(e.suffixes)}, {e.spec})"
+                        for e in EXPORTERS.values())
+    p = sub.add_parser(
+        "export", help="export a fit for a renderer: Mitsuba 3 (native or fitlab's plugin), "
+        "glTF 2.0",
+        description="Write FIT.json (or --model with --param) as a file a renderer loads, "
+        "atomically (nothing is left on failure). A fit's 'scale' (relative data) is not "
+        "applied: the file holds the absolute model f. One channel exports grey, R, G, B in "
+        "colour; other channel sets need --channel. A format that cannot represent the "
+        "material is refused with what to use instead (exit status 2). Formats (--to; "
+        f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf): {formats}.",
+        epilog="examples: fitlab export fits/rgl_aurora_white_two_lobe_shared.json --to "
+        "mitsuba --out aurora.xml --preview; fitlab export "
+        "fits/brown_vinyl_weidlich_wilkie_lambert.json --to mitsuba-plugin --out vinyl.xml; "
+        "fitlab export --model rough_conductor --param alpha=0.2 --param n=0.2 --param k=3.9 "
+        "--out gold.json; fitlab export fits/brown_vinyl_lambert_ggx_dielectric.json --out "
+        "vinyl.gltf",
+    )
+    p.add_argument("fit", nargs="?", metavar="FIT.json",
+                   help="parameter file written by `fitlab fit --out` (or give --model)")
+    from fitlab.export.renderers import EXPORTERS as E
+
+    p.add_argument("--to", choices=list(E), help="export format (default: from --out's suffix)")
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="output file (.xml scene or .json dictionary for Mitsuba, .gltf)")
+    add_model(p, help="export this registry model instead of a fit (see `fitlab models`)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="a parameter of --model: NAME=V, or NAME=R,G,B for a colour material; "
+                   "give every parameter")
+    add_option(p, "an option of --model, e.g. distribution=beckmann_rational")
+    add_channel(p, "export only this channel of the fit (as grey)")
+    p.add_argument("--preview", action="store_true",
+                   help="Mitsuba XML: a whole scene around the material (a sphere under a "
+                   "white environment and a sun, a camera) that renders as it is")
+    p.add_argument("--check", action="store_true",
+                   help="Mitsuba: render the export on a virtual goniometer (120 direction "
+                   "pairs; needs Mitsuba 3: pip install 'fitlab[mitsuba]') and print how far "
+                   "it is from fitlab's values")
+    add_quiet(p, help="print nothing on success")
+    return p
+
+
+def run(args):
+    from fitlab.export.renderers import export_material
+
+    if (args.fit is None) == (args.model is None):
+        raise FitlabError("give FIT.json or --model NAME with --param, not both")
+    if args.fit is not None and (args.param or args.option):
+        raise FitlabError("--param and --option go with --model; a fit brings its own values")
+    params = options = None
+    if args.model is not None:
+        params = channel_params(args.param)
+        options = parse_assignments(args.option, "option")
+    if args.check:
+        try:
+            import mitsuba  # noqa: F401
+        except ImportError:
+            raise FitlabError("--check renders with Mitsuba 3, which is not installed: pip "
+                              "install 'fitlab[mitsuba]'") from None
+    made = export_material(args.fit, args.to, args.out, model=args.model, params=params,
+                           options=options, channel=args.channel, preview=args.preview,
+                           check=args.check, progress=not args.quiet)
+    if not args.quiet:
+        conv = made.conversion
+        line = f"wrote {args.out}"
+        if "translation" in conv:
+            line += f" (Mitsuba bsdf type {conv['translation']})"
+        if "relative_rms" in conv:
+            line += (f"; glTF conversion error: relative RMS of f cos {conv['relative_rms']:.3g}")
+        print(line, file=sys.stderr)
+        g = conv.get("goniometer")
+        if g:
+            print(f"check: {g['renderer']} on {g['pairs']} goniometer pairs: relative RMS "
+                  f"{g['relative_rms']:.3g}, largest {g['relative_max']:.3g} against fitlab",
+                  file=sys.stderr)
+    return 0

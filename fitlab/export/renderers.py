@@ -1,0 +1,182 @@
+"""Registry of the renderer exports of a material (what ``fitlab export`` and
+:func:`fitlab.export_material` reach): each format says what it writes, its file suffixes,
+its spec in ``data_formats/`` and how to build the file from a
+:class:`~fitlab.export.material.Material`. A format that cannot represent a material raises
+:class:`~fitlab.export.material.ExportError` saying what and what to do.
+
+Formats: ``mitsuba`` (Mitsuba 3's own plugins: scene XML for ``.xml``, the ``mi.load_dict``
+dictionary as JSON for ``.json``), ``mitsuba-plugin`` (the same forms with fitlab's plugin,
+for any model), ``gltf`` (a glTF 2.0 material fitted to the material, with a preview sphere).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Callable, NamedTuple
+
+from fitlab.export.material import ExportError, Material
+
+
+class Exported(NamedTuple):
+    """What an export made: the file's text, the object it holds (a Mitsuba dict, a glTF
+    document) and what the conversion cost (``conversion``: figures, notes)."""
+
+    text: str
+    value: object
+    conversion: dict
+
+
+class Exporter(NamedTuple):
+    name: str
+    title: str
+    description: str
+    suffixes: tuple  # lower-case suffixes this format writes (the first is the default)
+    spec: str  # its data_formats/ document
+    #: build(material, suffix, settings) -> Exported
+    build: Callable
+
+
+def _json_text(value) -> str:
+    return json.dumps(value, indent=2, sort_keys=False, ensure_ascii=False) + "\n"
+
+
+def _comment(material: Material) -> str:
+    import fitlab
+
+    return (f"fitlab {fitlab.__version__} export of {material.model} from {material.source} "
+            f"(channels {','.join(material.channels)}); conventions: data_formats/"
+            "mitsuba_export.md")
+
+
+def _mitsuba_build(make_bsdf: Callable) -> Callable:
+    def build(material: Material, suffix: str, settings: dict) -> Exported:
+        from fitlab.export.mitsuba import scene_xml
+
+        bsdf = make_bsdf(material)
+        conversion = {"translation": bsdf["type"]}
+        if suffix == ".json":
+            return Exported(_json_text(bsdf), bsdf, conversion)
+        return Exported(scene_xml(bsdf, preview=bool(settings.get("preview")),
+                                  comment=_comment(material)), bsdf, conversion)
+
+    return build
+
+
+def _gltf_build(material: Material, suffix: str, settings: dict) -> Exported:
+    from fitlab.export.gltf import gltf_export, gltf_text
+
+    doc, conversion = gltf_export(material, progress=bool(settings.get("progress")))
+    return Exported(gltf_text(doc), doc, conversion)
+
+
+def _native(material):
+    from fitlab.export.mitsuba import native_bsdf
+
+    return native_bsdf(material)
+
+
+def _plugin(material):
+    from fitlab.export.mitsuba import plugin_bsdf
+
+    return plugin_bsdf(material)
+
+
+EXPORTERS: dict[str, Exporter] = {
+    e.name: e for e in (
+        Exporter("mitsuba", "Mitsuba 3",
+                 "Mitsuba 3's own plugins (roughconductor, roughdielectric, diffuse, plastic, "
+                 "blendbsdf for sums): scene XML (.xml) or the mi.load_dict dictionary (.json); "
+                 "refused for models Mitsuba has no plugin for",
+                 (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_native)),
+        Exporter("mitsuba-plugin", "Mitsuba 3 (fitlab plugin)",
+                 "fitlab's Mitsuba plugin (fitlab.mitsuba.register()) with the model and its "
+                 "values written out: any registry model, rendered with fitlab's own code",
+                 (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_plugin)),
+        Exporter("gltf", "glTF 2.0",
+                 "a glTF 2.0 metallic-roughness material (KHR_materials_ior, _specular, "
+                 "_clearcoat where needed) fitted to the material over the hemisphere, on a "
+                 "preview sphere; the conversion error is reported",
+                 (".gltf",), "data_formats/gltf_material.md", _gltf_build),
+    )
+}
+
+
+def exporter_for(to: str | None, out: str | None) -> tuple[Exporter, str]:
+    """The exporter named ``to`` (else the one whose suffix ``out`` has; .xml/.json go to
+    ``mitsuba``) and the suffix to write."""
+    from pathlib import Path
+
+    suffix = Path(out).suffix.lower() if out else ""
+    if to is None:
+        for e in EXPORTERS.values():
+            if suffix in e.suffixes:
+                return e, suffix
+        raise ExportError(f"cannot tell the export format from {out!r}: give --to "
+                          f"{'|'.join(EXPORTERS)} or an output ending in "
+                          f"{', '.join(sorted({s for e in EXPORTERS.values() for s in e.suffixes}))}")
+    if to not in EXPORTERS:
+        raise ExportError(f"unknown export format {to!r}; formats: {', '.join(EXPORTERS)}")
+    e = EXPORTERS[to]
+    if out is None:
+        return e, e.suffixes[0]
+    if suffix not in e.suffixes:
+        raise ExportError(f"{out}: a {e.title} export is written as "
+                          f"{' or '.join(e.suffixes)}; change the output's suffix")
+    return e, suffix
+
+
+def material_of(fit=None, *, model: str | None = None, params: dict | None = None,
+                options: dict | None = None, channel: str | None = None) -> Material:
+    """The material of a fit (a :class:`fitlab.FitResult` or a parameter file's path) or of
+    registry ``model`` with ``params`` ({name: value}, or {channel: {name: value}} for R, G, B)
+    and ``options``."""
+    from fitlab.export.material import material_from_fit, material_from_model
+
+    if (fit is None) == (model is None):
+        raise ExportError("give a fit (FIT.json) or a model with its parameters, not both")
+    if fit is not None:
+        if params or options:
+            raise ExportError("a fit brings its own parameters and options; to change them, "
+                              "export the model (--model NAME --param ...)")
+        if not hasattr(fit, "record"):
+            import fitlab
+
+            fit = fitlab.load_fit(fit)
+        return material_from_fit(fit, channel)
+    params = dict(params or {})
+    channels = params if params and all(isinstance(v, dict) for v in params.values()) \
+        else {"Y": params}
+    if channel is not None:
+        if channel not in channels:
+            raise ExportError(f"no channel {channel!r}; channels: {', '.join(channels)}")
+        channels = {channel: channels[channel]}
+    return material_from_model(model, channels, options)
+
+
+def export_material(fit=None, to: str | None = None, out=None, *, model: str | None = None,
+                    params: dict | None = None, options: dict | None = None,
+                    channel: str | None = None, preview: bool = False,
+                    check: bool = False, progress: bool = False) -> Exported:
+    """Export a fit (or ``model`` with ``params``/``options``) for a renderer: format ``to``
+    (:data:`EXPORTERS`; else from ``out``'s suffix). With ``out`` the file is written
+    atomically; the :class:`Exported` holds its text, the object (Mitsuba dict, glTF document)
+    and the conversion figures. ``preview``: a Mitsuba scene around the material (a sphere,
+    an environment and a sun). ``check``: render the Mitsuba export on a virtual goniometer
+    (fitlab.mitsuba, needs Mitsuba 3) and add its difference from fitlab to ``conversion``."""
+    from fitlab.io.atomic import atomic_write_text
+
+    exporter, suffix = exporter_for(to, None if out is None else str(out))
+    material = material_of(fit, model=model, params=params, options=options, channel=channel)
+    made = exporter.build(material, suffix, {"preview": preview, "progress": progress})
+    if check and exporter.name.startswith("mitsuba"):
+        import fitlab.mitsuba as fm
+
+        fm.ensure_variant()
+        made.conversion["goniometer"] = fm.conversion_error(material, made.value)
+    if out is not None:
+        atomic_write_text(out, made.text)
+    return made
+
+
+__all__ = ["EXPORTERS", "Exported", "Exporter", "exporter_for", "export_material",
+           "material_of"]
