@@ -290,6 +290,21 @@ def render(scene, *, spp: int | None = None, seed: int = 0):
 
 
 
+def load_scene(scene: dict):
+    """``mi.load_dict`` of a scene dictionary made by fitlab.export.mitsuba (whose transforms
+    are plain ``{"look_at": {...}}`` data, as in its XML) with the transforms made Mitsuba's."""
+    mi, _ = _mitsuba()
+
+    def convert(value):
+        if isinstance(value, dict) and set(value) == {"look_at"}:
+            return mi.ScalarTransform4f().look_at(**value["look_at"])
+        if isinstance(value, dict):
+            return {k: convert(v) for k, v in value.items()}
+        return value
+
+    return mi.load_dict(convert(scene))
+
+
 # ------------------------------------------------------------------------------------------
 # The virtual goniometer and the white furnace (tests, report, benchmarks)
 # ------------------------------------------------------------------------------------------
@@ -400,5 +415,5 @@ def ensure_variant() -> str:
 
 
 __all__ = ["PLUGIN", "Kernels", "evaluated_mode", "material_of_properties", "register", "render",
-           "goniometer_scene", "goniometer", "furnace_scene", "check_geometries",
+           "load_scene", "goniometer_scene", "goniometer", "furnace_scene", "check_geometries",
            "conversion_error", "ensure_variant"]

@@ -38,6 +38,11 @@ def add_parser(sub):
                    "FIT.json whose header names it are added unless --no-lut-discovery")
     p.add_argument("--no-lut-discovery", action="store_true",
                    help="preview only the --lut tables, not those found beside FIT.json")
+    p.add_argument("--renderers", action="store_true",
+                   help="add the hand-off section: each `fitlab export` format's conversion "
+                   "error (Mitsuba exports rendered on a virtual goniometer) and a Mitsuba 3 "
+                   "render of the material on a sphere (needs Mitsuba 3: pip install "
+                   "'fitlab[mitsuba]')")
     add_quiet(p, help="no progress on the terminal")
     return p
 
@@ -47,6 +52,7 @@ def run(args):
 
     summary = build_report(args.fit, args.out, data_path=args.data, chain_path=args.chain,
                            luts=args.lut or (), discover_luts=not args.no_lut_discovery,
+                           renderers=args.renderers,
                            progress=not args.quiet)
     if not args.quiet:
         print(f"open {summary['index']} in a browser (self-contained; "

@@ -600,11 +600,13 @@ def _luts(rep, tables, out_dir):
 
 
 def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
-                 discover_luts=True, progress=True) -> dict:
+                 discover_luts=True, renderers=False, progress=True) -> dict:
     """Write ``out_dir/index.html`` and the figures; returns a summary dict (``files``,
     ``figures``, ``index``, ``has_chain``). ``luts``: EXR tables to preview (each must have been
     baked from this fit, or from a model without a fit); ``discover_luts``: also preview the
-    tables beside the fit file whose header names it."""
+    tables beside the fit file whose header names it; ``renderers``: add the hand-off section
+    (fitlab/report/renderers.py: every renderer export's conversion error and a Mitsuba 3
+    preview render)."""
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     inp = load_inputs(fit_path, data_path, chain_path, progress=say)
     tables = _lut_tables(fit_path, luts, discover_luts)
@@ -641,6 +643,10 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
             sections.append((f"walter-{tag}", "Walter diagnostics: empirical D" + ctitle, walter))
     if tables:
         sections.append(("luts", "Lookup tables", _luts(rep, tables, out_dir)))
+    if renderers:
+        from fitlab.report.renderers import renderers_section
+
+        sections.append(("renderers", "Hand-off to renderers", renderers_section(rep, fit_path)))
     names = [f"{f.name}.{ext}" for f in rep.figures for ext in ("png", "svg")]
     page = document(title, sections, files=sorted(names))
     files = {}
