@@ -12,6 +12,7 @@ for any model), ``gltf`` (a glTF 2.0 material fitted to the material, with a pre
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Callable, NamedTuple
 
 from fitlab.export.material import ExportError, Material
@@ -104,8 +105,6 @@ EXPORTERS: dict[str, Exporter] = {
 def exporter_for(to: str | None, out: str | None) -> tuple[Exporter, str]:
     """The exporter named ``to`` (else the one whose suffix ``out`` has; .xml/.json go to
     ``mitsuba``) and the suffix to write."""
-    from pathlib import Path
-
     suffix = Path(out).suffix.lower() if out else ""
     if to is None:
         for e in EXPORTERS.values():
@@ -167,6 +166,11 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
 
     exporter, suffix = exporter_for(to, None if out is None else str(out))
     material = material_of(fit, model=model, params=params, options=options, channel=channel)
+    if material.source != "model":  # how the file names its source: never an absolute path
+        from fitlab.io.files import path_for_record
+
+        material = material._replace(source=path_for_record(material.source, out)
+                                     if out is not None else Path(material.source).name)
     made = exporter.build(material, suffix, {"preview": preview, "progress": progress})
     if check and exporter.name.startswith("mitsuba"):
         import fitlab.mitsuba as fm
