@@ -136,6 +136,13 @@ PLUGIN_CASES = {
                                       for c, a in zip("RGB", (0.7, 0.5, 0.2))}, {}),
     "coated single bounce": ("coated(lambertian)", {"Y": {"albedo": 0.5, "coat_eta": 1.5,
                                                           "coat_tau": 0.3}}, {}),
+    "thin layer": ("thin_layer(rough_conductor)",
+                   {"Y": {"kappa1": 300.0, "eta": 1.5, "tau": 0.2, "kappa2": 30.0, "n2": 0.2,
+                          "k2": 3.9}}, {}),
+    "spongecake with the learned lobe": (
+        "spongecake(surface,multiple=learned)",
+        {"Y": {"alpha1": 0.3, "theta_p1": 0.0, "phi_p1": 0.0, "albedo1": 0.8, "f0_1": 1.0,
+               "tau1": 1.0}}, {}),
 }
 
 
@@ -244,3 +251,63 @@ def test_native_export_refuses_what_mitsuba_cannot_represent(model, channels, op
     material = material_from_model(model, channels, options)
     with pytest.raises(ExportError, match=needle.replace("(", r"\(").replace(")", r"\)")):
         native_bsdf(material)
+
+
+def test_examples_load_and_the_invalid_one_is_refused(fm):
+    """data_formats/examples: the plugin example renders (its preview scene, 4 spp), the native
+    one too; the invalid one (alpha1 = 5) fails to load with fitlab's message."""
+    import mitsuba as mi
+
+    ex = ROOT / "data_formats" / "examples"
+    for name in ("mitsuba_aurora_white.xml", "mitsuba_plugin_brown_vinyl.xml"):
+        image = fm.render(mi.load_file(str(ex / name)), spp=4)
+        assert image.shape == (256, 256, 3) and np.isfinite(image).all() and image.mean() > 0.05
+    with pytest.raises(Exception, match=r"alpha1=5.0 of 'weidlich_wilkie\(lambertian\)' is "
+                                        r"outside its bounds"):
+        mi.load_file(str(ex / "mitsuba_plugin_invalid.xml"))
+
+
+def test_plugin_fit_is_found_relative_to_the_scene(fm, tmp_path):
+    """A scene naming its fit by a relative path loads from any working directory (Mitsuba's
+    file resolver has the scene's folder)."""
+    import shutil
+
+    import mitsuba as mi
+
+    (tmp_path / "scene").mkdir()
+    shutil.copy(FITS / "walter_rough_glass.json", tmp_path / "scene" / "glass.json")
+    xml = scene_xml({"type": "fitlab", "fit": "glass.json"}, preview=True)
+    (tmp_path / "scene" / "s.xml").write_text(xml, encoding="utf-8")
+    scene = mi.load_file(str(tmp_path / "scene" / "s.xml"))
+    assert "rough_dielectric" in str(scene.shapes()[0].bsdf())
+
+
+def test_cli_check_renders_the_export(capsys, tmp_path, fm):
+    from fitlab.cli import main
+
+    code = main(["export", str(FITS / "brown_vinyl_lambert_ggx_conductor.json"), "--out",
+                 str(tmp_path / "v.xml"), "--check"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    line = [x for x in err.splitlines() if x.startswith("check:")][0]
+    rms = float(line.split("relative RMS ")[1].split(",")[0])
+    assert "120 goniometer pairs" in line and rms < 2e-5
+
+
+def test_report_hand_off_section(fm, tmp_path):
+    """fitlab report --renderers: the table of exports with their measured conversion errors
+    (the native refusal included) and the Mitsuba preview figure."""
+    import re
+
+    from fitlab.cli import main
+
+    assert main(["report", str(FITS / "brown_vinyl_weidlich_wilkie_lambert.json"), "--out",
+                 str(tmp_path / "r"), "--renderers", "--quiet"]) == 0
+    page = (tmp_path / "r" / "index.html").read_text(encoding="utf-8")
+    section = page[page.index('id="renderers"'):]
+    assert "refused" in section and "mitsuba-plugin" in section
+    rms = re.search(r"Mitsuba 3 \(fitlab plugin\)</td><td>bsdf type fitlab</td><td>([0-9.e+-]+) /",
+                    section)
+    assert rms and float(rms.group(1)) < 2e-5
+    png = (tmp_path / "r" / "renderer_preview.png").read_bytes()
+    assert png.startswith(b"\x89PNG")
