@@ -108,6 +108,12 @@ class Kernels:
         from fitlab.api import check_params, resolve_options
         from fitlab.models import get_model
 
+        if material.wavelengths_nm is not None:
+            from fitlab.export.material import ExportError
+
+            raise ExportError(f"{material.source}: fitlab's Mitsuba plugin renders grey or R, "
+                              f"G, B, not the spectrum {', '.join(material.channels)}; give "
+                              "'channel' (one wavelength)")
         model = get_model(material.model)
         options = resolve_options(model, material.options)
         for params in material.channels.values():

@@ -2,10 +2,11 @@
 parameter values per colour channel, taken from a fit's parameter file or given directly.
 
 A fit of relative data carries a ``scale`` (the instrument's unknown factor); a material is the
-absolute model f, so the scale is left out (as ``fitlab convert`` does). Renderers work in RGB:
-a fit of one channel (``Y``, ``Visible``, a band) is grey, a fit of ``R``, ``G``, ``B`` gives
-each parameter as an RGB triple; other channel sets (``X,Y,Z``, several bands) are refused with
-what to do (``channel=`` picks one).
+absolute model f, so the scale is left out (as ``fitlab convert`` does). A fit of one channel
+(``Y``, ``Visible``, a band) is grey, a fit of ``R``, ``G``, ``B`` gives each parameter as an
+RGB triple, a fit of two or more wavelengths (channels ``450nm``, ``550nm``, … from the
+``wavelength_nm`` column) a spectrum where a format takes one; other channel sets (``X,Y,Z``)
+are refused with what to do (``channel=`` picks one).
 """
 
 from __future__ import annotations
@@ -38,8 +39,14 @@ class Material(NamedTuple):
     def rgb(self) -> bool:
         return tuple(self.channels) == RGB
 
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        """The wavelengths of a spectral material (channels ``<λ>nm``), else None."""
+        return wavelengths_of(tuple(self.channels))
+
     def values(self, name: str) -> np.ndarray:
-        """Parameter ``name`` as an RGB triple (a grey material repeats its one value)."""
+        """Parameter ``name`` per channel: an RGB triple (a grey material repeats its one
+        value), or one value per wavelength of a spectral material."""
         vals = [float(self.channels[c][name]) for c in self.channels]
         return np.asarray(vals * 3 if len(vals) == 1 else vals, dtype=float)
 
@@ -56,14 +63,29 @@ class Material(NamedTuple):
         return float(v[0])
 
 
+def wavelengths_of(names: tuple) -> np.ndarray | None:
+    """Wavelengths in nm of channel names ``<λ>nm`` (two or more, all spectral), else None."""
+    if len(names) < 2 or not all(n.endswith("nm") for n in names):
+        return None
+    try:
+        wl = np.array([float(n[:-2]) for n in names])
+    except ValueError:
+        return None
+    return wl if np.all(np.isfinite(wl)) and np.all(wl > 0) else None
+
+
 def _check_channels(channels: dict, source: str) -> dict:
     names = tuple(channels)
     if len(names) == 1 or names == RGB:
         return channels
     if set(names) == set(RGB):
         return {c: channels[c] for c in RGB}
-    raise ExportError(f"{source}: channels {', '.join(names)}: renderers take one channel (grey) "
-                      "or R, G, B; export one of them with --channel")
+    wl = wavelengths_of(names)
+    if wl is not None:
+        return {names[i]: channels[names[i]] for i in np.argsort(wl)}
+    raise ExportError(f"{source}: channels {', '.join(names)}: renderers take one channel (grey), "
+                      "R, G, B or a spectrum (channels <λ>nm); export one of them with "
+                      "--channel")
 
 
 def material_from_fit(result, channel: str | None = None) -> Material:
@@ -98,4 +120,5 @@ def material_from_model(model: str, channels: dict, options: dict | None = None)
     return Material(m.name, opts, _check_channels(dict(channels), "--model"), "model")
 
 
-__all__ = ["RGB", "ExportError", "Material", "material_from_fit", "material_from_model"]
+__all__ = ["RGB", "ExportError", "Material", "material_from_fit", "material_from_model",
+           "wavelengths_of"]

@@ -47,11 +47,15 @@ def _num(x: float) -> float:
     return float(x)
 
 
-def _spectrum(values) -> float | dict:
-    """One number when the three channels agree, else Mitsuba's ``rgb`` spectrum."""
+def _spectrum(material: Material, values) -> float | dict:
+    """One number when the channels agree, else Mitsuba's ``rgb`` value or, for a spectral
+    material, its ``spectrum`` of (wavelength in nm, value) pairs."""
     v = np.asarray(values, dtype=float)
     if np.ptp(v) == 0.0:
         return _num(v[0])
+    wl = material.wavelengths_nm
+    if wl is not None:
+        return {"type": "spectrum", "value": [(_num(w), _num(x)) for w, x in zip(wl, v)]}
     return {"type": "rgb", "value": [_num(x) for x in v]}
 
 
@@ -84,7 +88,8 @@ def _rough_conductor(material: Material, scale: float = 1.0) -> dict:
     _exact_fresnel(material)
     out = {"type": "roughconductor", "distribution": _distribution(material),
            **_widths(material, "Mitsuba's roughconductor"),
-           "eta": _spectrum(material.values("n")), "k": _spectrum(material.values("k")),
+           "eta": _spectrum(material, material.values("n")),
+           "k": _spectrum(material, material.values("k")),
            "sample_visible": True}
     if scale != 1.0:
         out["specular_reflectance"] = _num(scale)
@@ -104,7 +109,8 @@ def _rough_dielectric(material: Material, scale: float = 1.0) -> dict:
 
 
 def _lambertian(material: Material, scale: float = 1.0) -> dict:
-    return {"type": "diffuse", "reflectance": _spectrum(scale * material.values("albedo"))}
+    return {"type": "diffuse",
+            "reflectance": _spectrum(material, scale * material.values("albedo"))}
 
 
 def _coated(material: Material, scale: float = 1.0) -> dict:
@@ -134,7 +140,8 @@ def _coated(material: Material, scale: float = 1.0) -> dict:
     if scale != 1.0:
         _refuse(material.model, "a plastic cannot be scaled inside a sum")
     albedo = get_model(inner).parameters_with_role("albedo")[0].name
-    out = {"type": "plastic", "diffuse_reflectance": _spectrum(material.values(albedo)),
+    out = {"type": "plastic",
+           "diffuse_reflectance": _spectrum(material, material.values(albedo)),
            "int_ior": _num(material.scalar("coat_eta", what="Mitsuba's plastic (int_ior)")),
            "ext_ior": 1.0, "nonlinear": True}
     return out
@@ -258,6 +265,11 @@ def plugin_bsdf(material: Material, fit: str | None = None) -> dict:
     """The dictionary of fitlab's Mitsuba plugin (``fitlab.mitsuba.register()`` first): the fit
     file ``fit`` (a path as the scene should name it), or the model with its parameters and
     options written out (:func:`plugin_property`; RGB materials: ``R__alpha`` ...)."""
+    if material.wavelengths_nm is not None:
+        raise ExportError(f"{material.source}: fitlab's Mitsuba plugin renders grey or R, G, B, "
+                          f"not the spectrum {', '.join(material.channels)}; export one "
+                          "wavelength with --channel (or --to mitsuba, whose plugins take "
+                          "spectra, where the model has one)")
     out = {"type": "fitlab"}
     if fit is not None:
         out["fit"] = str(fit)
@@ -316,6 +328,9 @@ def _xml_value(name: str, value, indent: str) -> list[str]:
     if isinstance(value, list):
         return [f'{indent}<vector name={quoteattr(name)} value="'
                 + ", ".join(repr(float(v)) for v in value) + '"/>']
+    if isinstance(value, dict) and value.get("type") == "spectrum":
+        return [f'{indent}<spectrum name={quoteattr(name)} value="'
+                + ", ".join(f"{float(w)!r}:{float(v)!r}" for w, v in value["value"]) + '"/>']
     if isinstance(value, dict) and value.get("type") == "rgb":
         return [f'{indent}<rgb name={quoteattr(name)} value="'
                 + ", ".join(repr(float(v)) for v in value["value"]) + '"/>']
