@@ -188,7 +188,7 @@ def register(name: str = PLUGIN) -> None:
                     continue
                 values[key] = props[key]
             if "fit" in values:  # relative to the scene file, like Mitsuba's own file names
-                values["fit"] = str(mi.Thread.thread().file_resolver().resolve(values["fit"]))
+                values["fit"] = str(mi.file_resolver().resolve(values["fit"]))
             self._key = tuple(sorted((k, v if isinstance(v, str) else float(v))
                                      for k, v in values.items()))
             k = _kernels_of(self._key)
