@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 
-from fitlab.models import diffuse, rough_conductor, rough_dielectric
+from fitlab.models import diffuse, gltf_pbr, rough_conductor, rough_dielectric
 from fitlab.models.base import ROLES, Capabilities, Model, Option, Parameter
 from fitlab.models.composite import SEPARATOR, make_sum
 from fitlab.models import coated, spongecake, thin_layer, weidlich_wilkie  # noqa: E402  (layered: built from the above)
@@ -23,6 +23,8 @@ _BUILTIN = (
     rough_conductor.ANISOTROPIC,
     diffuse.LAMBERTIAN,
     diffuse.OREN_NAYAR,
+    gltf_pbr.MODEL,
+    gltf_pbr.CLEARCOAT_MODEL,
 )
 
 MODELS: dict[str, Model] = {m.name: m for m in _BUILTIN}
