@@ -64,7 +64,7 @@ def _mitsuba_build(make_bsdf: Callable) -> Callable:
 
 
 def _gltf_build(material: Material, suffix: str, settings: dict) -> Exported:
-    from fitlab.export.gltf import gltf_export, gltf_text
+    from fitlab.export.gltf_material import gltf_export, gltf_text
 
     doc, conversion = gltf_export(material, progress=bool(settings.get("progress")))
     return Exported(gltf_text(doc), doc, conversion)
