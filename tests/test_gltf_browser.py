@@ -171,6 +171,7 @@ def test_validator_rejects_an_invalid_file(tmp_path):
     assert validate_gltf(path)["numErrors"] > 0
 
 
+@pytest.mark.slow
 def test_fitted_export_renders_as_fitlab_predicts(tmp_path, dfg):
     """End to end: ``fitlab export`` of a rough conductor to glTF (a fitted conversion), the
     file validated and rendered by three.js: the pixels equal fitlab's evaluation of the

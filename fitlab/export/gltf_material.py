@@ -50,11 +50,12 @@ def _dirs(theta_deg, phi_deg):
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
-def conversion_pairs() -> tuple[np.ndarray, np.ndarray]:
+def conversion_pairs(isotropic: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(wi, wo) of the conversion fit: for each incidence of :data:`THETA_I`, the hemisphere
-    at bin centres of 5° × 10° and rings around the mirror direction."""
+    at bin centres of 5° × 10° (φo in [0°, 180°] for an isotropic material: the plane of
+    incidence is a mirror plane of its f) and rings around the mirror direction."""
     t_o = np.arange(THETA_O_STEP / 2, 90.0, THETA_O_STEP)
-    p_o = np.arange(0.0, 360.0, PHI_O_STEP)
+    p_o = np.arange(0.0, 180.0 + 1e-9 if isotropic else 360.0, PHI_O_STEP)
     grid_t, grid_p = (a.ravel() for a in np.meshgrid(t_o, p_o, indexing="ij"))
     wis, wos = [], []
     for ti in THETA_I:
@@ -159,7 +160,7 @@ def conversion_errors(material: Material, model: str, params_by_channel: dict) -
 
     import fitlab
 
-    wi, wo = conversion_pairs()
+    wi, wo = conversion_pairs()  # the whole hemisphere: the figures do not depend on symmetry
     src = _values(material, wi, wo)
     rel = []
     for c, v in src.items():
@@ -218,7 +219,7 @@ def convert(material: Material, *, seed: int = 0, progress: bool = False):
         raise ExportError(f"{material.source}: glTF takes linear RGB, not the spectrum "
                           f"{', '.join(material.channels)}; export one wavelength with "
                           "--channel")
-    wi, wo = conversion_pairs()
+    wi, wo = conversion_pairs(model.capabilities.isotropic)
     values = _values(material, wi, wo)
     if not all(np.any(v > 0) for v in values.values()):
         raise ExportError(f"{material.model} is 0 at every reflection direction of a channel; "
