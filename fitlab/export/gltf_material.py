@@ -12,7 +12,8 @@ fixed at 1 (its effect on f0 is the ior's). The clear-coat variant is tried too 
 lowers the conversion error by more than 10 %. Errors are those of f·cos θo where a renderer
 sees them: relative RMS and largest relative difference over the pairs above 1e-3 of the
 largest value, directional albedo at 0, 30, 60, 80°, and PSNR / SSIM (scikit-image) of the
-hemispherical images of f·cos θo at 0, 30 and 60° incidence.
+hemispherical images of f·cos θo at 0, 30 and 60° incidence (PSNR null for identical
+images).
 
 The file: one material (pbrMetallicRoughness + KHR_materials_ior / _specular / _clearcoat where
 their values differ from the defaults) on a UV sphere (positions, normals, indices in one
@@ -182,8 +183,9 @@ def conversion_errors(material: Material, model: str, params_by_channel: dict) -
         peak = float(a.max()) or 1.0
         a, b = np.clip(a / peak, 0, None), np.clip(b / peak, 0, None)
         rng = float(max(a.max(), b.max()))
+        same = bool(np.array_equal(a, b))  # PSNR is infinite (JSON has no number for it)
         images[f"{t:g}"] = {
-            "psnr_db": float(peak_signal_noise_ratio(a, b, data_range=rng)),
+            "psnr_db": None if same else float(peak_signal_noise_ratio(a, b, data_range=rng)),
             "ssim": float(structural_similarity(a, b, data_range=rng, channel_axis=-1))}
     return {"relative_rms": float(np.sqrt(np.mean(rel ** 2))),
             "relative_max": float(np.max(np.abs(rel))),
