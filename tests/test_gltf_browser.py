@@ -195,3 +195,16 @@ def test_fitted_export_renders_as_fitlab_predicts(tmp_path, dfg):
     predicted = three_prediction(p, WI, WO, dfg)
     err = np.abs(pixels - predicted) / predicted
     assert err.max() < 1e-3, err.max()
+
+
+def test_committed_example_is_valid_and_carries_its_conversion():
+    import json
+
+    path = ROOT / "data_formats" / "examples" / "gltf_material.gltf"
+    report = validate_gltf(path)
+    assert (report["numErrors"], report["numWarnings"], report["numInfos"]) == (0, 0, 0)
+    m = json.loads(path.read_text(encoding="utf-8"))["materials"][0]
+    conv = m["extras"]["fitlab"]["conversion"]
+    assert m["extras"]["fitlab"]["source"] == \
+        "../../fits/brown_vinyl_lambert_ggx_conductor.json"
+    assert 0 < conv["relative_rms"] < 0.2 and set(conv["lobe_images"]) == {"0", "30", "60"}
