@@ -230,7 +230,8 @@ def convert(material: Material, *, seed: int = 0, progress: bool = False):
     for name in ("gltf_pbr", "gltf_pbr_clearcoat"):
         result = _fit(name, values, wi, wo, seed, progress)
         params = simplified({c: dict(p) for c, p in result.parameters.items()})
-        errors = conversion_errors(material, name, params)
+        errors = {"fit_pairs": int(np.sum(wo[:, 2] > 0)),
+                  **conversion_errors(material, name, params)}
         if best is None or errors["relative_rms"] < (1.0 - COAT_GAIN) * best[2]["relative_rms"]:
             best = (name, params, errors)
     return best
@@ -337,7 +338,8 @@ def gltf_export(material: Material, *, seed: int = 0, progress: bool = False):
     shown = {c: {k: v for k, v in p.items()} for c, p in params.items()}
     conversion = {"gltf_model": model, "fitted": shown, **errors,
                   "summary": f"glTF's BRDF ({model}) fitted to the material on "
-                  f"{errors['pairs']} direction pairs (log loss); SSIM of the lobe images "
+                  f"{errors['fit_pairs']} direction pairs (log loss), errors over "
+                  f"{errors['pairs']}; SSIM of the lobe images "
                   + ", ".join(f"{v['ssim']:.3f} at {t}°"
                               for t, v in errors["lobe_images"].items())}
     return gltf_document(material, model, params, conversion), conversion
