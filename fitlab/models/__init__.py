@@ -25,6 +25,8 @@ _BUILTIN = (
     diffuse.OREN_NAYAR,
     gltf_pbr.MODEL,
     gltf_pbr.CLEARCOAT_MODEL,
+    gltf_pbr.ANISOTROPIC_MODEL,
+    gltf_pbr.TRANSMISSION_MODEL,
 )
 
 MODELS: dict[str, Model] = {m.name: m for m in _BUILTIN}
