@@ -51,10 +51,12 @@ def _dirs(theta_deg, phi_deg):
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
-def conversion_pairs(isotropic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def conversion_pairs(isotropic: bool = False, transmission: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """(wi, wo) of the conversion fit: for each incidence of :data:`THETA_I`, the hemisphere
     at bin centres of 5° × 10° (φo in [0°, 180°] for an isotropic material: the plane of
-    incidence is a mirror plane of its f) and rings around the mirror direction."""
+    incidence is a mirror plane of its f) and rings around the mirror direction; with
+    ``transmission`` the same directions mirrored below the surface too."""
     t_o = np.arange(THETA_O_STEP / 2, 90.0, THETA_O_STEP)
     p_o = np.arange(0.0, 180.0 + 1e-9 if isotropic else 360.0, PHI_O_STEP)
     grid_t, grid_p = (a.ravel() for a in np.meshgrid(t_o, p_o, indexing="ij"))
@@ -75,6 +77,8 @@ def conversion_pairs(isotropic: bool = False) -> tuple[np.ndarray, np.ndarray]:
         ring = np.array(ring)
         ring = ring[ring[:, 2] > 0.02]
         wo = np.concatenate([_dirs(grid_t, grid_p), ring])
+        if transmission:
+            wo = np.concatenate([wo, wo * np.array([1.0, 1.0, -1.0])])
         wos.append(wo)
         wis.append(np.broadcast_to(wi, wo.shape))
     return np.concatenate(wis), np.concatenate(wos)
@@ -103,7 +107,8 @@ def _measurement(values: dict, wi, wo):
         phi_o=rep(p_o), wi=np.tile(wi, (len(names), 1)), wo=np.tile(wo, (len(names), 1)),
         value=np.concatenate([values[c] for c in names]), sigma=None,
         channel=np.repeat(np.arange(len(names)), n), channel_names=names, wavelength_nm=None,
-        quantity="bsdf", file_quantity="bsdf", metadata={"scatter": "brdf"},
+        quantity="bsdf", file_quantity="bsdf",
+        metadata={"scatter": "bsdf" if np.any(wo[:, 2] < 0) else "brdf"},
         lines=np.zeros(n * len(names), dtype=int))
     return check_measurement(m)
 
@@ -112,7 +117,7 @@ def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool):
     import fitlab
     from fitlab.models import get_model
 
-    keep = wo[:, 2] > 0
+    keep = wo[:, 2] != 0
     m = _measurement({c: v[keep] for c, v in values.items()}, wi[keep], wo[keep])
     names = get_model(model).parameter_names
     shared = [n for n in names if n != "base_color" and n != "specular_color"]
@@ -122,9 +127,9 @@ def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool):
     return result
 
 
-def _albedo(model, params_by_channel, options, theta_deg, n=100_000, seed=7):
-    """Directional albedo (reflection only) per channel at incidence θ by the model's own
-    sampler."""
+def _albedo(model, params_by_channel, options, theta_deg, n=100_000, seed=7, side=1):
+    """Directional albedo per channel at incidence θ by the model's own sampler: reflected
+    (``side`` 1) or transmitted (-1)."""
     import fitlab
 
     rng = np.random.default_rng(seed)
@@ -133,7 +138,8 @@ def _albedo(model, params_by_channel, options, theta_deg, n=100_000, seed=7):
     out = []
     for p in params_by_channel.values():
         wo, w, _ = fitlab.sample_bsdf(model, p, wi, u, options)
-        out.append(float(np.mean(np.where(np.asarray(wo)[:, 2] > 0, np.asarray(w), 0.0))))
+        out.append(float(np.mean(np.where(side * np.asarray(wo)[:, 2] > 0, np.asarray(w),
+                                          0.0))))
     return np.array(out)
 
 
@@ -156,17 +162,20 @@ def _lobe_images(model, params_by_channel, options, theta_deg) -> np.ndarray:
 
 
 def conversion_errors(material: Material, model: str, params_by_channel: dict) -> dict:
-    """How far ``model`` with ``params_by_channel`` (glTF's BRDF) is from the material."""
+    """How far ``model`` with ``params_by_channel`` (glTF's BSDF) is from the material."""
     from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
     import fitlab
+    from fitlab.models import get_model
 
-    wi, wo = conversion_pairs()  # the whole hemisphere: the figures do not depend on symmetry
+    # the whole hemisphere (both sides for a transmitting material): the figures do not
+    # depend on the material's symmetry
+    wi, wo = conversion_pairs(transmission=get_model(material.model).capabilities.transmission)
     src = _values(material, wi, wo)
     rel = []
     for c, v in src.items():
         g = np.asarray(fitlab.eval_bsdf(model, params_by_channel[c], wi, wo))
-        a, b = v * wo[:, 2], g * wo[:, 2]
+        a, b = v * np.abs(wo[:, 2]), g * np.abs(wo[:, 2])
         keep = a > ERROR_FLOOR * a.max()
         rel.append((b[keep] - a[keep]) / a[keep])
     rel = np.concatenate(rel)
@@ -175,6 +184,11 @@ def conversion_errors(material: Material, model: str, params_by_channel: dict) -
         a = _albedo(material.model, material.channels, material.options, t)
         b = _albedo(model, params_by_channel, {}, t)
         albedo[f"{t:g}"] = {"material": [float(x) for x in a], "gltf": [float(x) for x in b]}
+        if get_model(model).capabilities.transmission:
+            a = _albedo(material.model, material.channels, material.options, t, side=-1)
+            b = _albedo(model, params_by_channel, {}, t, side=-1)
+            albedo[f"{t:g}"].update(material_transmitted=[float(x) for x in a],
+                                    gltf_transmitted=[float(x) for x in b])
     images = {}
     for t in (0.0, 30.0, 60.0):
         a = _lobe_images(material.model, material.channels, material.options, t)
@@ -208,6 +222,18 @@ def simplified(params: dict) -> dict:
     return out
 
 
+def candidates(capabilities) -> tuple[str, ...]:
+    """The glTF models a material with these capabilities is fitted with: a transmitting one
+    with KHR_materials_transmission, an anisotropic one with KHR_materials_anisotropy, else
+    the core and the core with KHR_materials_clearcoat (each glTF model adds one extension to
+    the core + ior + specular)."""
+    if capabilities.transmission:
+        return ("gltf_pbr_transmission",)
+    if not capabilities.isotropic:
+        return ("gltf_pbr_anisotropic",)
+    return ("gltf_pbr", "gltf_pbr_clearcoat")
+
+
 def convert(material: Material, *, seed: int = 0, progress: bool = False):
     """(glTF model name, {channel: its parameters}, conversion figures) fitted to
     ``material``."""
@@ -216,18 +242,19 @@ def convert(material: Material, *, seed: int = 0, progress: bool = False):
     model = get_model(material.model)
     if not model.capabilities.reflection:
         raise ExportError(f"{material.model} reflects nothing (a transmission model); glTF's "
-                          "metallic-roughness material is a BRDF: export a reflecting model")
+                          "metallic-roughness material reflects: export a reflecting model")
     if material.wavelengths_nm is not None:
         raise ExportError(f"{material.source}: glTF takes linear RGB, not the spectrum "
                           f"{', '.join(material.channels)}; export one wavelength with "
                           "--channel")
-    wi, wo = conversion_pairs(model.capabilities.isotropic)
+    caps = model.capabilities
+    wi, wo = conversion_pairs(caps.isotropic, caps.transmission)
     values = _values(material, wi, wo)
-    if not all(np.any(v > 0) for v in values.values()):
+    if not all(np.any(v[wo[:, 2] > 0] > 0) for v in values.values()):
         raise ExportError(f"{material.model} is 0 at every reflection direction of a channel; "
                           "there is nothing to convert")
     best = None
-    for name in ("gltf_pbr", "gltf_pbr_clearcoat"):
+    for name in candidates(caps):
         result = _fit(name, values, wi, wo, seed, progress)
         params = simplified({c: dict(p) for c, p in result.parameters.items()})
         errors = {"fit_pairs": int(np.sum(wo[:, 2] > 0)),
@@ -263,6 +290,16 @@ def _sphere(rings: int, segments: int):
     return pos, pos.copy(), np.asarray(idx, dtype=np.uint16).ravel()
 
 
+def _sphere_tangents(rings: int, segments: int) -> np.ndarray:
+    """Unit tangents (+w handedness) of :func:`_sphere` along increasing longitude φ."""
+    out = []
+    for i in range(rings + 1):
+        for j in range(segments + 1):
+            ph = 2 * np.pi * j / segments
+            out.append((-np.sin(ph), 0.0, np.cos(ph), 1.0))
+    return np.asarray(out, dtype=np.float32)
+
+
 def _rgb_values(params: dict, name: str) -> list[float]:
     vals = [float(params[c][name]) for c in params]
     return vals * 3 if len(vals) == 1 else vals
@@ -292,6 +329,14 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
         ext["KHR_materials_clearcoat"] = {
             "clearcoatFactor": _shared(params, "clearcoat"),
             "clearcoatRoughnessFactor": _shared(params, "clearcoat_roughness_factor")}
+    anisotropic = model == "gltf_pbr_anisotropic" and _shared(params, "anisotropy_strength") > 0
+    if anisotropic:
+        ext["KHR_materials_anisotropy"] = {
+            "anisotropyStrength": _shared(params, "anisotropy_strength"),
+            "anisotropyRotation": float(np.radians(_shared(params, "anisotropy_rotation")))}
+    if model == "gltf_pbr_transmission" and _shared(params, "transmission") > 0:
+        ext["KHR_materials_transmission"] = {"transmissionFactor": _shared(params,
+                                                                          "transmission")}
     if ext:
         mat["extensions"] = ext
     mat["extras"] = {"fitlab": {"source_model": material.model, "source": material.source,
@@ -300,6 +345,8 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
                                 "spec": "data_formats/gltf_material.md"}}
     pos, nrm, idx = _sphere(*SPHERE)
     blobs = [pos.tobytes(), nrm.tobytes(), idx.tobytes()]
+    if anisotropic:  # KHR_materials_anisotropy needs a tangent space: TANGENT along +u (φ)
+        blobs.append(_sphere_tangents(*SPHERE).tobytes())
     offsets, data = [], b""
     for blob in blobs:
         data += b"\0" * (-len(data) % 4)
@@ -312,7 +359,9 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "preview sphere"}],
         "meshes": [{"name": "preview sphere", "primitives": [
-            {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0}]}],
+            {"attributes": {"POSITION": 0, "NORMAL": 1, **({"TANGENT": 3} if anisotropic
+                                                            else {})},
+             "indices": 2, "material": 0}]}],
         "materials": [mat],
         "buffers": [{"byteLength": len(data),
                      "uri": "data:application/octet-stream;base64,"
@@ -327,6 +376,11 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
             {"bufferView": 1, "componentType": 5126, "count": int(nrm.shape[0]), "type": "VEC3"},
             {"bufferView": 2, "componentType": 5123, "count": int(idx.size), "type": "SCALAR"}],
     }
+    if anisotropic:
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": offsets[3],
+                                   "byteLength": len(blobs[3]), "target": 34962})
+        doc["accessors"].append({"bufferView": 3, "componentType": 5126,
+                                 "count": int(pos.shape[0]), "type": "VEC4"})
     if ext:
         doc["extensionsUsed"] = sorted(ext)
     return doc
