@@ -72,6 +72,20 @@ def _vis_d(alpha, nl, nv, nh):
     return vis * a2 / (np.pi * (nh * nh * (a2 - 1) + 1) ** 2)
 
 
+def _vis_d_anisotropic(at, ab, wi, wo, h, rotation_deg):
+    """three's V_GGX_SmithCorrelated_Anisotropic · D_GGX_Anisotropic with T the tangent +x
+    turned by the rotation, B = N × T."""
+    r = np.radians(rotation_deg)
+    T, B = np.array([np.cos(r), np.sin(r), 0.0]), np.array([-np.sin(r), np.cos(r), 0.0])
+    nl, nv, nh = wi[:, 2], wo[:, 2], h[:, 2]
+    gv = nl * np.sqrt((at * (wo @ T)) ** 2 + (ab * (wo @ B)) ** 2 + nv ** 2)
+    gl = nv * np.sqrt((at * (wi @ T)) ** 2 + (ab * (wi @ B)) ** 2 + nl ** 2)
+    a2 = at * ab
+    v = np.stack([ab * (h @ T), at * (h @ B), a2 * nh], -1)
+    w2 = a2 / np.sum(v * v, -1)
+    return 0.5 / (gv + gl) * a2 * w2 * w2 / np.pi
+
+
 def three_prediction(p: dict, wi, wo, dfg) -> np.ndarray:
     """f(wi, wo)·cos θi per channel as three.js r187 computes a glTF material under one
     directional light (RE_Direct_Physical, BRDF_GGX, BRDF_GGX_Clearcoat, meshphysical's coat
@@ -88,8 +102,16 @@ def three_prediction(p: dict, wi, wo, dfg) -> np.ndarray:
     F = f0_b * (1 - fres) + f90 * fres
     E = _bilinear(dfg, np.full_like(nv, r), nv).sum(-1)[:, None]
     comp = 1 + f0_b * (1 / E - 1)
-    spec = F * _vis_d(r * r, nl, nv, nh)[:, None] * comp
-    diffuse = base * (1 - m) / np.pi * (1 - (f0_d * (1 - fres) + f90 * fres))
+    s_a = p.get("anisotropy_strength", 0.0)
+    if s_a:  # alphaT = max(mix(r², 1, s²), α), alphaB = α (BRDF_GGX's anisotropic branch)
+        at = max(r * r + (1 - r * r) * s_a * s_a, r * r)
+        vd = _vis_d_anisotropic(at, r * r, wi, wo, h, p["anisotropy_rotation"])
+    else:
+        vd = _vis_d(r * r, nl, nv, nh)
+    spec = F * vd[:, None] * comp
+    # transmission: the diffuse mixed with the transmitted background (black here)
+    t = p.get("transmission", 0.0)
+    diffuse = base * (1 - m) * (1 - t) / np.pi * (1 - (f0_d * (1 - fres) + f90 * fres))
     out = (spec + diffuse) * nl[:, None]
     c = p.get("clearcoat", 0.0)
     if c:
@@ -110,6 +132,13 @@ CASES = {
     "clearcoat": ("gltf_pbr_clearcoat", {"base_color": (0.6, 0.1, 0.1), "metallic": 0.0,
                                          "roughness_factor": 0.6, "clearcoat": 0.7,
                                          "clearcoat_roughness_factor": 0.2}),
+    "anisotropy": ("gltf_pbr_anisotropic", {"base_color": (0.9, 0.8, 0.5), "metallic": 1.0,
+                                            "roughness_factor": 0.3,
+                                            "anisotropy_strength": 0.6,
+                                            "anisotropy_rotation": 30.0}),
+    "transmission (reflection side)": (
+        "gltf_pbr_transmission", {"base_color": (0.5, 0.7, 0.9), "metallic": 0.0,
+                                  "roughness_factor": 0.35, "transmission": 0.6}),
 }
 
 

@@ -137,3 +137,35 @@ def test_errors_are_measured_against_the_material():
     off = conversion_errors(mat, "gltf_pbr", other)
     assert off["relative_rms"] > 0.1 and off["lobe_images"]["30"]["ssim"] < 0.999
     assert off["lobe_images"]["30"]["psnr_db"] < 60
+
+
+@pytest.mark.slow
+def test_anisotropic_conductor_converts_with_khr_materials_anisotropy():
+    """α_x = 0.05, α_y = 0.3: the anisotropy direction is +y (rotation -90°), α = r² = α_x and
+    α_t = mix(α, 1, s²) = α_y."""
+    mat = material_from_model("rough_conductor_anisotropic",
+                              {"Y": {"alpha_x": 0.05, "alpha_y": 0.3, "n": 0.2, "k": 3.9}})
+    doc, conv = gltf_export(mat)
+    p = conv["fitted"]["Y"]
+    assert conv["gltf_model"] == "gltf_pbr_anisotropic"
+    a = p["roughness_factor"] ** 2
+    assert a == pytest.approx(0.05, rel=0.05)
+    assert a + (1 - a) * p["anisotropy_strength"] ** 2 == pytest.approx(0.3, rel=0.05)
+    assert abs(abs(p["anisotropy_rotation"]) - 90.0) < 1.0
+    ext = doc["materials"][0]["extensions"]["KHR_materials_anisotropy"]
+    assert ext["anisotropyRotation"] == pytest.approx(np.radians(p["anisotropy_rotation"]))
+    assert "TANGENT" in doc["meshes"][0]["primitives"][0]["attributes"]
+    assert conv["relative_rms"] < 0.03 and not conv["warnings"]
+
+
+@pytest.mark.slow
+def test_refracting_dielectric_converts_with_a_warning():
+    """A rough dielectric's BTDF refracts; glTF's thin-walled transmission cannot: the export
+    keeps the transmitted energy (albedo) but warns with the measured distance."""
+    mat = material_from_model("rough_dielectric", {"Y": {"alpha": 0.2, "eta": 1.5}})
+    doc, conv = gltf_export(mat)
+    assert conv["gltf_model"] == "gltf_pbr_transmission"
+    assert "KHR_materials_transmission" in doc["materials"][0]["extensions"]
+    a = conv["albedo"]["30"]
+    assert a["gltf_transmitted"][0] == pytest.approx(a["material_transmitted"][0], rel=0.1)
+    assert conv["relative_rms"] > 0.25 and "thin-walled" in conv["warnings"][0]

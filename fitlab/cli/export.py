@@ -83,6 +83,8 @@ def run(args):
         if "relative_rms" in conv:
             line += (f"; glTF conversion error: relative RMS of f cos {conv['relative_rms']:.3g}")
         print(line, file=sys.stderr)
+        for w in conv.get("warnings", ()):
+            print(f"warning: {w}", file=sys.stderr)
         g = conv.get("goniometer")
         if g:
             print(f"check: {g['renderer']} on {g['pairs']} goniometer pairs: relative RMS "

@@ -386,11 +386,30 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
     return doc
 
 
+#: A conversion whose relative RMS is above this gets a warning (printed by fitlab export).
+FAR = 0.25
+
+
+def conversion_warnings(material: Material, model: str, errors: dict) -> list[str]:
+    """Sentences for a conversion a user should not take at face value."""
+    out = []
+    if errors["relative_rms"] > FAR:
+        text = (f"the glTF material is far from {material.model}: relative RMS "
+                f"{errors['relative_rms']:.3g} of f·cos over the hemisphere")
+        if model == "gltf_pbr_transmission":
+            text += ("; KHR_materials_transmission is a thin-walled surface (light leaves "
+                     "straight through, blurred by the roughness), which cannot take the "
+                     "refraction of a single rough interface into a denser medium")
+        out.append(text + "; check the figures before using it")
+    return out
+
+
 def gltf_export(material: Material, *, seed: int = 0, progress: bool = False):
     """(glTF document, conversion figures) of ``material`` (:func:`convert`)."""
     model, params, errors = convert(material, seed=seed, progress=progress)
     shown = {c: {k: v for k, v in p.items()} for c, p in params.items()}
     conversion = {"gltf_model": model, "fitted": shown, **errors,
+                  "warnings": conversion_warnings(material, model, errors),
                   "summary": f"glTF's BRDF ({model}) fitted to the material on "
                   f"{errors['fit_pairs']} direction pairs (log loss), errors over "
                   f"{errors['pairs']}; SSIM of the lobe images "
