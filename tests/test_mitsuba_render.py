@@ -96,16 +96,21 @@ NATIVE_CASES = {
 }
 
 
+def _render_case(fm, case, make_bsdf):
+    """(rendered, expected) f·cos θi of ``case`` = (model, channels, options) on the reflection
+    geometries (and the transmission ones for a transmitting model)."""
+    model, channels, options = case
+    material = material_from_model(model, channels, options)
+    table = REFLECTION
+    if fitlab.get_model(model).capabilities.transmission:
+        table = np.concatenate([REFLECTION, TRANSMISSION])
+    wi, wo = _geometry(table)
+    return fm.goniometer(make_bsdf(material), wi, wo), _expected(material, wi, wo)
+
+
 @pytest.mark.parametrize("case", list(NATIVE_CASES))
 def test_native_export_renders_fitlab_values(fm, case):
-    model, channels, options = NATIVE_CASES[case]
-    material = material_from_model(model, channels, options)
-    wi, wo = _geometry(REFLECTION)
-    if fitlab.get_model(model).capabilities.transmission:
-        ti, to = _geometry(TRANSMISSION)
-        wi, wo = np.concatenate([wi, ti]), np.concatenate([wo, to])
-    rendered = fm.goniometer(native_bsdf(material), wi, wo)
-    expected = _expected(material, wi, wo)
+    rendered, expected = _render_case(fm, NATIVE_CASES[case], native_bsdf)
     assert np.all(expected[:, 1] > 0), "every geometry must test a non-zero value"
     err = _rel(rendered, expected)
     assert err.max() < 2e-5, (case, err.max(), rendered, expected)
@@ -148,13 +153,7 @@ PLUGIN_CASES = {
 
 @pytest.mark.parametrize("case", list(PLUGIN_CASES))
 def test_plugin_renders_fitlab_values(fm, case):
-    model, channels, options = PLUGIN_CASES[case]
-    material = material_from_model(model, channels, options)
-    wi, wo = _geometry(REFLECTION)
-    if fitlab.get_model(model).capabilities.transmission:
-        wi, wo = _geometry(np.concatenate([REFLECTION, TRANSMISSION]))
-    rendered = fm.goniometer(plugin_bsdf(material), wi, wo)
-    expected = _expected(material, wi, wo)
+    rendered, expected = _render_case(fm, PLUGIN_CASES[case], plugin_bsdf)
     err = _rel(rendered, expected)
     assert err.max() < 2e-5, (case, err.max())
 
