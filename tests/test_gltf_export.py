@@ -86,6 +86,7 @@ def test_rgb_material_shares_the_geometry_and_document_is_deterministic(tmp_path
           f"max {conv['relative_max']:.3g}")
 
 
+@pytest.mark.slow
 def test_cli_writes_gltf_and_reports_the_error(tmp_path, capsys):
     from fitlab.cli import main
 

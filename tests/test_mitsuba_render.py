@@ -293,6 +293,7 @@ def test_cli_check_renders_the_export(capsys, tmp_path, fm):
     assert "120 goniometer pairs" in line and rms < 2e-5
 
 
+@pytest.mark.slow
 def test_report_hand_off_section(fm, tmp_path):
     """fitlab report --renderers: the table of exports with their measured conversion errors
     (the native refusal included) and the Mitsuba preview figure."""
