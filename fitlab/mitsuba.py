@@ -19,9 +19,9 @@ way round), the physical mapping of data_formats/MITSUBA_MAPPING.md. ``sample`` 
 fitlab's sampler from ``si.wi`` (for an RGB material with different parameters per channel,
 with the G channel's), and its weight is that value over fitlab's pdf.
 
-Directions go from Dr.Jit to JAX through DLPack without a copy (``Float.jax()``); the results
-come back as Dr.Jit arrays built from the JAX arrays (``mi.Float(jax_array)``: one copy of the
-N values a call returns).
+Each component of a direction reaches JAX through DLPack without a copy (``Float.jax()``); JAX
+then stacks and pads them (one copy, inside XLA); the results come back as Dr.Jit arrays built
+from the JAX arrays (``mi.Float(jax_array)``: one more copy of the values a call returns).
 Python BSDFs need Dr.Jit's *evaluated* calls and loops (a JAX function cannot be traced into a
 Dr.Jit kernel): :func:`render` (and :func:`evaluated_mode`) switch them on for the render.
 Vectorized variants (``llvm_ad_rgb``, ``cuda_ad_rgb``) call the plugin once per wavefront;
