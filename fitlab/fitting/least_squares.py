@@ -239,6 +239,7 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
         "value": jax.jit(cost),
         "value_and_grad": jax.jit(value_and_grad),
         "local": jax.jit(local),
+        "local_fn": local,  # not compiled: fitlab.fitting.batch vmaps it over datasets
     }
 
 
