@@ -1,7 +1,7 @@
 """fitlab: BSDF measurement fitting and tabulation in JAX.
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
-immutable :class:`FitResult`), :func:`load_fit` (a parameter file and its chain), :func:`compare`
+immutable :class:`FitResult`), :func:`fit_many` (many datasets at once, batched), :func:`load_fit` (a parameter file and its chain), :func:`compare`
 (candidate models ranked by held-out error → a :class:`CompareResult`), and
 :func:`export_material` (a fit for Mitsuba 3 or glTF 2.0), :func:`eval_bsdf`,
 :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
@@ -27,7 +27,8 @@ from fitlab.fitting.api import fit, read  # noqa: E402
 from fitlab.fitting.result import FitResult, load_fit  # noqa: E402
 from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E402
 from fitlab.export.renderers import export_material  # noqa: E402
+from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
 
 __all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
-           "Candidate", "export_material", "eval_bsdf", "sample_bsdf",
+           "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
            "pdf_bsdf", "MODELS", "get_model", "register_model"]

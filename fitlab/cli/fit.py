@@ -24,7 +24,10 @@ def add_parser(sub):
         epilog="example: fitlab fit data_formats/examples/walter_rough_glass.csv --model "
         "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_rough_glass.json",
     )
-    p.add_argument("data", help="measurement CSV")
+    p.add_argument("data", nargs="+", metavar="DATA",
+                   help="measurement file (any format fitlab reads); several files are fitted "
+                   "at once by batched least squares (fitlab.fit_many): give --out-dir and/or "
+                   "--table")
     add_model(p, help="model name (see `fitlab models`)", required=True)
     add_option(p, help="a model option")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
@@ -73,6 +76,15 @@ def add_parser(sub):
     p.add_argument("--walter-diagnostics", action="store_true",
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
+    p.add_argument("--out-dir", metavar="DIR",
+                   help="several DATA files: one parameter file per file, DIR/NAME.json "
+                   "(NAME: the data file's name without its suffix)")
+    p.add_argument("--table", metavar="FILE.csv",
+                   help="several DATA files: one CSV row per file and channel with every "
+                   "parameter and its standard error (data_formats/fit_table_csv.md)")
+    p.add_argument("--chunk", type=int, metavar="N",
+                   help="several DATA files: datasets per compiled batched call (default "
+                   "1024; memory grows with it)")
     p.add_argument("--chain", metavar="FILE.npz", help="also write the MCMC chain")
     p.add_argument("--timings", action="store_true",
                    help="record the run's wall-clock seconds in the parameter file (timings_s); "
@@ -84,6 +96,79 @@ def add_parser(sub):
     add_quiet(p)
     add_format(p)
     return p
+
+
+#: Options of a single fit that a batched fit of several files does not offer, and why.
+_SINGLE_ONLY = {"out": "--out (give --out-dir DIR: one file per dataset, or --table)",
+                "chain": "--chain (no MCMC in a batched fit)",
+                "mcmc": "--mcmc (fit the files one at a time for posteriors)",
+                "report": "--report (run fitlab report on a file of --out-dir)",
+                "share": "--share (a joint fit over channels is one problem per file)",
+                "bootstrap": "--bootstrap", "walter_diagnostics": "--walter-diagnostics",
+                "aperture_order": "--aperture-order", "start": "--start",
+                "channel": "--channel (every channel of every file is fitted)"}
+
+
+def _run_many(args):
+    """fitlab fit DATA DATA ... : fitlab.fit_many, then parameter files and/or a table."""
+    from pathlib import Path
+
+    from fitlab.export.paramfile import write_fit
+    from fitlab.fitting.api import read
+    from fitlab.fitting.many import fit_many
+    from fitlab.io.atomic import atomic_write_text
+
+    used = [flag for name, flag in _SINGLE_ONLY.items()
+            if getattr(args, name, None) not in (None, False, [], ())]
+    if used:
+        raise FitlabError(f"several data files are fitted at once (batched least squares); "
+                          f"not with {', '.join(used)}")
+    if not (args.out_dir or args.table):
+        raise FitlabError("several data files: give --out-dir DIR (a parameter file per "
+                          "file) and/or --table FILE.csv (one row per file and channel)")
+    if args.chunk is not None and args.chunk < 1:
+        raise FitlabError("--chunk must be at least 1")
+    if args.lm_maxiter is not None:
+        from fitlab.fitting.least_squares import MAX_LM_MAXITER
+
+        if not 1 <= args.lm_maxiter <= MAX_LM_MAXITER:
+            raise FitlabError(f"--lm-maxiter must be from 1 to {MAX_LM_MAXITER}")
+    model = get_model(args.model)
+    options = model_options(model, args.option)
+    fixed = _values_from_cli(model, args.fix, "fix")
+    names = [Path(d).stem for d in args.data]
+    if args.out_dir and len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise FitlabError(f"--out-dir: several data files are named {', '.join(dup)}; "
+                          "rename them (each gets DIR/NAME.json)")
+    ms = [read(d, args.format) for d in args.data]
+    from fitlab.fitting.batch import CHUNK
+
+    result = fit_many(ms, model.name, fix=fixed, free=args.free or (), options=options,
+                      loss=args.loss, subset=args.fit_subset, starts=args.starts,
+                      seed=args.seed, lm_maxiter=args.lm_maxiter or 200,
+                      chunk=args.chunk or CHUNK, progress=not args.quiet)
+    written = 0
+    if args.out_dir:
+        out = Path(args.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        for i, record in result.records():
+            write_fit(out / f"{names[i]}.json", record)
+            written += 1
+    if args.table:
+        atomic_write_text(args.table, result.table())
+    if not args.quiet:
+        stopped = sum(f.lm_stopped != "converged" for f in result.fits)
+        print(f"fitted {len(result.fits)} datasets of {len(ms)} files in {result.seconds:.2f} s "
+              f"({len(result.fits) / result.seconds:.1f} fits/s, {result.groups} structure"
+              f"{'s' if result.groups > 1 else ''})"
+              + (f"; {stopped} did not converge (see lm_stopped)" if stopped else ""),
+              file=sys.stderr)
+        if args.out_dir:
+            print(f"wrote {written} parameter files to {args.out_dir}", file=sys.stderr)
+        if args.table:
+            print(f"wrote {args.table}", file=sys.stderr)
+    return 0
 
 
 def _values_from_cli(model, items, flag):
@@ -202,6 +287,9 @@ def run(args):
     from fitlab.fitting.result import thaw
 
     t0 = time.perf_counter()
+    if len(args.data) > 1 or args.out_dir or args.table:
+        return _run_many(args)
+    args.data = args.data[0]
     model = get_model(args.model)
     options = model_options(model, args.option)
     fixed = _values_from_cli(model, args.fix, "fix")

@@ -1,0 +1,254 @@
+"""``fitlab.fit_many``: one model fitted to many datasets at once (fitlab/fitting/batch.py does
+the batched least squares), and what the results become: a parameter file per dataset (the
+``fitlab-fit`` schema of a single fit, its least-squares part) and one table of every fit
+(data_formats/fit_table_csv.md).
+
+A dataset is one channel of one measurement. Datasets of one structure (model, options, free
+parameters, loss, padded row count) share compiled calls, ``chunk`` datasets at a time; others
+form groups of their own. The global stage is a Halton scan of the unit box (not the single
+fit's nlopt MLSL, which cannot be batched), so a batched fit and ``fitlab.fit`` of the same
+data agree where the optimum is unique (tested); MCMC, the bootstrap and the goodness-of-fit
+checks are the single fit's (``fitlab.fit``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+from fitlab.fitting.batch import CHUNK, SCAN, STARTS, BatchResult, Problem, chunks, fit_chunk, group
+from fitlab.fitting.least_squares import LM_MAXITER, LeastSquaresResult, lm_record
+
+#: Columns of the table before the per-parameter ones.
+TABLE_COLUMNS = ("dataset", "source", "channel", "rows_fitted", "cost", "dof", "noise_scale",
+                 "lm_stopped", "lm_iterations", "at_bound")
+
+
+class Fitted(NamedTuple):
+    """One dataset's least-squares fit."""
+
+    dataset: int  # index of the measurement in the call
+    channel: str
+    names: tuple[str, ...]
+    native: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    cost: float
+    dof: int
+    noise_scale: float
+    lm_iterations: int
+    lm_stopped: str
+    at_bound: tuple[str, ...]
+    residuals: np.ndarray
+    scan_cost: float
+
+
+class ManyResult(NamedTuple):
+    """Every dataset's fit (``fits``, in dataset then channel order) and the run's facts."""
+
+    model: str
+    options: dict
+    loss: dict  # {dataset index: loss}
+    fits: list
+    measurements: list
+    fixed: list  # per measurement, the fixed values (η from its file ...)
+    notes: list  # per measurement
+    groups: int
+    seconds: float
+    settings: dict
+
+    def parameters(self, dataset: int, channel: str | None = None) -> dict:
+        """{parameter: best-fit value} of one dataset (and channel)."""
+        for f in self.fits:
+            if f.dataset == dataset and (channel is None or f.channel == channel):
+                return dict(zip(f.names, map(float, f.native)))
+        raise KeyError((dataset, channel))
+
+    def table(self) -> str:
+        """Every fit as CSV text (data_formats/fit_table_csv.md): one row per dataset and
+        channel, the value and standard error of each free parameter."""
+        names = list(dict.fromkeys(n for f in self.fits for n in f.names))
+        head = list(TABLE_COLUMNS) + [c for n in names for c in (n, f"{n}_stderr")]
+        lines = [f"# fitlab fit table: model {self.model}; one row per dataset and channel",
+                 ",".join(head)]
+        for f in self.fits:
+            m = self.measurements[f.dataset]
+            cells = [str(f.dataset), _csv(m.path), _csv(f.channel),
+                     str(len(f.residuals)), repr(float(f.cost)),
+                     str(int(f.dof)), repr(float(f.noise_scale)), f.lm_stopped,
+                     str(int(f.lm_iterations)), _csv(" ".join(f.at_bound))]
+            vals = dict(zip(f.names, f.native))
+            errs = dict(zip(f.names, f.stderr))
+            for n in names:
+                cells += ([repr(float(vals[n])), repr(float(errs[n]))] if n in vals else ["", ""])
+            lines.append(",".join(cells))
+        return "\n".join(lines) + "\n"
+
+    def records(self):
+        """(measurement index, parameter-file record) per measurement: the ``fitlab-fit``
+        schema of a single fit, with the least-squares part of each channel."""
+        from fitlab.export.paramfile import build_record
+        from fitlab.fitting.driver import least_squares_warnings, statistics
+        from fitlab.models import get_model
+
+        model = get_model(self.model)
+        by_m: dict = {}
+        for f in self.fits:
+            by_m.setdefault(f.dataset, []).append(f)
+        for i, fits in sorted(by_m.items()):
+            m = self.measurements[i]
+            rows_fit = self.settings["rows"][i]
+            channels = []
+            for f in fits:
+                space = self.settings["spaces"][(i, f.channel)]
+                ls = _least_squares_result(f, self.settings)
+                c = m.channel_names.index(f.channel)
+                in_chan = m.channel == c
+                pred = space.predict(f.native, m.wi[in_chan], m.wo[in_chan])
+                stats = statistics(m.select(in_chan), rows_fit[in_chan], pred, ls,
+                                   None if m.sigma is None else m.sigma[in_chan], self.loss[i])
+                channels.append({"channel": f.channel, "space": space, "ls": ls, "mcmc": None,
+                                 "statistics": stats, "goodness": None, "bootstrap": None,
+                                 "warnings": least_squares_warnings(ls),
+                                 "seconds_least_squares": 0.0})
+            result = {"model": model, "options": self.options, "fixed": self.fixed[i],
+                      "loss": self.loss[i], "notes": self.notes[i]
+                      + ["fitted by fitlab.fit_many (batched least squares: Halton scan, "
+                         "Levenberg-Marquardt; no MCMC, bootstrap or goodness checks)"],
+                      "seed": self.settings["seed"], "subset_rows": rows_fit,
+                      "channels": channels}
+            yield i, build_record(result, m, subset_expr=self.settings.get("subset_expr"))
+
+
+def _csv(text) -> str:
+    text = str(text)
+    return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\n') else text
+
+
+def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
+    named = {n: float(v) for n, v in zip(f.names, f.native)}
+    return LeastSquaresResult(
+        f.native, float(f.cost), f.residuals, f.covariance, f.stderr, float(f.noise_scale),
+        int(f.dof), f.at_bound, int(f.lm_iterations),
+        [{"start": None, "end": named, "cost": float(f.cost),
+          "lm_iterations": int(f.lm_iterations), "lm_stopped": f.lm_stopped}],
+        None,
+        {"algorithm": "batched Halton scan (fitlab.fitting.batch)",
+         "evaluations": int(settings["scan"]), "non_finite": 0, "status": "done",
+         "best_cost": float(f.scan_cost) if np.isfinite(f.scan_cost) else None,
+         "lm_starts": int(settings["starts"]) + 2, "local_minima_worse": None},
+        lm_record(f.lm_stopped, int(f.lm_iterations), int(settings["lm_maxiter"])))
+
+
+def _problems(measurements, model, *, fix, free, options, loss, subset):
+    """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
+    from fitlab.fitting.driver import channel_problem, fitted_rows, resolve_fit
+    from fitlab.fitting.subset import subset_mask
+
+    problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
+    for i, m in enumerate(measurements):
+        try:
+            mdl, opts, fixed, notes, lss, start = resolve_fit(m, model, options=options,
+                                                              fixed=fix, free=free, loss=loss)
+        except ValueError as exc:
+            raise FitlabError(f"{m.path}: {exc}") from None
+        if subset is None:
+            mask = np.ones(m.n, dtype=bool)
+        elif isinstance(subset, str):
+            mask = subset_mask(subset, m)
+        else:
+            mask = np.asarray(subset, dtype=bool)
+        rows.append(mask)
+        fixed_all.append(fixed)
+        notes_all.append(notes)
+        losses[i] = lss
+        if m.has_aperture:
+            raise FitlabError(f"{m.path}: data with an aperture are fitted one at a time "
+                              "(fitlab fit), whose quadrature order adapts per file")
+        for c in range(len(m.channel_names)):
+            name, in_chan, r = fitted_rows(m, c, mask)
+            if r is None:
+                continue
+            try:
+                space, data, start_native = channel_problem(m, mdl, opts, fixed, lss, start, r,
+                                                            name, in_chan)
+            except ValueError as exc:
+                raise FitlabError(f"{m.path}: {exc}") from None
+            spaces[(i, name)] = space
+            problems.append(Problem(space, data, np.asarray(start_native, float), lss,
+                                    int(r.sum()), (i, name)))
+    return problems, spaces, rows, fixed_all, notes_all, losses, opts
+
+
+def fit_many(measurements, model, *, fix: dict | None = None, free=(),
+             options: dict | None = None, loss: str | None = None, subset=None,
+             starts: int = STARTS, scan: int = SCAN, seed: int = 0,
+             lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK,
+             progress: bool = False) -> ManyResult:
+    """Fit ``model`` to every channel of every measurement (Measurements or paths) with
+    batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
+    ``records()`` are parameter files, its ``table()`` one CSV of every fit). ``fix``, ``free``,
+    ``options``, ``loss``, ``subset`` as in :func:`fitlab.fit`; ``scan``: Halton points of the
+    global stage; ``starts``: Levenberg–Marquardt starts besides the scan's best point and the
+    model's defaults; ``chunk``: datasets per compiled call (memory grows with it)."""
+    import fitlab
+    from fitlab.fitting.api import parameter_values, read
+
+    t0 = time.perf_counter()
+    if isinstance(measurements, (str, bytes)) or hasattr(measurements, "value"):
+        measurements = [measurements]
+    ms = [read(m) if not hasattr(m, "value") else m for m in measurements]
+    if not ms:
+        raise FitlabError("fit_many needs at least one measurement")
+    for name, v, lo in (("starts", starts, 0), ("scan", scan, 1), ("chunk", chunk, 1),
+                        ("lm_maxiter", lm_maxiter, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
+    try:
+        mdl = fitlab.get_model(model) if isinstance(model, str) else model
+    except ValueError as exc:
+        raise FitlabError(f"{exc} (see `fitlab models`)") from None
+    fix = parameter_values(mdl, fix, "fix")
+    problems, spaces, rows, fixed, notes, losses, opts = _problems(
+        ms, mdl.name, fix=fix, free=tuple(free or ()), options=options, loss=loss,
+        subset=subset)
+    if not problems:
+        raise FitlabError("no dataset has rows to fit (check the subset)")
+    groups = group(problems)
+    work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(problems), desc="fits", unit="fit", file=sys.stderr,
+                   mininterval=0.5, dynamic_ncols=True)
+    fits = [None] * len(problems)
+    try:
+        for g, r in work:
+            idx = [g[j] for j in r]
+            res: BatchResult = fit_chunk([problems[j] for j in idx], starts=starts, scan=scan,
+                                         seed=seed, lm_maxiter=lm_maxiter)
+            for k, j in enumerate(idx):
+                i, channel = problems[j].key
+                fits[j] = Fitted(i, channel, res.names, res.native[k], res.stderr[k],
+                                 res.covariance[k], float(res.cost[k]), int(res.dof[k]),
+                                 float(res.noise_scale[k]), int(res.iterations[k]),
+                                 res.stopped[k], res.at_bound[k], res.residuals[k],
+                                 float(res.scan_cost[k]))
+            if bar is not None:
+                bar.update(len(idx))
+    finally:
+        if bar is not None:
+            bar.close()
+    settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
+                "chunk": chunk, "spaces": spaces, "rows": rows,
+                "subset_expr": subset if isinstance(subset, str) else None}
+    return ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
+                      time.perf_counter() - t0, settings)
+
+
+__all__ = ["fit_many", "ManyResult", "Fitted", "TABLE_COLUMNS"]
