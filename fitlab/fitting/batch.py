@@ -126,8 +126,14 @@ def _batched(static, loss, maxiter):
 
 
 def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN,
-              seed: int = 0, lm_maxiter: int = LM_MAXITER) -> BatchResult:
-    """Fit ``problems`` (one structure) in three batched calls (module text)."""
+              seed: int = 0, lm_maxiter: int = LM_MAXITER,
+              batch: int | None = None) -> BatchResult:
+    """Fit ``problems`` (one structure) in three batched calls (module text). ``batch``: pad
+    the call to this many datasets (copies of the last, whose results are dropped), so that
+    every chunk of a run, the last one too, uses one compilation."""
+    n_real = len(problems)
+    if batch is not None and batch > n_real:
+        problems = list(problems) + [problems[-1]] * (batch - n_real)
     p0 = problems[0]
     static, loss, d = p0.space.static, p0.loss, p0.space.ndim
     size = padded_size(max(p.n_rows for p in problems))
@@ -170,9 +176,11 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     stopped = [lm_stop_reason(float(c), int(it), bool(ru), int(lm_maxiter))
                for c, it, ru in zip(np.where(np.isfinite(pick(cost)), pick(cost), np.nan),
                                     iters, pick(out["rule_unmet"]))]
-    return BatchResult([p.key for p in problems], names, theta, stderr, cov, cost_b, dof, noise,
-                       iters, stopped, at_bound,
-                       [r[i, :n] for i, n in enumerate(n_rows)], costs.min(axis=1))
+    keep = slice(0, n_real)
+    return BatchResult([p.key for p in problems[keep]], names, theta[keep], stderr[keep],
+                       cov[keep], cost_b[keep], dof[keep], noise[keep], iters[keep],
+                       stopped[keep], at_bound[keep],
+                       [r[i, :n] for i, n in enumerate(n_rows[keep])], costs.min(axis=1)[keep])
 
 
 def chunks(n: int, chunk: int) -> list[range]:

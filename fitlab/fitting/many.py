@@ -231,7 +231,8 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
         for g, r in work:
             idx = [g[j] for j in r]
             res: BatchResult = fit_chunk([problems[j] for j in idx], starts=starts, scan=scan,
-                                         seed=seed, lm_maxiter=lm_maxiter)
+                                         seed=seed, lm_maxiter=lm_maxiter,
+                                         batch=min(chunk, len(g)))
             for k, j in enumerate(idx):
                 i, channel = problems[j].key
                 fits[j] = Fitted(i, channel, res.names, res.native[k], res.stderr[k],

@@ -1,0 +1,137 @@
+"""Batched fits (``fitlab.fit_many``, ``fitlab fit FILE FILE ...``): the same optimum as a single
+fit, grouping by structure, chunking that does not change results, the parameter files and the
+table, the CLI and its refusals."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fitlab
+from fitlab.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+WALTER = ROOT / "data_formats" / "examples" / "walter_rough_glass.csv"
+RGB = ROOT / "data_formats" / "examples" / "measurement_rgb_sigma.csv"
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    """Five datasets of the Walter example's structure (normal incidence, relative data) with
+    known α and scale, 5 % noise."""
+    m = fitlab.read(WALTER)
+    base = m.select(m.theta_i == 0)
+    rng = np.random.default_rng(4)
+    truth = np.stack([rng.uniform(0.15, 0.5, 5), rng.uniform(0.7, 1.5, 5)], axis=1)
+    out = []
+    for k, (a, s) in enumerate(truth):
+        f = np.asarray(fitlab.eval_bsdf("rough_dielectric", {"alpha": a, "eta": base.eta()},
+                                        base.wi, base.wo))
+        v = s * f * (1 + 0.05 * rng.standard_normal(f.shape))
+        out.append(base._replace(value=np.maximum(v, 0.0), path=f"synthetic_{k}.csv"))
+    return out, truth
+
+
+def test_batched_fit_equals_the_single_fit():
+    m = fitlab.read(WALTER)
+    many = fitlab.fit_many([m], "rough_dielectric", subset="theta_i == 0")
+    single = fitlab.fit(m, "rough_dielectric", subset="theta_i == 0", bootstrap=0)
+    got = many.parameters(0)
+    for name in ("alpha", "scale"):
+        assert got[name] == pytest.approx(single.parameters["Y"][name], rel=1e-7)
+    f = many.fits[0]
+    for name, se in zip(f.names, f.stderr):
+        assert se == pytest.approx(single.stderr["Y"][name], rel=1e-5)
+    assert f.lm_stopped == "converged" and many.groups == 1
+
+
+def test_recovers_known_values_and_chunks_do_not_change_results(synthetic):
+    ms, truth = synthetic
+    one = fitlab.fit_many(ms, "rough_dielectric")
+    two = fitlab.fit_many(ms, "rough_dielectric", chunk=2)  # chunks of 2, the last padded
+    a1 = np.array([f.native for f in one.fits])
+    a2 = np.array([f.native for f in two.fits])
+    np.testing.assert_allclose(a1, a2, rtol=1e-9)
+    assert np.all(np.abs(a1 - truth) <= 0.05 * truth), (a1, truth)  # 5 % noise, 69 rows
+    assert [f.dataset for f in one.fits] == list(range(5))
+
+
+def test_structures_are_grouped(synthetic):
+    """The RGB file (chi2 loss: it has sigma; 4 rows) and the synthetic sets (relative loss,
+    69 rows) are two structures; every channel is a dataset."""
+    ms, _ = synthetic
+    r = fitlab.fit_many([ms[0], fitlab.read(RGB), ms[1]], "rough_conductor")
+    assert r.groups == 2
+    assert [(f.dataset, f.channel) for f in r.fits] == [(0, "Y"), (1, "R"), (1, "G"), (1, "B"),
+                                                        (2, "Y")]
+    assert r.loss == {0: "relative", 1: "chi2", 2: "relative"}
+
+
+def test_records_are_parameter_files_and_table_has_every_fit(tmp_path, synthetic):
+    from fitlab.export.paramfile import write_fit
+
+    ms, truth = synthetic
+    r = fitlab.fit_many(ms[:2], "rough_dielectric")
+    for i, record in r.records():
+        path = tmp_path / f"{i}.json"
+        write_fit(path, record)
+        loaded = fitlab.load_fit(path)
+        assert loaded.parameters["Y"]["alpha"] == pytest.approx(r.parameters(i)["alpha"])
+        assert loaded.stderr["Y"]["alpha"] > 0
+        assert "fit_many" in " ".join(loaded.record["notes"])
+        f = loaded.predict(ms[i].wi, ms[i].wo)
+        assert np.all(np.isfinite(f))
+    rows = list(csv.DictReader(io.StringIO("".join(r.table().splitlines(True)[1:]))))
+    assert [row["dataset"] for row in rows] == ["0", "1"]
+    assert float(rows[1]["alpha"]) == r.parameters(1)["alpha"]
+    assert float(rows[1]["alpha_stderr"]) == pytest.approx(r.fits[1].stderr[0])
+
+
+def test_cli_several_files(tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_bytes(WALTER.read_bytes())
+    b.write_bytes(WALTER.read_bytes())
+    code = main(["fit", str(a), str(b), "--model", "rough_dielectric", "--fit-subset",
+                 "theta_i == 0", "--out-dir", str(tmp_path / "fits"), "--table",
+                 str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "fitted 2 datasets of 2 files" in err and "fits/s" in err
+    for name in ("a", "b"):
+        r = fitlab.load_fit(tmp_path / "fits" / f"{name}.json")
+        assert r.parameters["Y"]["alpha"] == pytest.approx(0.39717, abs=1e-4)
+        assert r.record["data"]["path"] == f"../{name}.csv"  # relative, no machine path
+    text = (tmp_path / "t.csv").read_text()
+    assert text.splitlines()[1].startswith("dataset,source,channel,rows_fitted")
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--mcmc", "--out-dir", "D"], "not with --mcmc"),
+    (["--out", "x.json", "--table", "t.csv"], "not with --out"),
+    ([], "give --out-dir"),
+    (["--out-dir", "D", "--chunk", "0"], "--chunk must be at least 1"),
+])
+def test_cli_refusals(tmp_path, capsys, extra, needle):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_bytes(WALTER.read_bytes())
+    b.write_bytes(WALTER.read_bytes())
+    extra = [str(tmp_path / e) if e in ("D", "x.json", "t.csv") else e for e in extra]
+    code = main(["fit", str(a), str(b), "--model", "rough_dielectric", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"]
+
+
+def test_cli_bad_file_writes_nothing(tmp_path, capsys):
+    a, bad = tmp_path / "a.csv", tmp_path / "bad.csv"
+    a.write_bytes(WALTER.read_bytes())
+    bad.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n0,0,0,0,oops\n")
+    code = main(["fit", str(a), str(bad), "--model", "rough_dielectric", "--out-dir",
+                 str(tmp_path / "fits"), "--table", str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.csv" in err
+    assert not (tmp_path / "fits").exists() and not (tmp_path / "t.csv").exists()
