@@ -390,9 +390,24 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
 FAR = 0.25
 
 
-def conversion_warnings(material: Material, model: str, errors: dict) -> list[str]:
-    """Sentences for a conversion a user should not take at face value."""
+def conversion_warnings(material: Material, model: str, errors: dict,
+                        params: dict | None = None) -> list[str]:
+    """Sentences for a conversion a user should not take at face value: a large error, and
+    glTF parameters that ended at a bound of their range (the material wants more than glTF's
+    BRDF offers there; metallic 0 or 1 and a zero clear coat are ordinary ends)."""
+    from fitlab.models import get_model
+
     out = []
+    ordinary = {"metallic", "base_color", "clearcoat", "specular", "anisotropy_strength",
+                "transmission"}
+    for p in get_model(model).parameters:
+        if params is None or p.name in ordinary or p.name == "specular_color":
+            continue
+        v = float(next(iter(params.values()))[p.name])
+        if min(v - p.lower, p.upper - v) <= 1e-6 * max(1.0, p.upper - p.lower):
+            out.append(f"glTF's {p.name} ended at a bound of its range ({v:.6g} in "
+                       f"[{p.lower:g}, {p.upper:g}]): {material.model} asks for more than "
+                       "glTF's BRDF offers there")
     if errors["relative_rms"] > FAR:
         text = (f"the glTF material is far from {material.model}: relative RMS "
                 f"{errors['relative_rms']:.3g} of f·cos over the hemisphere")
@@ -409,7 +424,7 @@ def gltf_export(material: Material, *, seed: int = 0, progress: bool = False):
     model, params, errors = convert(material, seed=seed, progress=progress)
     shown = {c: {k: v for k, v in p.items()} for c, p in params.items()}
     conversion = {"gltf_model": model, "fitted": shown, **errors,
-                  "warnings": conversion_warnings(material, model, errors),
+                  "warnings": conversion_warnings(material, model, errors, params),
                   "summary": f"glTF's BRDF ({model}) fitted to the material on "
                   f"{errors['fit_pairs']} direction pairs (log loss), errors over "
                   f"{errors['pairs']}; SSIM of the lobe images "
