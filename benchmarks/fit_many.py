@@ -20,7 +20,7 @@ Both sides are checked: fitlab's α within 1e-4 relative of SciPy's on the peer'
 both converged, and the fraction of fits whose α is within 3 standard errors of the truth.
 Peak resident memory of the process (fitlab's run) is printed.
 
-    python benchmarks/fit_many.py [--n 10000] [--peer 300] [--chunk 1024] [--starts 4]
+    python benchmarks/fit_many.py [--n 10000] [--peer 300] [--chunk 1024] [--starts 4] [--scan 256]
 """
 
 from __future__ import annotations
@@ -72,6 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--peer", type=int, default=300)
     ap.add_argument("--chunk", type=int, default=1024)
     ap.add_argument("--starts", type=int, default=4)
+    ap.add_argument("--scan", type=int, default=256)
     args = ap.parse_args(argv)
 
     import fitlab
@@ -80,8 +81,8 @@ def main(argv=None) -> int:
     ms, truth, p = datasets(args.n)
     print(machine_line(machine()))
     print(f"{args.n} datasets of {ms[0].n} rows (Walter example, normal incidence), "
-          f"chunk {args.chunk}, LM starts {args.starts} + 2")
-    kw = dict(subset=None, starts=args.starts, chunk=args.chunk)
+          f"chunk {args.chunk}, scan {args.scan} points, LM starts {args.starts} + 2")
+    kw = dict(subset=None, starts=args.starts, scan=args.scan, chunk=args.chunk)
     t0 = time.perf_counter()
     fitlab.fit_many(ms[:args.chunk], "rough_dielectric", **kw)
     t_first = time.perf_counter() - t0

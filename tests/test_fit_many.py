@@ -107,6 +107,8 @@ def test_cli_several_files(tmp_path, capsys):
         assert r.record["data"]["path"] == f"../{name}.csv"  # relative, no machine path
     text = (tmp_path / "t.csv").read_text()
     assert text.splitlines()[1].startswith("dataset,source,channel,rows_fitted")
+    assert text.splitlines()[2].startswith("0,a.csv,Y,69,")  # relative to the table
+    assert str(tmp_path) not in text
 
 
 @pytest.mark.parametrize("extra,needle", [

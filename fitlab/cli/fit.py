@@ -156,7 +156,7 @@ def _run_many(args):
             write_fit(out / f"{names[i]}.json", record)
             written += 1
     if args.table:
-        atomic_write_text(args.table, result.table())
+        atomic_write_text(args.table, result.table(args.table))
     if not args.quiet:
         stopped = sum(f.lm_stopped != "converged" for f in result.fits)
         print(f"fitted {len(result.fits)} datasets of {len(ms)} files in {result.seconds:.2f} s "

@@ -68,16 +68,26 @@ class ManyResult(NamedTuple):
                 return dict(zip(f.names, map(float, f.native)))
         raise KeyError((dataset, channel))
 
-    def table(self) -> str:
+    def table(self, out=None) -> str:
         """Every fit as CSV text (data_formats/fit_table_csv.md): one row per dataset and
-        channel, the value and standard error of each free parameter."""
+        channel, the value and standard error of each free parameter. ``out``: the table's
+        path, to name the data files relative to it (else by their file names): never an
+        absolute path of this machine."""
+        from pathlib import Path
+
+        from fitlab.io.files import path_for_record
+
+        def source(path):
+            if out is not None and Path(path).exists():
+                return path_for_record(path, out)
+            return Path(path).name
         names = list(dict.fromkeys(n for f in self.fits for n in f.names))
         head = list(TABLE_COLUMNS) + [c for n in names for c in (n, f"{n}_stderr")]
         lines = [f"# fitlab fit table: model {self.model}; one row per dataset and channel",
                  ",".join(head)]
         for f in self.fits:
             m = self.measurements[f.dataset]
-            cells = [str(f.dataset), _csv(m.path), _csv(f.channel),
+            cells = [str(f.dataset), _csv(source(m.path)), _csv(f.channel),
                      str(len(f.residuals)), repr(float(f.cost)),
                      str(int(f.dof)), repr(float(f.noise_scale)), f.lm_stopped,
                      str(int(f.lm_iterations)), _csv(" ".join(f.at_bound))]
