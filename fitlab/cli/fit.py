@@ -52,7 +52,14 @@ def add_parser(sub):
                    help="a parameter shared by every channel (e.g. --share alpha: one geometry, "
                    "colour per channel); the channels are then fitted jointly, as one problem "
                    "(data_formats/fit_json.md, 'Joint fits')")
-    p.add_argument("--mcmc", action="store_true", help="sample the posterior with emcee")
+    p.add_argument("--mcmc", action="store_true",
+                   help="sample the posterior (emcee unless --sampler)")
+    from fitlab.fitting.mcmc import SAMPLERS
+
+    p.add_argument("--sampler", choices=list(SAMPLERS), default="emcee",
+                   help="posterior sampler with --mcmc: "
+                   + "; ".join(f"{k}: {v[0]}" for k, v in SAMPLERS.items())
+                   + " (default emcee; with nuts, --walkers is the number of chains, default 4)")
     p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")
     p.add_argument("--walkers", type=int, help="number of walkers (default max(32, 4 x dim))")
     p.add_argument("--starts", type=int, default=8,
@@ -320,7 +327,7 @@ def run(args):
                  starts=args.starts, seed=args.seed,
                  walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,
                  aperture_order=args.aperture_order, bootstrap=args.bootstrap,
-                 lm_maxiter=args.lm_maxiter, start=start)
+                 lm_maxiter=args.lm_maxiter, start=start, sampler=args.sampler)
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)

@@ -84,7 +84,8 @@ def _channel_record(ch, model, fixed):
         "mcmc": None,
     }
     if mc is not None:
-        post = {"nwalkers": mc.nwalkers, "nsteps": mc.nsteps, "burn_in": mc.burn, "thin": mc.thin,
+        post = {**({"sampler": mc.sampler} if mc.sampler != "emcee" else {}),
+                "nwalkers": mc.nwalkers, "nsteps": mc.nsteps, "burn_in": mc.burn, "thin": mc.thin,
                 "coordinates": list(mc.names),
                 "autocorrelation_time": [_num(t) for t in mc.tau],
                 "acceptance_fraction": mc.acceptance, "effective_sample_size": mc.ess,

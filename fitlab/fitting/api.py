@@ -41,7 +41,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
         aperture_order: int | None = None, bootstrap: int | None = None,
-        lm_maxiter: int | None = None, start: dict | None = None):
+        lm_maxiter: int | None = None, start: dict | None = None, sampler: str = "emcee"):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -65,7 +65,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     run's step limit (None: 200; raise it when a fit warns that its run stopped at the limit);
     start: {parameter: value} for one more Levenberg–Marquardt start, at these values and the
     model's defaults elsewhere (a basin the global search may miss: ``{"kappa1": 3000}`` starts
-    a thin layer with a sharp coat; every start is in ``result.record["fits"][c]["starts"]``).
+    a thin layer with a sharp coat; every start is in ``result.record["fits"][c]["starts"]``);
+    sampler: the posterior sampler with ``mcmc`` (``fitlab.fitting.mcmc.SAMPLERS``: ``emcee``,
+    the default and reference, or ``nuts``, blackjax's NUTS with ``walkers`` chains).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
@@ -92,6 +94,10 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     for name in free or ():
         if name not in mdl.parameter_names:
             raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
+    from fitlab.fitting.mcmc import SAMPLERS
+
+    if sampler not in SAMPLERS:
+        raise FitlabError(f"unknown sampler {sampler!r}; samplers: {', '.join(SAMPLERS)}")
     if mcmc and mcmc_steps < 100:
         raise FitlabError("mcmc_steps must be at least 100")
     share = (share,) if isinstance(share, str) else tuple(share or ())
@@ -148,7 +154,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                                  quiet=not progress, channels=chan_ids, warn=False,
                                  aperture_order=aperture_order,
                                  bootstrap=None if bootstrap is None else int(bootstrap),
-                                 lm_maxiter=int(lm_maxiter), start=start)
+                                 lm_maxiter=int(lm_maxiter), start=start, sampler=sampler)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)

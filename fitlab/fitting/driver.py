@@ -235,7 +235,8 @@ def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None,
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
                     subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
                     n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
-                    aperture_order=None, bootstrap=None, share=(), start=None):
+                    aperture_order=None, bootstrap=None, share=(), start=None,
+                    sampler="emcee"):
     """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
@@ -261,6 +262,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             channel_problem=channel_problem, statistics=statistics,
             least_squares_warnings=least_squares_warnings, mcmc=mcmc, mcmc_steps=mcmc_steps,
             mcmc_walkers=mcmc_walkers, seed=seed, n_starts=n_starts, quiet=quiet,
+            sampler=sampler,
             lm_maxiter=lm_maxiter, aperture_order=aperture_order, bootstrap=bootstrap)
         for ch in results if warn else ():
             for w in ch["warnings"]:
@@ -310,11 +312,12 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             t_ls = time.perf_counter() - t0
         chain = None
         if mcmc:
-            from fitlab.fitting.mcmc import run_mcmc  # emcee (and SciPy) load only when sampling
+            from fitlab.fitting.mcmc import sample_posterior  # the samplers load only here
 
-            _log(quiet, f"  MCMC: {mcmc_steps} steps")
-            chain = run_mcmc(space, data, loss, ls, seed=seed, nsteps=mcmc_steps,
-                             nwalkers=mcmc_walkers, progress=not quiet)
+            _log(quiet, f"  MCMC ({sampler}): {mcmc_steps} steps")
+            chain = sample_posterior(sampler, space, data, loss, ls, seed=seed,
+                                     nsteps=mcmc_steps, walkers=mcmc_walkers,
+                                     progress=not quiet)
             channel_warnings += chain.warnings
         # Predictions for every row of this channel (fitted or not).
         if order is None:

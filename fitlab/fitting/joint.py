@@ -206,6 +206,7 @@ def joint_record(joint: FitSpace, ls, mc, share, n_fit: int) -> dict:
 def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, *,
               channel_problem, statistics, least_squares_warnings, mcmc=False,
               mcmc_steps=3000, mcmc_walkers=None, seed=0, n_starts=8, quiet=False,
+              sampler="emcee",
               lm_maxiter=None, aperture_order=None, bootstrap=None):
     """The channels ``chan_ids`` of Measurement ``m`` fitted as one problem with the parameters
     ``share`` shared. Returns the channel entries of ``driver.fit_measurement``'s result and
@@ -268,11 +269,11 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
         + f"  ({t_ls:.2f} s)")
     chain = None
     if mcmc:
-        from fitlab.fitting.mcmc import run_mcmc
+        from fitlab.fitting.mcmc import sample_posterior
 
         log(f"  MCMC: {mcmc_steps} steps over the joint posterior")
-        chain = run_mcmc(joint, data, loss, ls, seed=seed, nsteps=mcmc_steps,
-                         nwalkers=mcmc_walkers, progress=not quiet)
+        chain = sample_posterior(sampler, joint, data, loss, ls, seed=seed, nsteps=mcmc_steps,
+                                 walkers=mcmc_walkers, progress=not quiet)
     boot = joint_bootstrap(m, joint, data, loss, ls, [mk[2] for mk in masks],
                            bootstrap=bootstrap, seed=seed, lm_maxiter=lm_maxiter, quiet=quiet,
                            log=log)
