@@ -112,7 +112,8 @@ def test_cli_several_files(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("extra,needle", [
-    (["--mcmc", "--out-dir", "D"], "not with --mcmc"),
+    (["--mcmc", "--out-dir", "D"], "--sampler nuts"),
+    (["--chain", "x.json", "--out-dir", "D"], "not with --chain"),
     (["--out", "x.json", "--table", "t.csv"], "not with --out"),
     ([], "give --out-dir"),
     (["--out-dir", "D", "--chunk", "0"], "--chunk must be at least 1"),
@@ -137,3 +138,21 @@ def test_cli_bad_file_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "bad.csv" in err
     assert not (tmp_path / "fits").exists() and not (tmp_path / "t.csv").exists()
+
+
+@pytest.mark.slow
+def test_batched_posteriors_by_nuts(synthetic):
+    """fit_many(mcmc=True): NUTS vmapped over the datasets; each posterior centred on its
+    least-squares optimum (median within 2 standard errors), trusted, in the table."""
+    pytest.importorskip("blackjax")
+    ms, truth = synthetic
+    r = fitlab.fit_many(ms[:3], "rough_dielectric", mcmc=True, mcmc_steps=300, chains=4)
+    for f in r.fits:
+        med = np.median(f.mcmc.samples_native, axis=0)
+        assert np.all(np.abs(med - f.native) < 2 * f.stderr), (med, f.native, f.stderr)
+        assert f.mcmc.sampler == "nuts" and f.mcmc.samples_native.shape == (1200, 2)
+        np.testing.assert_allclose(f.mcmc.samples_native.std(0), f.stderr, rtol=0.25)
+    head = r.table().splitlines()[1].split(",")
+    assert "alpha_p50" in head and "posterior_trusted" in head
+    rec = dict(r.records())[0]
+    assert rec["fits"][0]["mcmc"]["sampler"] == "nuts"

@@ -107,8 +107,8 @@ def add_parser(sub):
 
 #: Options of a single fit that a batched fit of several files does not offer, and why.
 _SINGLE_ONLY = {"out": "--out (give --out-dir DIR: one file per dataset, or --table)",
-                "chain": "--chain (no MCMC in a batched fit)",
-                "mcmc": "--mcmc (fit the files one at a time for posteriors)",
+                "chain": "--chain (the table and the parameter files hold the posteriors' "
+                         "summaries)",
                 "report": "--report (run fitlab report on a file of --out-dir)",
                 "share": "--share (a joint fit over channels is one problem per file)",
                 "bootstrap": "--bootstrap", "walter_diagnostics": "--walter-diagnostics",
@@ -130,6 +130,10 @@ def _run_many(args):
     if used:
         raise FitlabError(f"several data files are fitted at once (batched least squares); "
                           f"not with {', '.join(used)}")
+    if args.mcmc and args.sampler != "nuts":
+        raise FitlabError("several data files: --mcmc samples the posteriors batched with "
+                          "--sampler nuts; emcee (the default) runs one file at a time (fit the "
+                          "files one by one)")
     if not (args.out_dir or args.table):
         raise FitlabError("several data files: give --out-dir DIR (a parameter file per "
                           "file) and/or --table FILE.csv (one row per file and channel)")
@@ -154,7 +158,8 @@ def _run_many(args):
     result = fit_many(ms, model.name, fix=fixed, free=args.free or (), options=options,
                       loss=args.loss, subset=args.fit_subset, starts=args.starts,
                       seed=args.seed, lm_maxiter=args.lm_maxiter or 200,
-                      chunk=args.chunk or CHUNK, progress=not args.quiet)
+                      chunk=args.chunk or CHUNK, mcmc=args.mcmc, mcmc_steps=args.mcmc_steps,
+                      chains=args.walkers or 4, progress=not args.quiet)
     written = 0
     if args.out_dir:
         out = Path(args.out_dir)

@@ -45,6 +45,8 @@ class Fitted(NamedTuple):
     at_bound: tuple[str, ...]
     residuals: np.ndarray
     scan_cost: float
+    #: the posterior (NUTS, batched over the datasets) when fitted with mcmc=True
+    mcmc: object = None
 
 
 class ManyResult(NamedTuple):
@@ -83,6 +85,10 @@ class ManyResult(NamedTuple):
             return Path(path).name
         names = list(dict.fromkeys(n for f in self.fits for n in f.names))
         head = list(TABLE_COLUMNS) + [c for n in names for c in (n, f"{n}_stderr")]
+        mcmc = any(f.mcmc is not None for f in self.fits)
+        if mcmc:
+            head += [c for n in names for c in (f"{n}_p16", f"{n}_p50", f"{n}_p84")]
+            head += ["posterior_ess", "posterior_trusted"]
         lines = [f"# fitlab fit table: model {self.model}; one row per dataset and channel",
                  ",".join(head)]
         for f in self.fits:
@@ -95,6 +101,14 @@ class ManyResult(NamedTuple):
             errs = dict(zip(f.names, f.stderr))
             for n in names:
                 cells += ([repr(float(vals[n])), repr(float(errs[n]))] if n in vals else ["", ""])
+            if mcmc:
+                q = {} if f.mcmc is None else {
+                    n: np.percentile(f.mcmc.samples_native[:, k], [16, 50, 84])
+                    for k, n in enumerate(f.names)}
+                for n in names:
+                    cells += [repr(float(x)) for x in q[n]] if n in q else ["", "", ""]
+                cells += ["" if f.mcmc is None else repr(float(f.mcmc.ess)),
+                          "" if f.mcmc is None else str(bool(f.mcmc.trustworthy)).lower()]
             lines.append(",".join(cells))
         return "\n".join(lines) + "\n"
 
@@ -121,14 +135,18 @@ class ManyResult(NamedTuple):
                 pred = space.predict(f.native, m.wi[in_chan], m.wo[in_chan])
                 stats = statistics(m.select(in_chan), rows_fit[in_chan], pred, ls,
                                    None if m.sigma is None else m.sigma[in_chan], self.loss[i])
-                channels.append({"channel": f.channel, "space": space, "ls": ls, "mcmc": None,
+                channels.append({"channel": f.channel, "space": space, "ls": ls, "mcmc": f.mcmc,
                                  "statistics": stats, "goodness": None, "bootstrap": None,
-                                 "warnings": least_squares_warnings(ls),
+                                 "warnings": least_squares_warnings(ls)
+                                 + ([] if f.mcmc is None else list(f.mcmc.warnings)),
                                  "seconds_least_squares": 0.0})
             result = {"model": model, "options": self.options, "fixed": self.fixed[i],
                       "loss": self.loss[i], "notes": self.notes[i]
                       + ["fitted by fitlab.fit_many (batched least squares: Halton scan, "
-                         "Levenberg-Marquardt; no MCMC, bootstrap or goodness checks)"],
+                         "Levenberg-Marquardt" + ("; posterior by NUTS, batched over the "
+                                                  "datasets" if fits[0].mcmc is not None
+                                                  else "; no MCMC")
+                         + "; no bootstrap or goodness checks)"],
                       "seed": self.settings["seed"], "subset_rows": rows_fit,
                       "channels": channels}
             yield i, build_record(result, m, subset_expr=self.settings.get("subset_expr"))
@@ -194,17 +212,40 @@ def _problems(measurements, model, *, fix, free, options, loss, subset):
     return problems, spaces, rows, fixed_all, notes_all, losses, opts
 
 
+def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
+    """NUTS posteriors of a chunk's datasets, batched (padded like the least squares)."""
+    try:
+        from fitlab.fitting.nuts import run_nuts_many
+    except ImportError:  # pragma: no cover - blackjax is in the test extra
+        raise FitlabError("mcmc with fit_many uses NUTS: pip install 'fitlab[samplers]'") \
+            from None
+    from fitlab.fitting.batch import pad_to
+    from fitlab.fitting.least_squares import padded_size
+
+    size = padded_size(max(p.n_rows for p in problems))
+    items = []
+    for k, p in enumerate(problems):
+        ls = type("LS", (), {"native": res.native[k], "noise_scale": res.noise_scale[k]})
+        items.append((p.space, pad_to(p.data, size), p.loss, ls))
+    n_real = len(items)
+    items += [items[-1]] * (batch - n_real)  # one compilation for every chunk
+    return run_nuts_many(items, seed=seed, nsteps=nsteps, nchains=chains)[:n_real]
+
+
 def fit_many(measurements, model, *, fix: dict | None = None, free=(),
              options: dict | None = None, loss: str | None = None, subset=None,
              starts: int = STARTS, scan: int = SCAN, seed: int = 0,
-             lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK,
-             progress: bool = False) -> ManyResult:
+             lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK, mcmc: bool = False,
+             mcmc_steps: int = 1000, chains: int = 4, progress: bool = False) -> ManyResult:
     """Fit ``model`` to every channel of every measurement (Measurements or paths) with
     batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
     ``records()`` are parameter files, its ``table()`` one CSV of every fit). ``fix``, ``free``,
     ``options``, ``loss``, ``subset`` as in :func:`fitlab.fit`; ``scan``: Halton points of the
     global stage; ``starts``: Levenberg–Marquardt starts besides the scan's best point and the
-    model's defaults; ``chunk``: datasets per compiled call (memory grows with it)."""
+    model's defaults; ``chunk``: datasets per compiled call (memory grows with it); ``mcmc``:
+    also the posterior of every dataset by NUTS (blackjax; ``chains`` chains × ``mcmc_steps``
+    adaptation and draws), vmapped over the datasets of a chunk as well (emcee, the single
+    fit's reference sampler, is not batched: use fitlab.fit per file)."""
     import fitlab
     from fitlab.fitting.api import parameter_values, read
 
@@ -215,7 +256,8 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
     if not ms:
         raise FitlabError("fit_many needs at least one measurement")
     for name, v, lo in (("starts", starts, 0), ("scan", scan, 1), ("chunk", chunk, 1),
-                        ("lm_maxiter", lm_maxiter, 1)):
+                        ("lm_maxiter", lm_maxiter, 1), ("mcmc_steps", mcmc_steps, 100),
+                        ("chains", chains, 2)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
     try:
@@ -243,20 +285,25 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
             res: BatchResult = fit_chunk([problems[j] for j in idx], starts=starts, scan=scan,
                                          seed=seed, lm_maxiter=lm_maxiter,
                                          batch=min(chunk, len(g)))
+            posts = [None] * len(idx)
+            if mcmc:
+                posts = _posteriors([problems[j] for j in idx], res, seed=seed,
+                                    nsteps=mcmc_steps, chains=chains,
+                                    batch=min(chunk, len(g)))
             for k, j in enumerate(idx):
                 i, channel = problems[j].key
                 fits[j] = Fitted(i, channel, res.names, res.native[k], res.stderr[k],
                                  res.covariance[k], float(res.cost[k]), int(res.dof[k]),
                                  float(res.noise_scale[k]), int(res.iterations[k]),
                                  res.stopped[k], res.at_bound[k], res.residuals[k],
-                                 float(res.scan_cost[k]))
+                                 float(res.scan_cost[k]), posts[k])
             if bar is not None:
                 bar.update(len(idx))
     finally:
         if bar is not None:
             bar.close()
     settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
-                "chunk": chunk, "spaces": spaces, "rows": rows,
+                "chunk": chunk, "mcmc": mcmc, "spaces": spaces, "rows": rows,
                 "subset_expr": subset if isinstance(subset, str) else None}
     return ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
                       time.perf_counter() - t0, settings)

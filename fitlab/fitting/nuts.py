@@ -79,12 +79,7 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
     nuisance = not has_absolute_noise(loss)
     names = space.names + (("log_noise",) if nuisance else ())
     warmup = nsteps if warmup is None else warmup
-    rng = np.random.default_rng(seed)
-    u0 = np.clip(canonical(space, space.to_unit(ls.native)[None])[0], 1e-6, 1 - 1e-6)
-    z0 = np.log(u0) - np.log1p(-u0)
-    if nuisance:
-        z0 = np.concatenate([z0, [np.log(max(ls.noise_scale, 1e-300))]])
-    starts = z0 + 1e-2 * rng.standard_normal((nchains, z0.size))
+    starts = _starts(space, ls, nuisance, nchains, np.random.default_rng(seed))
     keys = jax.random.split(jax.random.PRNGKey(int(seed)), nchains)
     if progress:
         import sys
@@ -94,12 +89,19 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
     run = _sampler(space.static, loss, order_keys(space), space.ndim, int(nsteps), int(warmup))
     with jax.numpy_dtype_promotion("standard"):  # blackjax mixes bool and int internally
         pos, logd, acc, div, steps = run(keys, jnp.asarray(starts), problem)
-    pos, logd = np.asarray(pos), np.asarray(logd)  # (chains, draws, dim)
+    return assemble(space, names, np.asarray(pos), np.asarray(logd), np.asarray(acc),
+                    np.asarray(div), nsteps, time.perf_counter() - t0)
+
+
+def assemble(space: FitSpace, names, pos, logd, acc, div, nsteps: int,
+             seconds: float) -> MCMCResult:
+    """One dataset's MCMCResult from NUTS's draws (chains, draws, dim) in z coordinates."""
+    nchains = pos.shape[0]
     u = 1.0 / (1.0 + np.exp(-pos[..., : space.ndim]))
     chain_unit = np.concatenate([u, pos[..., space.ndim:]], axis=-1)
     ess, rhat = diagnostics(chain_unit, names)
     warnings = []
-    n_div = int(np.sum(np.asarray(div)))
+    n_div = int(np.sum(div))
     if n_div:
         warnings.append(f"{n_div} divergent NUTS transitions of {nchains * nsteps}: the "
                         "posterior has regions the sampler could not follow (a funnel or a "
@@ -117,8 +119,50 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
     samples_native = space.to_native(flat[:, : space.ndim])
     tau = (nchains * nsteps) / np.maximum(ess, 1e-12)  # integrated autocorrelation per draw
     return MCMCResult(samples_native, np.swapaxes(chain_unit, 0, 1), np.swapaxes(logd, 0, 1),
-                      names, nchains, nsteps, 0, 1, tau, float(np.mean(np.asarray(acc))), low,
-                      trustworthy, warnings, time.perf_counter() - t0, "nuts")
+                      names, nchains, nsteps, 0, 1, tau, float(np.mean(acc)), low,
+                      trustworthy, warnings, seconds, "nuts")
+
+
+def _starts(space: FitSpace, ls, nuisance: bool, nchains: int, rng) -> np.ndarray:
+    """Chain starts in z coordinates around the least-squares optimum."""
+    u0 = np.clip(canonical(space, space.to_unit(np.asarray(ls.native))[None])[0], 1e-6,
+                 1 - 1e-6)
+    z0 = np.log(u0) - np.log1p(-u0)
+    if nuisance:
+        z0 = np.concatenate([z0, [np.log(max(float(ls.noise_scale), 1e-300))]])
+    return z0 + 1e-2 * rng.standard_normal((nchains, z0.size))
+
+
+def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
+                  warmup: int | None = None) -> list[MCMCResult]:
+    """NUTS for many datasets of one structure at once: ``items`` = [(space, data (padded to
+    one size), loss, ls)], the compiled sampler vmapped over datasets as well as chains."""
+    t0 = time.perf_counter()
+    space0, _, loss, _ = items[0]
+    nuisance = not has_absolute_noise(loss)
+    names = space0.names + (("log_noise",) if nuisance else ())
+    warmup = nsteps if warmup is None else warmup
+    rng = np.random.default_rng(seed)
+    starts = np.stack([_starts(sp, ls, nuisance, nchains, rng) for sp, _, _, ls in items])
+    keys = jax.random.split(jax.random.PRNGKey(int(seed)), len(items) * nchains).reshape(
+        len(items), nchains, -1)
+    problems = [problem_of(sp, d) for sp, d, _, _ in items]
+    problem = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
+    run = _sampler_many(space0.static, loss, order_keys(space0), space0.ndim, int(nsteps),
+                        int(warmup))
+    with jax.numpy_dtype_promotion("standard"):
+        pos, logd, acc, div, _ = run(keys, jnp.asarray(starts), problem)
+    seconds = (time.perf_counter() - t0) / len(items)
+    return [assemble(sp, names, np.asarray(pos[i]), np.asarray(logd[i]), np.asarray(acc[i]),
+                     np.asarray(div[i]), nsteps, seconds) for i, (sp, _, _, _) in
+            enumerate(items)]
+
+
+@functools.lru_cache(maxsize=32)
+def _sampler_many(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
+    """:func:`_sampler` vmapped over datasets too (keys, starts and problem per dataset)."""
+    one = _sampler(static, loss, order, ndim, nsteps, warmup)
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0)))
 
 
 def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
@@ -131,4 +175,5 @@ def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([float(ess[n]) for n in names]), np.array([float(rhat[n]) for n in names]))
 
 
-__all__ = ["run_nuts", "diagnostics", "RHAT_MAX", "ESS_PER_CHAIN"]
+__all__ = ["run_nuts", "run_nuts_many", "assemble", "diagnostics", "RHAT_MAX",
+           "ESS_PER_CHAIN"]
