@@ -89,6 +89,15 @@ def add_parser(sub):
     p.add_argument("--table", metavar="FILE.csv",
                    help="several DATA files: one CSV row per file and channel with every "
                    "parameter and its standard error (data_formats/fit_table_csv.md)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="several DATA files: fit them on N local Dask worker processes "
+                   "(Dask.distributed; resumable: a rerun skips the chunks already done); "
+                   "writes --out-dir DIR/NAME.json, DIR/table.csv and DIR/index.json")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="several DATA files: send the chunks to a running Dask scheduler "
+                   "(tcp://HOST:8786; its workers need fitlab and the same --out-dir path)")
+    p.add_argument("--files-per-chunk", type=int, metavar="N",
+                   help="with --workers/--scheduler: files per task (default 64)")
     p.add_argument("--chunk", type=int, metavar="N",
                    help="several DATA files: datasets per compiled batched call (default "
                    "1024; memory grows with it)")
@@ -180,6 +189,39 @@ def _run_many(args):
             print(f"wrote {written} parameter files to {args.out_dir}", file=sys.stderr)
         if args.table:
             print(f"wrote {args.table}", file=sys.stderr)
+    return 0
+
+
+def _run_distributed(args):
+    """fitlab fit DATA ... --workers N | --scheduler ADDRESS: fitlab.fitting.distributed."""
+    from fitlab.fitting.distributed import FILES_PER_CHUNK, fit_files
+
+    used = [flag for name, flag in _SINGLE_ONLY.items()
+            if getattr(args, name, None) not in (None, False, [], ())]
+    if args.table:
+        used.append("--table (the table is DIR/table.csv)")
+    if used:
+        raise FitlabError(f"--workers/--scheduler fit the files in chunks on Dask workers; "
+                          f"not with {', '.join(used)}")
+    if not args.out_dir:
+        raise FitlabError("--workers/--scheduler need --out-dir DIR (the workers write the "
+                          "parameter files there)")
+    if args.mcmc and args.sampler != "nuts":
+        raise FitlabError("--mcmc on workers samples with --sampler nuts (batched)")
+    model = get_model(args.model)
+    options = model_options(model, args.option)
+    fixed = _values_from_cli(model, args.fix, "fix")
+    summary = fit_files(args.data, model.name, args.out_dir, workers=args.workers or 2,
+                        scheduler=args.scheduler,
+                        files_per_chunk=args.files_per_chunk or FILES_PER_CHUNK,
+                        progress=not args.quiet, fix=fixed, free=list(args.free or ()),
+                        options=options, loss=args.loss, subset=args.fit_subset,
+                        starts=args.starts, seed=args.seed, lm_maxiter=args.lm_maxiter or 200,
+                        mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, chains=args.walkers or 4)
+    if not args.quiet:
+        print(f"{summary['files']} files in {summary['chunks']} chunks: {summary['fitted']} "
+              f"fitted now, {summary['done_before']} done before; wrote {summary['table']} and "
+              f"{summary['index']}", file=sys.stderr)
     return 0
 
 
@@ -299,6 +341,8 @@ def run(args):
     from fitlab.fitting.result import thaw
 
     t0 = time.perf_counter()
+    if args.workers or args.scheduler:
+        return _run_distributed(args)
     if len(args.data) > 1 or args.out_dir or args.table:
         return _run_many(args)
     args.data = args.data[0]
