@@ -28,8 +28,8 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from fitlab.fitting.least_squares import (LM_MAXITER, ROW_MASK, FitData, cost_unit, halton,
-                                          kernels, lm_stop_reason, padded_size)
+from fitlab.fitting.least_squares import (LM_MAXITER, FitData, cost_unit, halton, kernels,
+                                          lm_stop_reason, pad_to, padded_size)
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.space import FitSpace, z_from_unit
 
@@ -69,23 +69,6 @@ class BatchResult(NamedTuple):
     at_bound: list  # per dataset, the names of the parameters at a bound
     residuals: list  # per dataset, the residuals of its rows
     scan_cost: np.ndarray  # (N,) best cost of the global scan
-
-
-def pad_to(data: FitData, size: int) -> FitData:
-    """``data`` padded to ``size`` rows with rows the row mask leaves out (as
-    least_squares.pad_rows does for one fit, to a size the group shares)."""
-    host = jax.tree.map(np.asarray, data)
-    n = int(host.value.shape[0])
-    extra = size - n
-
-    def grow(x):
-        return np.concatenate([x, np.repeat(x[-1:], extra, axis=0)]) if extra else x
-
-    mask = np.asarray(host.consts.get(ROW_MASK, np.ones(n)), dtype=np.float64)
-    consts = {k: grow(v) for k, v in host.consts.items() if k != ROW_MASK}
-    consts[ROW_MASK] = np.concatenate([mask, np.zeros(extra)])
-    return FitData(grow(host.wi), grow(host.wo), grow(host.value), consts,
-                   None if host.weights is None else grow(host.weights))
 
 
 def structure_of(p: Problem):
@@ -193,5 +176,5 @@ def n_chunks(sizes: list[int], chunk: int) -> int:
     return sum(math.ceil(s / max(1, int(chunk))) for s in sizes)
 
 
-__all__ = ["SCAN", "STARTS", "CHUNK", "Problem", "BatchResult", "pad_to", "structure_of",
+__all__ = ["SCAN", "STARTS", "CHUNK", "Problem", "BatchResult", "structure_of",
            "group", "fit_chunk", "chunks", "n_chunks"]

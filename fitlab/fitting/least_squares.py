@@ -128,9 +128,15 @@ def pad_rows(static, data: FitData) -> FitData:
     returned unpadded."""
     if static.rows_fixed:
         return data
+    return pad_to(data, padded_size(int(np.shape(data.value)[0])))
+
+
+def pad_to(data: FitData, size: int) -> FitData:
+    """``data`` padded to ``size`` rows as :func:`pad_rows` pads (the batched fits pad a group
+    of datasets to the size they share)."""
     host = jax.tree.map(np.asarray, data)
     n = int(host.value.shape[0])
-    extra = padded_size(n) - n
+    extra = size - n
 
     def grow(x):
         return np.concatenate([x, np.repeat(x[-1:], extra, axis=0)]) if extra else x

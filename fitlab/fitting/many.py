@@ -219,8 +219,7 @@ def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
     except ImportError:  # pragma: no cover - blackjax is in the test extra
         raise FitlabError("mcmc with fit_many uses NUTS: pip install 'fitlab[samplers]'") \
             from None
-    from fitlab.fitting.batch import pad_to
-    from fitlab.fitting.least_squares import padded_size
+    from fitlab.fitting.least_squares import pad_to, padded_size
 
     size = padded_size(max(p.n_rows for p in problems))
     items = []
