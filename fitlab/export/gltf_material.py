@@ -398,8 +398,10 @@ def conversion_warnings(material: Material, model: str, errors: dict,
     from fitlab.models import get_model
 
     out = []
+    # shares that may well be 0 or 1, and the anisotropy's direction, whose bounds ±90° are the
+    # same axis
     ordinary = {"metallic", "base_color", "clearcoat", "specular", "anisotropy_strength",
-                "transmission"}
+                "anisotropy_rotation", "transmission"}
     for p in get_model(model).parameters:
         if params is None or p.name in ordinary or p.name == "specular_color":
             continue
