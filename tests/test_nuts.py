@@ -30,6 +30,7 @@ def problem():
     return prep, ls
 
 
+@pytest.mark.slow
 def test_nuts_and_emcee_sample_the_same_posterior(problem):
     """Posterior means agree within 4 Monte Carlo standard errors (std/sqrt(ESS) of each
     sampler), standard deviations within 10 %; NUTS's diagnostics say it is trusted."""
