@@ -102,6 +102,17 @@ class SimulationResult(NamedTuple):
             return {"eta_outside": f"{sc.outside_index:g}", "eta_inside": f"{sc.below_index:g}"}
         return {}
 
+    def csv_text(self, scene: str, orders: bool = False, extra: dict | None = None) -> str:
+        """The result as measurement CSV text (data_formats/measurement_csv.md) with the
+        metadata of :meth:`metadata`; ``scene``: the scene as the output names it (a path
+        relative to the output's folder, never one of this machine); ``extra``: more metadata
+        lines (a sweep's point)."""
+        from fitlab.io.measurement import format_measurement_csv
+
+        return format_measurement_csv(self.to_measurement(orders=orders),
+                                      {"scatter": self.metadata()["scatter"], "scene": scene,
+                                       **(extra or {})})
+
     def to_measurement(self, orders: bool = False):
         """The result as a :class:`fitlab.io.measurement.Measurement` (quantity bsdf). Rows with
         no tallied path (sigma 0) are left out. ``orders``: one channel per bounce-order class
