@@ -220,3 +220,19 @@ def test_killed_worker_every_point_exactly_once(tmp_path):
     for i in range(6):
         name = f"point_{i:05d}.csv"
         assert (out / name).read_bytes() == (reference / name).read_bytes()
+
+
+@pytest.mark.slow
+def test_sweep_then_batched_fit_recovers_each_point(tmp_path):
+    """The README's pipeline: a sweep of GGX widths with point estimates, then one batched
+    ``fitlab fit`` of every point, gives back each point's alpha."""
+    sweep = SWEEPS / "rough_glass_alpha.toml"
+    r = _cli("simulate", "--sweep", sweep, "--out-dir", tmp_path / "s", "--quiet")
+    assert r.returncode == 0, r.stderr
+    files = sorted((tmp_path / "s").glob("point_*.csv"))
+    r = _cli("fit", *files, "--model", "rough_dielectric", "--fix", "eta=1.5", "--out-dir",
+             tmp_path / "f", "--quiet")
+    assert r.returncode == 0, r.stderr
+    for i, alpha in enumerate(load_sweep(sweep).points):
+        got = fitlab.load_fit(tmp_path / "f" / f"point_{i:05d}.json").parameters["Y"]["alpha"]
+        assert got == pytest.approx(alpha[0], rel=1e-5)
