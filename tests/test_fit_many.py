@@ -13,6 +13,7 @@ import pytest
 
 import fitlab
 from fitlab.cli import main
+from fitlab.errors import FitlabError
 
 ROOT = Path(__file__).resolve().parent.parent
 WALTER = ROOT / "data_formats" / "examples" / "walter_rough_glass.csv"
@@ -156,3 +157,45 @@ def test_batched_posteriors_by_nuts(synthetic):
     assert "alpha_p50" in head and "posterior_trusted" in head
     rec = dict(r.records())[0]
     assert rec["fits"][0]["mcmc"]["sampler"] == "nuts"
+
+
+def test_dataset_column_one_fit_per_dataset(tmp_path):
+    """A file with a dataset column: fit_many and `fitlab fit FILE --out-dir` fit each dataset
+    on its own (α of the three synthetic samples back within 3 standard errors), name the
+    parameter files STEM.LABEL.json and the table's sources FILE#LABEL; a single fit of the
+    file is refused with that advice; a report of one dataset's fit takes its rows."""
+    import subprocess
+    import sys
+
+    data = ROOT / "data_formats" / "examples" / "measurement_datasets.csv"
+    res = fitlab.fit_many(data, "rough_dielectric")
+    assert [m.metadata["dataset"] for m in res.measurements] == ["frosted_a", "frosted_b",
+                                                                 "frosted_c"]
+    for k, truth in enumerate((0.12, 0.25, 0.4)):
+        f = [x for x in res.fits if x.dataset == k][0]
+        a, e = float(f.native[0]), float(f.stderr[0])
+        assert abs(a - truth) < 3 * e + 1e-3, (k, a, e)
+    with pytest.raises(FitlabError, match="holds 3 datasets"):
+        fitlab.fit(data, "rough_dielectric")
+    single = fitlab.fit(fitlab.read(data).dataset_named("frosted_b"), "rough_dielectric")
+    assert single.parameters["Y"]["alpha"] == pytest.approx(res.parameters(1)["alpha"], rel=1e-6)
+    out = tmp_path / "fits"
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
+                        "rough_dielectric", "--out-dir", str(out), "--table",
+                        str(out / "t.csv"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in out.glob("*.json")) == [
+        f"measurement_datasets.{x}.json" for x in ("frosted_a", "frosted_b", "frosted_c")]
+    rows = (out / "t.csv").read_text().splitlines()[2:]
+    assert [r.split(",")[1].rsplit("#", 1)[1] for r in rows] == ["frosted_a", "frosted_b",
+                                                                "frosted_c"]
+    rec = fitlab.load_fit(out / "measurement_datasets.frosted_c.json")
+    assert rec.record["data"]["metadata"]["dataset"] == "frosted_c"
+    assert rec.record["data"]["rows"] == fitlab.read(data).dataset_named("frosted_c").n
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
+                        "rough_dielectric"], capture_output=True, text=True)
+    assert r.returncode == 2 and "holds 3 datasets" in r.stderr and "--out-dir" in r.stderr
+    from fitlab.report.inputs import load_data
+
+    m, _ = load_data(rec.record, out / "measurement_datasets.frosted_c.json")
+    assert m.metadata["dataset"] == "frosted_c" and m.n == rec.record["data"]["rows"]

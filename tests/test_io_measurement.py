@@ -94,6 +94,8 @@ def test_select_keeps_provenance():
         ("measurement_outside_bin.csv", 4, "theta_o", "θo = 35° lies outside its bin [20°, 30°]"),
         ("measurement_bin_crosses_horizon.csv", 3, "theta_o_hi", "crosses the surface plane"),
         ("measurement_cone_and_bin.csv", 4, "aperture_deg", "both a detector cone and a bin"),
+        ("measurement_bad_dataset_label.csv", 4, "dataset", "'-bad label' is not a dataset label"),
+        ("measurement_dataset_duplicate.csv", 5, None, "repeats the directions of line 3"),
     ],
 )
 def test_invalid(name, line, column, fragment):
@@ -179,3 +181,37 @@ def test_brdf_angle_on_the_far_side_hint_says_how_to_write_it(tmp_path):
     with pytest.raises(InputFileError) as e:
         read_measurement(src)
     assert "φo + 180°" in str(e.value) and "only if the file really holds transmitted" in str(e.value)
+
+
+def test_dataset_column_splits_rows_keeping_channels_and_provenance(tmp_path):
+    m = read_measurement(EXAMPLES / "measurement_datasets.csv")
+    assert m.dataset_names == ("frosted_a", "frosted_b", "frosted_c")
+    parts = m.datasets()
+    assert [d.metadata["dataset"] for d in parts] == list(m.dataset_names)
+    assert sum(d.n for d in parts) == m.n and all(d.sha256 == m.sha256 for d in parts)
+    assert all(d.dataset is None and d.channel_names == ("Y",) for d in parts)
+    b = m.dataset_named("frosted_b")
+    assert np.array_equal(b.value, m.value[m.dataset == 1])
+    with pytest.raises(KeyError, match="frosted_a, frosted_b, frosted_c"):
+        m.dataset_named("nope")
+    # wide channels: each dataset keeps only the channels it has rows of
+    f = tmp_path / "w.csv"
+    f.write_text("# quantity: bsdf\ndataset,theta_i,phi_i,theta_o,phi_o,channel,value\n"
+                 "s1,0,0,10,0,R,0.5\ns1,0,0,10,0,G,0.4\ns2,0,0,10,0,G,0.3\n")
+    w = read_measurement(f)
+    s1, s2 = w.datasets()
+    assert s1.channel_names == ("R", "G") and s2.channel_names == ("G",)
+    assert list(s2.channel) == [0] and s2.value[0] == 0.3
+    g = tmp_path / "wide.csv"
+    g.write_text("# quantity: bsdf\ndataset,theta_i,phi_i,theta_o,phi_o,value_R,value_G\n"
+                 "s1,0,0,10,0,0.5,0.4\ns2,0,0,10,0,0.3,0.2\n")
+    wide = read_measurement(g)
+    assert list(wide.dataset) == [0, 0, 1, 1]
+    assert list(wide.dataset_named("s2").value) == [0.3, 0.2]
+    # round trip through fitlab's writer keeps the column
+    from fitlab.io.measurement import format_measurement_csv
+
+    out = tmp_path / "rt.csv"
+    out.write_text(format_measurement_csv(m))
+    back = read_measurement(out)
+    assert back.dataset_names == m.dataset_names and np.array_equal(back.dataset, m.dataset)

@@ -131,7 +131,7 @@ def _run_many(args):
 
     from fitlab.export.paramfile import write_fit
     from fitlab.fitting.api import read
-    from fitlab.fitting.many import fit_many
+    from fitlab.fitting.many import fit_many, output_name
     from fitlab.io.atomic import atomic_write_text
 
     used = [flag for name, flag in _SINGLE_ONLY.items()
@@ -156,12 +156,12 @@ def _run_many(args):
     model = get_model(args.model)
     options = model_options(model, args.option)
     fixed = _values_from_cli(model, args.fix, "fix")
-    names = [Path(d).stem for d in args.data]
+    ms = [d for path in args.data for d in read(path, args.format).datasets()]
+    names = [output_name(m) for m in ms]
     if args.out_dir and len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise FitlabError(f"--out-dir: several data files are named {', '.join(dup)}; "
                           "rename them (each gets DIR/NAME.json)")
-    ms = [read(d, args.format) for d in args.data]
     from fitlab.fitting.batch import CHUNK
 
     result = fit_many(ms, model.name, fix=fixed, free=args.free or (), options=options,
@@ -180,7 +180,7 @@ def _run_many(args):
         atomic_write_text(args.table, result.table(args.table))
     if not args.quiet:
         stopped = sum(f.lm_stopped != "converged" for f in result.fits)
-        print(f"fitted {len(result.fits)} datasets of {len(ms)} files in {result.seconds:.2f} s "
+        print(f"fitted {len(result.fits)} datasets of {len(args.data)} files in {result.seconds:.2f} s "
               f"({len(result.fits) / result.seconds:.1f} fits/s, {result.groups} structure"
               f"{'s' if result.groups > 1 else ''})"
               + (f"; {stopped} did not converge (see lm_stopped)" if stopped else ""),

@@ -77,9 +77,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     from fitlab.fitting.driver import fit_measurement
     from fitlab.fitting.result import FitResult
     from fitlab.fitting.subset import subset_mask
-    from fitlab.io.measurement import sanity_warnings
+    from fitlab.io.measurement import one_dataset, sanity_warnings
 
-    m = read(measurement) if not hasattr(measurement, "value") else measurement
+    m = one_dataset(read(measurement) if not hasattr(measurement, "value") else measurement)
     try:
         mdl = fitlab.get_model(model) if isinstance(model, str) else model
         options = resolve_options(mdl, options or {})

@@ -32,12 +32,11 @@ def chunk_id(files: list[str], settings: dict) -> str:
     return digest(settings, *[Path(f).name + "\0" + sha256_of(f) for f in files])
 
 
-def _fit_chunk(files: list[str], first_index: int, settings: dict, out_dir: str,
-               cid: str) -> str:
+def _fit_chunk(files: list[str], settings: dict, out_dir: str, cid: str) -> str:
     """The task: fit ``files`` (fitlab.fit_many), write their parameter files, then the chunk's
     marker. Runs in a worker process."""
     from fitlab.export.paramfile import write_fit
-    from fitlab.fitting.many import fit_many
+    from fitlab.fitting.many import fit_many, output_name
 
     out = Path(out_dir)
     if marker_path(out, cid).exists():  # done by an earlier run (or attempt of this task)
@@ -46,14 +45,14 @@ def _fit_chunk(files: list[str], first_index: int, settings: dict, out_dir: str,
     result = fit_many(files, settings["model"], **kw)
     written = []
     for i, record in result.records():
-        path = out / f"{Path(files[i]).stem}.json"
+        path = out / f"{output_name(result.measurements[i])}.json"
         write_fit(path, record)
         written.append(path.name)
     rows = result.table(out / "table.csv").splitlines()[2:]
-    rows = [str(first_index + int(r.split(",", 1)[0])) + "," + r.split(",", 1)[1] for r in rows]
     header = result.table().splitlines()[1]
     write_marker(out, cid, {"files": [Path(f).name for f in files], "parameter_files": written,
-                            "header": header, "rows": rows})
+                            "datasets": len(result.measurements), "header": header,
+                            "rows": rows})
     return cid
 
 
@@ -81,14 +80,17 @@ def fit_files(files, model: str, out_dir, *, workers: int = 2, scheduler: str | 
     chunks = []
     for a in range(0, len(files), files_per_chunk):
         part = [str(Path(f).resolve()) for f in files[a:a + files_per_chunk]]
-        chunks.append((chunk_id(part, settings), (part, a, settings)))
+        chunks.append((chunk_id(part, settings), (part, settings)))
     run = run_chunks(_fit_chunk, chunks, out, workers=workers, scheduler=scheduler,
                      progress=progress, retries=retries, desc="chunks")
     records = run["records"]
     header = records[0]["header"]
     table = [f"# fitlab fit table: model {model}; one row per dataset and channel", header]
+    first = 0  # a chunk's rows number its datasets from 0: renumber them across the chunks
     for rec in records:
-        table += rec["rows"]
+        table += [str(first + int(r.split(",", 1)[0])) + "," + r.split(",", 1)[1]
+                  for r in rec["rows"]]
+        first += rec["datasets"]
     atomic_write_text(out / "table.csv", "\n".join(table) + "\n")
     index = {"model": model, "settings": {k: v for k, v in settings.items()},
              "chunks": [{"chunk": r["chunk"], "files": r["files"],

@@ -13,6 +13,7 @@ checks are the single fit's (``fitlab.fit``).
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from typing import NamedTuple
@@ -93,7 +94,9 @@ class ManyResult(NamedTuple):
                  ",".join(head)]
         for f in self.fits:
             m = self.measurements[f.dataset]
-            cells = [str(f.dataset), _csv(source(m.path)), _csv(f.channel),
+            label = m.metadata.get("dataset")
+            cells = [str(f.dataset), _csv(source(m.path) + (f"#{label}" if label else "")),
+                     _csv(f.channel),
                      str(len(f.residuals)), repr(float(f.cost)),
                      str(int(f.dof)), repr(float(f.noise_scale)), f.lm_stopped,
                      str(int(f.lm_iterations)), _csv(" ".join(f.at_bound))]
@@ -150,6 +153,15 @@ class ManyResult(NamedTuple):
                       "seed": self.settings["seed"], "subset_rows": rows_fit,
                       "channels": channels}
             yield i, build_record(result, m, subset_expr=self.settings.get("subset_expr"))
+
+
+def output_name(m) -> str:
+    """The parameter file's stem of a dataset: the data file's stem, with ``.LABEL`` for a
+    dataset of a file with a ``dataset`` column."""
+    from pathlib import Path
+
+    label = m.metadata.get("dataset")
+    return Path(m.path).stem + (f".{label}" if label else "")
 
 
 def _csv(text) -> str:
@@ -236,7 +248,8 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
              starts: int = STARTS, scan: int = SCAN, seed: int = 0,
              lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK, mcmc: bool = False,
              mcmc_steps: int = 1000, chains: int = 4, progress: bool = False) -> ManyResult:
-    """Fit ``model`` to every channel of every measurement (Measurements or paths) with
+    """Fit ``model`` to every channel of every measurement (Measurements or paths; a file with
+    a ``dataset`` column is one measurement per dataset, ``ManyResult.measurements``) with
     batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
     ``records()`` are parameter files, its ``table()`` one CSV of every fit). ``fix``, ``free``,
     ``options``, ``loss``, ``subset`` as in :func:`fitlab.fit`; ``scan``: Halton points of the
@@ -249,9 +262,10 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
     from fitlab.fitting.api import parameter_values, read
 
     t0 = time.perf_counter()
-    if isinstance(measurements, (str, bytes)) or hasattr(measurements, "value"):
+    if isinstance(measurements, (str, bytes, os.PathLike)) or hasattr(measurements, "value"):
         measurements = [measurements]
-    ms = [read(m) if not hasattr(m, "value") else m for m in measurements]
+    ms = [d for m in measurements
+          for d in (read(m) if not hasattr(m, "value") else m).datasets()]
     if not ms:
         raise FitlabError("fit_many needs at least one measurement")
     for name, v, lo in (("starts", starts, 0), ("scan", scan, 1), ("chunk", chunk, 1),
@@ -308,4 +322,4 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
                       time.perf_counter() - t0, settings)
 
 
-__all__ = ["fit_many", "ManyResult", "Fitted", "TABLE_COLUMNS"]
+__all__ = ["fit_many", "ManyResult", "Fitted", "TABLE_COLUMNS", "output_name"]

@@ -25,6 +25,8 @@ RELATIVE_TO = ("bsdf", "bsdf_cos", "bsdf_cos_i")
 SCATTER = ("bsdf", "brdf", "btdf")
 _CHANNEL_VALUE = r"value_([A-Za-z0-9]+)"
 _CHANNEL_SIGMA = r"sigma_([A-Za-z0-9]+)"
+#: A dataset label (the optional ``dataset`` column): letters, digits, '_', '-', '.', ≤ 64.
+DATASET_LABEL = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
 
 
 class Measurement(NamedTuple):
@@ -49,6 +51,10 @@ class Measurement(NamedTuple):
     aperture_deg: np.ndarray | None = None  # (N,) detector cone half-angle, degrees; 0: a point
     bin_o_deg: np.ndarray | None = None  # (N, 4) θo_lo, θo_hi, φo_lo, φo_hi, degrees
     source_divergence_deg: np.ndarray | None = None  # (N,) source cone half-angle, degrees
+    # Several datasets in one file (the ``dataset`` column): per row an index into
+    # dataset_names; None: one dataset. fitlab.fit_many fits each on its own (datasets()).
+    dataset: np.ndarray | None = None
+    dataset_names: tuple = ()
 
     @property
     def n(self) -> int:
@@ -96,8 +102,30 @@ class Measurement(NamedTuple):
             phi_o=self.phi_o[mask], wi=self.wi[mask], wo=self.wo[mask], value=self.value[mask],
             sigma=pick(self.sigma), channel=self.channel[mask], lines=self.lines[mask],
             aperture_deg=pick(self.aperture_deg), bin_o_deg=pick(self.bin_o_deg),
-            source_divergence_deg=pick(self.source_divergence_deg),
+            source_divergence_deg=pick(self.source_divergence_deg), dataset=pick(self.dataset),
         )
+
+    def datasets(self) -> list["Measurement"]:
+        """One Measurement per dataset of the file (the ``dataset`` column), in the file's
+        order; each keeps the file's provenance, its own channels (those it has rows of), and
+        names its label in ``metadata["dataset"]``. A file without the column: ``[self]``."""
+        if self.dataset is None:
+            return [self]
+        return [self.dataset_named(label) for label in self.dataset_names]
+
+    def dataset_named(self, label: str) -> "Measurement":
+        """The rows of dataset ``label`` as a Measurement of their own (see :meth:`datasets`)."""
+        if self.dataset is None or label not in self.dataset_names:
+            have = ", ".join(self.dataset_names) or "none (no dataset column)"
+            raise KeyError(f"{self.path} has no dataset {label!r}; its datasets: {have}")
+        sub = self.select(self.dataset == self.dataset_names.index(label))
+        used = np.unique(sub.channel)
+        remap = np.full(len(self.channel_names), -1)
+        remap[used] = np.arange(len(used))
+        return sub._replace(
+            channel=remap[sub.channel], channel_names=tuple(self.channel_names[c] for c in used),
+            wavelength_nm=None if self.wavelength_nm is None else self.wavelength_nm[used],
+            metadata={**self.metadata, "dataset": label}, dataset=None, dataset_names=())
 
 
 #: Largest |value| or sigma a measurement may hold: beyond it the squares a fit sums overflow
@@ -290,9 +318,10 @@ def _melt_channels(table):
 def read_measurement(path) -> Measurement:
     """Read and validate a measurement CSV; raises InputFileError naming file, line and column."""
     path = Path(path)
-    optional = ("value", "sigma", "channel", "wavelength_nm") + CONE_COLUMNS + BIN_COLUMNS
+    optional = ("value", "sigma", "channel", "wavelength_nm", "dataset") + CONE_COLUMNS \
+        + BIN_COLUMNS
     table = read_table(path, DIRECTION_COLUMNS, optional, what="measurement CSV",
-                       text_columns=("channel",),
+                       text_columns=("channel", "dataset"),
                        column_pattern=f"{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}")
     cols, meta = table.columns, table.metadata
     wide = [c for c in cols if re.fullmatch(_CHANNEL_VALUE, c)]
@@ -343,6 +372,9 @@ def read_measurement(path) -> Measurement:
 
     aperture = _read_aperture(table, (lambda a: np.repeat(a, len(channel_names), axis=0)) if wide
                               else (lambda a: a))
+    dataset, dataset_names = _read_datasets(table)
+    if dataset is not None and wide:
+        dataset = np.repeat(dataset, len(channel_names))
     ti, to = long["theta_i"], long["theta_o"]
     value = np.asarray(long["value"], dtype=np.float64)
     sigma = long.get("sigma")
@@ -388,13 +420,16 @@ def read_measurement(path) -> Measurement:
 
     # Duplicate rows: the same directions (and channel) twice.
     key = np.stack([long["theta_i"], np.mod(long["phi_i"], 360.0), long["theta_o"],
-                    np.mod(long["phi_o"], 360.0), long["channel"].astype(float)], axis=1)
+                    np.mod(long["phi_o"], 360.0), long["channel"].astype(float),
+                    np.zeros(len(value)) if dataset is None else dataset.astype(float)], axis=1)
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     if np.any(counts > 1):
         dup_first = first[counts > 1].min()
         same = np.flatnonzero(np.all(key == key[dup_first], axis=1))
         fail_at(same[1], None, f"repeats the directions of line {int(lines[same[0]])}",
-                "merge repeated measurements into one row (mean value, combined sigma) or remove one")
+                "merge repeated measurements into one row (mean value, combined sigma) or remove "
+                "one" + ("" if dataset is None else " (rows of different datasets may repeat "
+                         "directions)"))
 
     wi = degrees_to_direction(long["theta_i"], long["phi_i"])
     wo = degrees_to_direction(long["theta_o"], long["phi_o"])
@@ -413,8 +448,43 @@ def read_measurement(path) -> Measurement:
         wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
         file_quantity=file_quantity,
         metadata={k: v for k, v in meta.items() if k not in CONE_COLUMNS},
-        lines=np.asarray(lines), **aperture,
+        lines=np.asarray(lines), **aperture, dataset=dataset, dataset_names=dataset_names,
     ))
+
+
+def one_dataset(m: Measurement) -> Measurement:
+    """``m`` as one dataset: itself, or its only dataset; a file of several datasets raises a
+    FitlabError saying how to fit them (one fit per dataset: fitlab fit FILE --out-dir DIR)."""
+    from fitlab.errors import FitlabError
+
+    if m.dataset is None:
+        return m
+    if len(m.dataset_names) == 1:
+        return m.datasets()[0]
+    shown = ", ".join(m.dataset_names[:5]) + (", ..." if len(m.dataset_names) > 5 else "")
+    raise FitlabError(f"{m.path} holds {len(m.dataset_names)} datasets (column dataset: "
+                      f"{shown}); fit each on its own with `fitlab fit {Path(m.path).name} "
+                      "--model ... --out-dir DIR` (or --table T.csv; fitlab.fit_many in Python), "
+                      "or take one with Measurement.dataset_named(LABEL)")
+
+
+def _read_datasets(table):
+    """The ``dataset`` column: per row an index into the labels (in the file's order), or
+    (None, ()) without the column."""
+    cells = table.columns.get("dataset")
+    if cells is None:
+        return None, ()
+    from fitlab.io.validate import quote
+
+    for j, c in enumerate(cells):
+        if not DATASET_LABEL.fullmatch(c):
+            raise InputFileError(table.path, f"{quote(c)} is not a dataset label",
+                                 line=int(table.lines[j]), column="dataset",
+                                 hint="use letters, digits, '_', '-' and '.' (at most 64, not "
+                                 "starting with '-' or '.'); each label names one dataset")
+    names = tuple(dict.fromkeys(cells))
+    index = {c: k for k, c in enumerate(names)}
+    return np.array([index[c] for c in cells], dtype=int), names
 
 
 def _read_aperture(table, per_row) -> dict:
@@ -478,6 +548,7 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
     spectral = m.wavelength_nm is not None
     multi = len(m.channel_names) > 1 and not spectral
     cols = ["theta_i", "phi_i", "theta_o", "phi_o"] + list(per_row) \
+        + (["dataset"] if m.dataset is not None else []) \
         + (["channel"] if multi else []) + (["wavelength_nm"] if spectral else []) + ["value"]
     if m.sigma is not None:
         cols.append("sigma")
@@ -485,6 +556,8 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
     for j in range(m.n):
         cells = [f"{m.theta_i[j]:.10g}", f"{m.phi_i[j]:.10g}", f"{m.theta_o[j]:.10g}",
                  f"{m.phi_o[j]:.10g}"] + [f"{a[j]:.10g}" for a in per_row.values()]
+        if m.dataset is not None:
+            cells.append(m.dataset_names[m.dataset[j]])
         if multi:
             cells.append(m.channel_names[m.channel[j]])
         if spectral:
@@ -524,6 +597,7 @@ def describe_loaded(m: Measurement) -> dict:
         "stored_quantity": m.file_quantity,
         "unit": "1/sr (BSDF f, no cosine)" if m.quantity == "bsdf" else "relative (unknown scale × f)",
         "channels": list(m.channel_names),
+        **({"datasets": list(m.dataset_names)} if m.dataset is not None else {}),
         "incident_directions": len(incid),
         "theta_i_deg": sorted({float(x) for x in m.theta_i}),
         "theta_o_range_deg": [float(m.theta_o.min()), float(m.theta_o.max())],

@@ -92,6 +92,13 @@ def load_data(record: dict, fit_path: Path, data_path=None):
                              "differs from the one recorded in data.sha256)",
                              hint="give the original data file with --data, or refit")
     m = read_any(data_path)
+    label = (record["data"].get("metadata") or {}).get("dataset")
+    if m.dataset is not None:  # a file of several datasets: the one the fit was made from
+        if label not in m.dataset_names:
+            raise InputFileError(fit_path, f"names the dataset {quote(str(label))}, which "
+                                 f"{data_path} does not hold", column="data.metadata.dataset",
+                                 hint="give the original data file with --data")
+        m = m.dataset_named(label)
     if m.n != record["data"].get("rows", m.n):
         raise InputFileError(data_path, f"has {m.n} rows; the fit recorded "
                              f"{record['data']['rows']}", hint="give the original data file")
