@@ -25,9 +25,9 @@ def add_parser(sub):
         "rough_dielectric --fit-subset 'theta_i == 0' --mcmc --out fits/walter_rough_glass.json",
     )
     p.add_argument("data", nargs="+", metavar="DATA",
-                   help="measurement file (any format fitlab reads); several files are fitted "
-                   "at once by batched least squares (fitlab.fit_many): give --out-dir and/or "
-                   "--table")
+                   help="measurement file (any format fitlab reads); several files, or a "
+                   "file with a dataset column (one fit per dataset), are fitted at once by "
+                   "batched least squares (fitlab.fit_many): give --out-dir and/or --table")
     add_model(p, help="model name (see `fitlab models`)", required=True)
     add_option(p, help="a model option")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
