@@ -30,6 +30,8 @@ import struct
 import numpy as np
 
 from fitlab.export.material import RGB, ExportError, Material
+from fitlab.lobe_metrics import (ERROR_FLOOR, albedo_sampled, directions, image_errors,
+                                 lobe_image, model_evaluator, relative_errors)
 
 #: Incidences (θi, degrees, φi = 0) and the outgoing grid of the conversion fit.
 THETA_I = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 80.0)
@@ -38,17 +40,10 @@ PHI_O_STEP = 10.0
 #: Rings around the mirror direction: angular radii (degrees) and points per ring.
 MIRROR_RINGS = (0.2, 0.5, 1.0, 2.0, 3.5)
 RING_POINTS = 8
-#: Values below this fraction of a channel's largest f·cos are left out of relative errors.
-ERROR_FLOOR = 1e-3
 #: A clear coat is kept when it lowers the relative RMS by more than this fraction.
 COAT_GAIN = 0.10
 #: The preview sphere's tessellation (rings of latitude, segments of longitude).
 SPHERE = (24, 48)
-
-
-def _dirs(theta_deg, phi_deg):
-    t, p = np.radians(theta_deg), np.radians(phi_deg)
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
 def conversion_pairs(isotropic: bool = False, transmission: bool = False
@@ -62,7 +57,7 @@ def conversion_pairs(isotropic: bool = False, transmission: bool = False
     grid_t, grid_p = (a.ravel() for a in np.meshgrid(t_o, p_o, indexing="ij"))
     wis, wos = [], []
     for ti in THETA_I:
-        wi = _dirs(ti, 0.0)
+        wi = directions(ti, 0.0)
         mirror = wi * np.array([-1.0, -1.0, 1.0])
         # an orthonormal frame about the mirror direction for its rings
         a = np.array([0.0, 1.0, 0.0])
@@ -76,7 +71,7 @@ def conversion_pairs(isotropic: bool = False, transmission: bool = False
                 ring.append(np.cos(r) * mirror + np.sin(r) * (np.cos(ang) * e1 + np.sin(ang) * e2))
         ring = np.array(ring)
         ring = ring[ring[:, 2] > 0.02]
-        wo = np.concatenate([_dirs(grid_t, grid_p), ring])
+        wo = np.concatenate([directions(grid_t, grid_p), ring])
         if transmission:
             wo = np.concatenate([wo, wo * np.array([1.0, 1.0, -1.0])])
         wos.append(wo)
@@ -127,82 +122,29 @@ def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool):
     return result
 
 
-def _albedo(model, params_by_channel, options, theta_deg, n=100_000, seed=7, side=1):
-    """Directional albedo per channel at incidence θ by the model's own sampler: reflected
-    (``side`` 1) or transmitted (-1)."""
-    import fitlab
-
-    rng = np.random.default_rng(seed)
-    u = rng.random((n, 3))
-    wi = np.broadcast_to(_dirs(theta_deg, 0.0), (n, 3))
-    out = []
-    for p in params_by_channel.values():
-        wo, w, _ = fitlab.sample_bsdf(model, p, wi, u, options)
-        out.append(float(np.mean(np.where(side * np.asarray(wo)[:, 2] > 0, np.asarray(w),
-                                          0.0))))
-    return np.array(out)
-
-
-def _lobe_images(model, params_by_channel, options, theta_deg) -> np.ndarray:
-    """f·cos θo on a 64 × 64 image of the hemisphere (x, y = projected wo; outside the unit
-    disk 0), channels last."""
-    import fitlab
-
-    x = (np.arange(64) + 0.5) / 32.0 - 1.0
-    X, Y = np.meshgrid(x, x[::-1])
-    r2 = X * X + Y * Y
-    inside = r2 < 1.0
-    wo = np.stack([X, Y, np.sqrt(np.clip(1.0 - r2, 0.0, 1.0))], -1).reshape(-1, 3)
-    wi = np.broadcast_to(_dirs(theta_deg, 0.0), wo.shape)
-    out = []
-    for p in params_by_channel.values():
-        f = np.asarray(fitlab.eval_bsdf(model, p, wi, wo, options)) * wo[:, 2]
-        out.append(np.where(inside.ravel(), f, 0.0).reshape(64, 64))
-    return np.stack(out, -1)
-
-
 def conversion_errors(material: Material, model: str, params_by_channel: dict) -> dict:
     """How far ``model`` with ``params_by_channel`` (glTF's BSDF) is from the material."""
-    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
-
-    import fitlab
     from fitlab.models import get_model
 
     # the whole hemisphere (both sides for a transmitting material): the figures do not
     # depend on the material's symmetry
     wi, wo = conversion_pairs(transmission=get_model(material.model).capabilities.transmission)
-    src = _values(material, wi, wo)
-    rel = []
-    for c, v in src.items():
-        g = np.asarray(fitlab.eval_bsdf(model, params_by_channel[c], wi, wo))
-        a, b = v * np.abs(wo[:, 2]), g * np.abs(wo[:, 2])
-        keep = a > ERROR_FLOOR * a.max()
-        rel.append((b[keep] - a[keep]) / a[keep])
-    rel = np.concatenate(rel)
+    src = model_evaluator(material.model, material.channels, material.options)
+    dst = model_evaluator(model, params_by_channel, {})
+    err = relative_errors(src(wi, wo), dst(wi, wo), wo[:, 2], ERROR_FLOOR)
     albedo = {}
     for t in (0.0, 30.0, 60.0, 80.0):
-        a = _albedo(material.model, material.channels, material.options, t)
-        b = _albedo(model, params_by_channel, {}, t)
+        a = albedo_sampled(material.model, material.channels, material.options, t)
+        b = albedo_sampled(model, params_by_channel, {}, t)
         albedo[f"{t:g}"] = {"material": [float(x) for x in a], "gltf": [float(x) for x in b]}
         if get_model(model).capabilities.transmission:
-            a = _albedo(material.model, material.channels, material.options, t, side=-1)
-            b = _albedo(model, params_by_channel, {}, t, side=-1)
+            a = albedo_sampled(material.model, material.channels, material.options, t, side=-1)
+            b = albedo_sampled(model, params_by_channel, {}, t, side=-1)
             albedo[f"{t:g}"].update(material_transmitted=[float(x) for x in a],
                                     gltf_transmitted=[float(x) for x in b])
-    images = {}
-    for t in (0.0, 30.0, 60.0):
-        a = _lobe_images(material.model, material.channels, material.options, t)
-        b = _lobe_images(model, params_by_channel, {}, t)
-        # images scaled by the material's peak, so PSNR is relative to it
-        peak = float(a.max()) or 1.0
-        a, b = np.clip(a / peak, 0, None), np.clip(b / peak, 0, None)
-        rng = float(max(a.max(), b.max()))
-        same = bool(np.array_equal(a, b))  # PSNR is infinite (JSON has no number for it)
-        images[f"{t:g}"] = {
-            "psnr_db": None if same else float(peak_signal_noise_ratio(a, b, data_range=rng)),
-            "ssim": float(structural_similarity(a, b, data_range=rng, channel_axis=-1))}
-    return {"relative_rms": float(np.sqrt(np.mean(rel ** 2))),
-            "relative_max": float(np.max(np.abs(rel))),
+    images = {f"{t:g}": image_errors(lobe_image(src, t), lobe_image(dst, t))
+              for t in (0.0, 30.0, 60.0)}
+    return {"relative_rms": err["relative_rms"], "relative_max": err["relative_max"],
             "pairs": int(wi.shape[0]), "floor": ERROR_FLOOR, "albedo": albedo,
             "lobe_images": images}
 
