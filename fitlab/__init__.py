@@ -28,7 +28,8 @@ from fitlab.fitting.result import FitResult, load_fit  # noqa: E402
 from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E402
 from fitlab.export.renderers import export_material  # noqa: E402
 from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
+from fitlab.tradeoffs import Tradeoffs, tradeoffs  # noqa: E402
 
 __all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
            "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
-           "pdf_bsdf", "MODELS", "get_model", "register_model"]
+           "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs"]

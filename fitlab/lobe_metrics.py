@@ -40,6 +40,8 @@ def relative_errors(ref: np.ndarray, test: np.ndarray, cos_o: np.ndarray,
     """RMS and largest |test - ref| / ref of f·|cos θo| over the pairs where the reference is
     above ``floor`` × its channel's largest value; ref, test: (N, C)."""
     a, b = ref * np.abs(cos_o)[:, None], test * np.abs(cos_o)[:, None]
+    if not a.size:
+        return {"relative_rms": 0.0, "relative_max": 0.0, "pairs": 0}
     rel = []
     for c in range(a.shape[1]):
         keep = a[:, c] > floor * a[:, c].max() if a[:, c].max() > 0 else np.zeros(len(a), bool)
