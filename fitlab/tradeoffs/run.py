@@ -185,7 +185,8 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
               seed: int = 0, progress: bool = False, out=None) -> Tradeoffs:
     """Measure what each knob costs in accuracy and saves in time for one material: a fit
     (``fit``: FIT.json or a FitResult; ``data``: its data file when not found beside it) or
-    registry ``model`` with ``params`` and ``options``. ``knobs``: names to measure (default
+    registry ``model`` with ``params`` and ``options`` (``data``: a file or Measurement whose
+    directions the errors are measured on). ``knobs``: names to measure (default
     all); ``quick``: fewer sizes, samples and steps. With ``out`` the report is written there
     (``index.html``, ``tradeoffs.json``, figures; fitlab.tradeoffs.report)."""
     import fitlab
@@ -204,7 +205,7 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
         measurement = _data_of(fit, fit_path, data)
     else:
         if data is not None:
-            measurement = fitlab.read(data)
+            measurement = data if hasattr(data, "value") else fitlab.read(data)
         material = material_of(model=model, params=params, options=options)
     names = [k.name for k in KNOBS]
     wanted = list(names) if knobs is None else list(knobs)
