@@ -28,7 +28,8 @@ def add_parser(sub):
         f"stderr. Knobs: {knobs}.",
         epilog="examples: fitlab tradeoffs fits/walter_rough_glass.json --out "
         "reports/accuracy_cost/walter_rough_glass/; fitlab tradeoffs --model rough_conductor "
-        "--param alpha=0.2 --param n=0.2 --param k=3.9 --knob tables --knob Fresnel --out tr/",
+        "--param alpha=0.2 --param n=0.2 --param k=3.9 --knob tables --knob Fresnel --out tr/; "
+        "fitlab tradeoffs --preset fabric --out tr-fabric/",
     )
     p.add_argument("fit", nargs="?", metavar="FIT.json",
                    help="parameter file written by `fitlab fit --out` (or give --model)")
@@ -37,6 +38,9 @@ def add_parser(sub):
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="a parameter of --model: NAME=V, or NAME=R,G,B; give every parameter")
     add_option(p, "an option of --model, e.g. fresnel=schlick")
+    p.add_argument("--preset", metavar="NAME",
+                   help="a SpongeCake preset (fabric, plant_leaf, ...: `fitlab models` lists "
+                   "them) with its R, G, B parameters, instead of FIT.json or --model")
     p.add_argument("--data", metavar="FILE",
                    help="the measurement whose directions the errors are measured on (default: "
                    "the fit's data file when found; else a standard hemisphere grid)")
@@ -54,8 +58,8 @@ def run(args):
     from fitlab.export.material import ExportError
     from fitlab.tradeoffs import tradeoffs
 
-    if (args.fit is None) == (args.model is None):
-        raise FitlabError("give FIT.json or --model NAME with --param, not both")
+    if sum(x is not None for x in (args.fit, args.model, args.preset)) != 1:
+        raise FitlabError("give one of FIT.json, --model NAME with --param, or --preset NAME")
     if args.fit is not None and (args.param or args.option):
         raise FitlabError("--param and --option go with --model; a fit brings its own values")
     params = options = None
@@ -64,8 +68,9 @@ def run(args):
         options = parse_assignments(args.option, "option")
     try:
         res = tradeoffs(args.fit, model=args.model, params=params, options=options,
-                        data=args.data, knobs=args.knob, quick=args.quick, seed=args.seed,
-                        progress=not args.quiet, out=args.out)
+                        preset=args.preset, data=args.data, knobs=args.knob,
+                        quick=args.quick, seed=args.seed, progress=not args.quiet,
+                        out=args.out)
     except ExportError as exc:
         raise FitlabError(str(exc)) from None
     if not args.quiet:

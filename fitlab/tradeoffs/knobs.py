@@ -266,8 +266,15 @@ def _scene_dicts(ctx: Context, model=None, options=None, channels=None) -> dict:
         if s is None:
             raise NotApplicable(f"{mdl.name} with these options has no stack the simulator "
                                 "traces")
-        out[ch] = s
+        out[ch] = full_physics(s)
     return out
+
+
+def full_physics(scene: dict) -> dict:
+    """The stack with every effect a model may approximate traced: all bounces and every
+    order of volume scattering (the delta components stay as the model declares them)."""
+    return {**scene, "effects": {**scene.get("effects", {}), "max_bounces": "all",
+                                 "volume_scattering": "multiple"}}
 
 
 def _simulation(ctx: Context, samples: int, again: bool = False):
@@ -337,9 +344,11 @@ def simulator_samples(ctx: Context) -> list[Variant]:
     return out
 
 
-#: Keyword arguments of layered model names whose removal gives a simpler model of the same
-#: stack (SpongeCake's multiple-scattering lobe).
-KEYWORD_VARIANTS = ("multiple",)
+#: Keyword arguments of layered model names that switch an approximation of the same stack on
+#: or off: a material without the keyword is also measured with each value given (when that
+#: model takes the same parameters), one with it also without (SpongeCake's multiple-scattering
+#: lobe: ``multiple=learned`` needs no fitted parameters).
+KEYWORD_VARIANTS = {"multiple": ("learned",)}
 
 
 def _model_variants(ctx: Context) -> list[tuple[str, str, dict, dict]]:
@@ -363,19 +372,25 @@ def _model_variants(ctx: Context) -> list[tuple[str, str, dict, dict]]:
                             m.channels))
     call = parse_call(m.model)
     if call is not None:
-        for kw in KEYWORD_VARIANTS:
-            if kw in dict(call.kwargs):
-                args = list(call.args) + [f"{k}={v}" for k, v in call.kwargs if k != kw]
-                name = f"{call.func}({','.join(args)})"
+        kwargs = dict(call.kwargs)
+        for kw, values in KEYWORD_VARIANTS.items():
+            rest = list(call.args) + [f"{k}={v}" for k, v in call.kwargs if k != kw]
+            if kw in kwargs:
+                tries = [(f"without {kw}={kwargs[kw]}", f"{call.func}({','.join(rest)})")]
+            else:
+                tries = [(f"with {kw}={v}", f"{call.func}({','.join(rest + [f'{kw}={v}'])})")
+                         for v in values]
+            for label, name in tries:
                 try:
-                    simpler = get_model(name)
+                    other = get_model(name)
                 except ValueError:
                     continue
-                keep = set(simpler.parameter_names)
-                valid = {o.name for o in simpler.options}
-                out.append((f"without {kw}={dict(call.kwargs)[kw]}", name,
-                            {k: v for k, v in m.options.items() if k in valid},
-                            {c: {k: v for k, v in p.items() if k in keep}
+                names = set(other.parameter_names)
+                if not names <= set(ctx.model.parameter_names):
+                    continue  # it needs parameters the material does not have
+                valid = {o.name for o in other.options}
+                out.append((label, name, {k: v for k, v in m.options.items() if k in valid},
+                            {c: {k: v for k, v in p.items() if k in names}
                              for c, p in m.channels.items()}))
     return out
 
@@ -386,8 +401,9 @@ SIM_REFERENCE_SAMPLES_QUICK = 32_000
 
 def layered_physics(ctx: Context) -> list[Variant]:
     """The material's layered model and its variants against the simulator of the same stack
-    at a stated standard error: relative RMS of f over the arc (rows above 1 % of the peak),
-    the simulation's own relative RMS error beside it."""
+    with every bounce and scattering order traced, at a stated standard error: relative RMS of
+    f over the arc (rows above 1 % of the peak), the simulation's own relative RMS error beside
+    it."""
     _scene_dicts(ctx)  # NotApplicable early
     n = SIM_REFERENCE_SAMPLES_QUICK if ctx.quick else SIM_REFERENCE_SAMPLES
     ctx.progress(f"layered physics: simulating the stack, {n:,} paths per incidence")

@@ -172,21 +172,22 @@ def recommend(variants) -> dict:
     return lines
 
 
-def material_record(material, fit_path=None) -> dict:
+def material_record(material, preset=None) -> dict:
     rec = {"model": material.model, "options": dict(material.options),
            "parameters": {c: dict(p) for c, p in material.channels.items()}}
-    if fit_path is not None:
-        rec["fit"] = str(fit_path)
+    if preset is not None:
+        rec["preset"] = preset
     return rec
 
 
 def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
-              options: dict | None = None, data=None, knobs=None, quick: bool = False,
-              seed: int = 0, progress: bool = False, out=None) -> Tradeoffs:
+              options: dict | None = None, preset: str | None = None, data=None, knobs=None,
+              quick: bool = False, seed: int = 0, progress: bool = False,
+              out=None) -> Tradeoffs:
     """Measure what each knob costs in accuracy and saves in time for one material: a fit
     (``fit``: FIT.json or a FitResult; ``data``: its data file when not found beside it) or
-    registry ``model`` with ``params`` and ``options`` (``data``: a file or Measurement whose
-    directions the errors are measured on). ``knobs``: names to measure (default
+    registry ``model`` with ``params`` and ``options``, or a SpongeCake ``preset`` (its R, G, B
+    parameters; ``data``: a file or Measurement whose directions the errors are measured on). ``knobs``: names to measure (default
     all); ``quick``: fewer sizes, samples and steps. With ``out`` the report is written there
     (``index.html``, ``tradeoffs.json``, figures; fitlab.tradeoffs.report)."""
     import fitlab
@@ -197,6 +198,15 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
     say = (lambda msg: print(f"tradeoffs: {msg}", file=sys.stderr, flush=True)) if progress \
         else (lambda msg: None)
     fit_path, measurement = None, None
+    if preset is not None:
+        from fitlab.models.presets import rgb_preset
+
+        if fit is not None or model is not None or params:
+            raise FitlabError("a preset brings its model and parameters; give it alone")
+        try:
+            model, options, params = rgb_preset(preset)
+        except ValueError as exc:
+            raise FitlabError(str(exc)) from None
     if fit is not None:
         if not hasattr(fit, "record"):
             fit_path = Path(fit)
@@ -223,7 +233,7 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
             variants += knob.run(ctx)
         except NotApplicable as exc:
             skipped[knob.name] = str(exc)
-    res = Tradeoffs(material_record(material), ctx.directions, int(len(ctx.wi)),
+    res = Tradeoffs(material_record(material, preset), ctx.directions, int(len(ctx.wi)),
                     tuple(variants), skipped, recommend(variants), _machine(),
                     time.perf_counter() - t_start, quick)
     if out is not None:
