@@ -121,6 +121,14 @@ class Model(NamedTuple):
     microfacet: Callable | None = None
     #: sets of interchangeable lobes (a sum that repeats a component); () for most models
     exchangeable: tuple[Exchangeable, ...] = ()
+    #: (params: {name: float}, options: dict) -> dict: the layer stack this model approximates,
+    #: as the parts of a simulator scene dict (data_formats/scene_toml.md): ``outside``,
+    #: ``stack``, ``substrate`` and/or ``below``, and ``effects`` (e.g. max_bounces,
+    #: volume_scattering, delta=false); no ``illumination`` or ``detector`` (the caller adds
+    #: them); None when the model describes no stack the simulator traces. It raises ValueError
+    #: for parameter values the simulator cannot express (data_formats/layered_models.md, "The
+    #: simulator's scene of a model").
+    scene_of: Callable | None = None
 
     @property
     def lobes(self) -> str:
@@ -175,3 +183,65 @@ def sample_result(wo, f, pdf, valid):
     valid = valid & (pdf > 0)
     weight = safe_div(f * jnp.abs(wo[..., 2]), pdf)
     return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, pdf, 0.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Simulator scenes of models (``Model.scene_of``; data_formats/scene_toml.md). Indices in a
+# model's scene are relative to its outside, index 1, as the model's own parameters are.
+# ----------------------------------------------------------------------------------------------
+
+#: The outside of every model's scene: the models' indices are relative to the medium above.
+OUTSIDE = {"index": 1.0}
+
+
+def clear_film(index: float) -> dict:
+    """A clear medium of thickness 0: what the simulator needs between an opaque substrate and
+    the outside (scene_toml.md, "Stack rules"); it changes nothing optically."""
+    return {"type": "medium", "index": float(index), "thickness": 0.0}
+
+
+def absorbing_slab(index: float, tau: float) -> dict:
+    """A medium of thickness 1 with σa = τ: the layered models' optical depth τ = σa·d (Elek
+    2010 eq. 3), of which only the product enters."""
+    return {"type": "medium", "index": float(index), "thickness": 1.0, "sigma_a": float(tau)}
+
+
+def interface(index_above: float, index_below: float, **roughness) -> list[dict]:
+    """The ``[[stack]]`` interface between media of these indices (``roughness``: distribution,
+    alpha or kappa, masking), as a list: empty where the indices are equal, since such an
+    interface neither reflects nor refracts (F = 0, Snell the identity) and the simulator
+    refuses it."""
+    if float(index_above) == float(index_below):
+        return []
+    return [{"type": "interface", **roughness}]
+
+
+def immersed(scene: dict, index: float) -> dict:
+    """The stack and substrate (or below) of ``scene``, a model's ``scene_of``, moved under a
+    medium of index ``index``: a model inside a layer has its indices relative to that layer
+    (coated's inner, a Weidlich–Wilkie base), so every medium's index, a conductor's n and k
+    (n + ik relative to the medium above), a dielectric substrate's index and the index below
+    are multiplied by ``index`` over the scene's own outside index. One channel (numbers)."""
+    outside = float(scene.get("outside", OUTSIDE)["index"])
+    ratio = float(index) / outside
+    out = {"stack": [dict(item, index=item["index"] * ratio) if item["type"] == "medium"
+                     else dict(item) for item in scene.get("stack", [])]}
+    if "substrate" in scene:
+        out["substrate"] = {k: v * ratio if k in ("n", "k", "index") else v
+                            for k, v in scene["substrate"].items()}
+    else:
+        out["below"] = {"index": float(scene.get("below", {"index": outside})["index"]) * ratio}
+    return out
+
+
+def layered_scene(items: list, index: float, inner: dict, effects: dict) -> dict:
+    """A scene over an outside of index 1: the ``[[stack]]`` ``items`` (from the top, the last a
+    medium of index ``index``) over the stack of ``inner`` (a model's ``scene_of``, relative to
+    its outside: :func:`immersed`), whose leading clear film is dropped where it repeats that
+    medium. ``effects`` override the inner scene's."""
+    under = immersed(inner, index)
+    stack = under.pop("stack")
+    if stack and stack[0] == clear_film(index):
+        stack = stack[1:]
+    return {"outside": dict(OUTSIDE), "stack": list(items) + stack, **under,
+            "effects": {**inner.get("effects", {}), **effects}}

@@ -36,7 +36,8 @@ from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refract_down,
                               refract_up, solid_angle_compression, transmittance)
 from fitlab.models import rough_conductor
-from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Option, Parameter,
+                                absorbing_slab, interface, layered_scene, sample_result)
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -79,6 +80,26 @@ def _closed_form_factor(params, albedo):
     assumptions (smooth interface, non-scattering coat, Lambertian base)."""
     r = internal_diffuse_reflectance(params["coat_eta"], params["coat_tau"])
     return 1.0 / (1.0 - albedo * r)
+
+
+def coat_items(params, specular: str = "delta") -> list[dict]:
+    """The coat as simulator ``[[stack]]`` items: its top interface, smooth (or, with
+    specular=lobe, GGX of width ``coat_alpha``: the rough coat whose reflection the lobe is;
+    the model still refracts through the macro normal), over the coat medium of index η
+    (relative to the outside, index 1) with optical depth τ = σa·d (thickness 1, σa = τ)."""
+    eta = float(params["coat_eta"])
+    rough = ({"distribution": "ggx", "alpha": float(params["coat_alpha"])}
+             if specular == "lobe" else {"distribution": "smooth"})
+    return (interface(OUTSIDE["index"], eta, **rough)
+            + [absorbing_slab(eta, params["coat_tau"])])
+
+
+def coated_effects(options) -> dict:
+    """single (the blog's one bounce off the inner BSDF) ↔ max_bounces = 1; closed_form (every
+    bounce between the coat and a Lambertian base) ↔ "all". The coat's delta reflection is not
+    in f: delta = false."""
+    closed = options.get("interreflection", "single") == "closed_form"
+    return {"max_bounces": "all" if closed else 1, "delta": False}
 
 
 def make_coated(inner: Model, specular: str = "delta") -> Model:
@@ -175,6 +196,17 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
         f = eval(params, wi, wo, **opts)
         return sample_result(wo, f, p, valid & (wi[..., 2] > 0))
 
+    def scene_of(params, options):
+        """The coat (:func:`coat_items`) over the inner model's own scene, whose indices are
+        relative to the coat (:func:`fitlab.models.base.immersed`: a conductor's n, k relative
+        to the coat become η n, η k in the scene), with :func:`coated_effects`."""
+        p_in, o_in = split(params, options)
+        inner_scene = inner.scene_of(p_in, {**inner.default_options(), **o_in})
+        if inner_scene is None:
+            return None
+        return layered_scene(coat_items(params, specular), float(params["coat_eta"]),
+                             inner_scene, coated_effects(options))
+
     name = canonical_name(inner.name, specular)
     lobe_note = ("; narrow coat lobe: Walter eq. 20 with GGX (eq. 33) and the coat's dielectric "
                  "Fresnel (eq. 22)" if specular == "lobe" else
@@ -197,6 +229,7 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
                 "the smooth coat's mirror reflection F(θi) δ(ωo - mirror(ωi)) "
                 "(coated.specular_reflectance)", inner.capabilities.delta) if d)),
         exchangeable=inner.exchangeable,  # f_inner's repeated lobes still trade places
+        scene_of=scene_of if inner.scene_of is not None else None,
         reference=("bsdf_under_smooth_interface (f = T(θi)T(θo) η0²/η1² f_inner(ωi', ωo')); "
                    "Elek 2010 eq. 3 (absorption); Walter 2007 eq. 22 (Fresnel)" + lobe_note
                    + f"; inner: {inner.reference}"),

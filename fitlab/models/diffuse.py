@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from fitlab.models.base import Capabilities, Model, Parameter
+from fitlab.models.base import OUTSIDE, Capabilities, Model, Parameter, clear_film
 from fitlab.numerics import safe_div
 
 ALBEDO = Parameter("albedo", 0.0, 1.0, 0.5, "1", "diffuse reflectance ρ", "albedo")
@@ -68,6 +68,14 @@ def sample_oren_nayar(params, wi, u):
     return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
 
 
+def scene_of_lambertian(params, options):
+    """A Lambertian substrate of albedo ρ under the outside, behind the clear film an opaque
+    substrate needs. (Oren–Nayar has no scene: the simulator has no such substrate.)"""
+    return {"outside": dict(OUTSIDE), "stack": [clear_film(OUTSIDE["index"])],
+            "substrate": {"type": "lambertian", "albedo": float(params["albedo"])},
+            "effects": {"delta": False}}
+
+
 LAMBERTIAN = Model(
     name="lambertian",
     summary="Lambertian reflector, f = ρ/π",
@@ -78,6 +86,7 @@ LAMBERTIAN = Model(
     pdf=pdf_cosine,
     reference="Lambert; cosine-weighted hemisphere sampling",
     capabilities=Capabilities(lambertian=True),
+    scene_of=scene_of_lambertian,
 )
 
 OREN_NAYAR = Model(

@@ -137,7 +137,7 @@ def preset_scene(name: str, theta_i=(0.0, 30.0, 60.0), theta_o=None) -> dict:
     if theta_o is None:
         theta_o = [t for t in range(-170, 180, 10) if abs(t) != 90]
     return {"format": "fitlab-scene", "version": 1, "name": f"SpongeCake preset {name}",
-            "stack": spongecake.simulator_stack(call.args, params),
+            **spongecake.stack_scene(call.args, params),
             "illumination": {"theta_i": list(theta_i)},
             "detector": {"type": "inplane", "theta_o": list(theta_o), "estimator": "point"},
             "effects": {"delta": False}}

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
 from fitlab.frame import dot, normalize, reflect
 from fitlab.models import roughness
-from fitlab.models.base import Capabilities, Model, Option, Parameter
+from fitlab.models.base import OUTSIDE, Capabilities, Model, Option, Parameter, clear_film
 from fitlab.numerics import safe_div
 
 INDEX = (
@@ -66,6 +66,16 @@ def make(anisotropic: bool) -> Model:
         p = safe_div(roughness.normal_pdf(dist, wi, m, sampling), 4.0 * c)
         return wo, jnp.where(valid, weight, 0.0), jnp.where(valid, p, 0.0)
 
+    def scene_of(params, options):
+        """A rough conductor substrate under the outside (index 1, so (n, k) relative to it are
+        the scene's, which are relative to vacuum), behind the clear film an opaque substrate
+        needs. The simulator's Fresnel is the exact one whatever ``fresnel`` says."""
+        sub = {"type": "conductor", "n": float(params["n"]), "k": float(params["k"]),
+               **roughness.scene_roughness(params, options.get("distribution", "ggx"),
+                                           anisotropic)}
+        return {"outside": dict(OUTSIDE), "stack": [clear_film(OUTSIDE["index"])],
+                "substrate": sub, "effects": {"delta": False}}
+
     kind = "anisotropic " if anisotropic else ""
     return Model(
         name="rough_conductor_anisotropic" if anisotropic else "rough_conductor",
@@ -82,6 +92,7 @@ def make(anisotropic: bool) -> Model:
            else ""),
         capabilities=Capabilities(isotropic=not anisotropic),
         microfacet=ndf,
+        scene_of=scene_of,
     )
 
 

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from fitlab.fresnel import fresnel_dielectric, fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refracted
 from fitlab.models import roughness
-from fitlab.models.base import Capabilities, Model, Parameter
+from fitlab.models.base import OUTSIDE, Capabilities, Model, Parameter, clear_film, interface
 from fitlab.numerics import safe_div, safe_rsqrt, sign_nonzero
 
 ETA = Parameter("eta", 0.2, 5.0, 1.5, "1", "relative index n_inside / n_outside (inside = -z side)",
@@ -144,6 +144,17 @@ def make(anisotropic: bool) -> Model:
         G1(o, m) for visible normals)."""
         return walter_sample(ndf(params, distribution), params, wi, u, sampling)
 
+    def scene_of(params, options):
+        """One rough interface between the outside (index 1) and the medium below of index η
+        (``eta`` = n_inside / n_outside). η = 1 is no interface: a clear film stands in, since
+        a scene needs one item."""
+        eta = float(params["eta"])
+        rough = roughness.scene_roughness(params, options.get("distribution", "ggx"),
+                                          anisotropic)
+        stack = interface(OUTSIDE["index"], eta, **rough) or [clear_film(OUTSIDE["index"])]
+        return {"outside": dict(OUTSIDE), "stack": stack, "below": {"index": eta},
+                "effects": {"delta": False}}
+
     kind = "anisotropic " if anisotropic else ""
     return Model(
         name="rough_dielectric_anisotropic" if anisotropic else "rough_dielectric",
@@ -163,6 +174,7 @@ def make(anisotropic: bool) -> Model:
         # reciprocity in transmission (Walter eq. 21)
         capabilities=Capabilities(transmission=True, isotropic=not anisotropic),
         microfacet=ndf,
+        scene_of=scene_of,
     )
 
 

@@ -49,6 +49,17 @@ def ndf(params, distribution: str, anisotropic: bool) -> microfacet.MicrofacetDi
     return family(params["alpha"])
 
 
+def scene_roughness(params, distribution: str, anisotropic: bool) -> dict:
+    """The roughness keys of a simulator interface or substrate (data_formats/scene_toml.md):
+    the distribution and the width α, or α_x, α_y (the same axis: Walter's α). An isotropic
+    distribution with α_x, α_y raises ValueError, as the model's own evaluation does."""
+    if anisotropic and not microfacet.get_distribution(distribution).anisotropic:
+        raise ValueError(f"the {distribution} distribution is isotropic only: anisotropic "
+                         f"widths need {' or '.join(microfacet.names(anisotropic=True))}")
+    keys = ("alpha_x", "alpha_y") if anisotropic else ("alpha",)
+    return {"distribution": distribution, **{k: float(params[k]) for k in keys}}
+
+
 def check_sampling(dist: microfacet.MicrofacetDistribution, sampling: str) -> None:
     if sampling == "visible" and not dist.has_visible_sampling:
         raise ValueError(f"option sampling=visible needs a distribution with visible-normal "

@@ -57,7 +57,8 @@ import jax.numpy as jnp
 
 from fitlab.fresnel import fresnel_schlick
 from fitlab.frame import dot, normalize, reflect
-from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Parameter, choose_branch,
+                                layered_scene, sample_result)
 from fitlab.models.syntax import Call
 from fitlab.numerics import safe_div
 from fitlab.phase import (eval_hg, sample_hg, sample_sggx_vndf, sggx_axial_D, sggx_axial_sigma,
@@ -335,6 +336,23 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
             valid = jnp.where(is_sub, p_sub > 0, valid)
         return sample_result(wo, eval(params, wi, wo, **opts), pdf(params, wi, wo, **opts), valid)
 
+    def scene_of(params, options):
+        """The layers as index-matched media (:func:`stack_scene`) over the substrate's own
+        scene, if any. The model is the stack's exact single scattering (§4): it matches the
+        simulation with volume_scattering = "single" and the delta transmission dropped
+        (delta = false; the model declares it apart). Over a substrate the simulated single
+        scattering also holds the paths that scatter once in the layers and reflect off the
+        substrate, which the model leaves out (§4.4: they scatter twice)."""
+        sub = None
+        if substrate is not None:
+            p_s, o_s = split(params, options)
+            sub = substrate.scene_of(p_s, {**substrate.default_options(), **o_s})
+            if sub is None:
+                return None
+        scene = stack_scene(kinds, {"": params}, sub)
+        return {**scene, "effects": {**scene.get("effects", {}), "volume_scattering": "single",
+                                     "delta": False}}
+
     has_delta = "the unscattered transmission e^{−Σ Tρ σ(ωi)/|cos θi|} δ(ωo + ωi) " \
         "(spongecake.delta_transmittance)" if delta else ""
     sub_caps = substrate.capabilities if substrate is not None else Capabilities()
@@ -356,6 +374,7 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
             reciprocal=sub_caps.reciprocal,
             delta="; ".join(d for d in (has_delta, sub_caps.delta if substrate else "") if d),
         ),
+        scene_of=scene_of if substrate is None or substrate.scene_of is not None else None,
         reference=("SpongeCake (Wang et al. 2022): eqs 3-5, 7 (SGGX microflakes), eq. 10 with "
                    "G of eqs 12 and 14 (single scattering), §4.3 (layers), §4.4 (substrate, "
                    "delta transmission), §4.5 (sampling)"
@@ -413,8 +432,27 @@ def _cached(kinds, substrate, delta, multiple="none") -> Model:
     if multiple == "none":
         return base
     if multiple == "learned":
-        return _with_learned(kinds, substrate, base, delta)
-    return _with_multiple(kinds, substrate, base, delta, multiple)
+        model = _with_learned(kinds, substrate, base, delta)
+    else:
+        model = _with_multiple(kinds, substrate, base, delta, multiple)
+    # multiple=only has no scene: its parameters are the fitted lobe's, not the stack's
+    return model if multiple == "only" else \
+        model._replace(scene_of=with_multiple_scattering(base.scene_of))
+
+
+def with_multiple_scattering(scene_of):
+    """``scene_of`` of the single-scattering model with every volume scattering order
+    (volume_scattering = "multiple"): the same physical stack, the whole of which the
+    ``multiple=lobe`` and ``multiple=learned`` models approximate (§5). None stays None."""
+    if scene_of is None:
+        return None
+
+    def scene(params, options):
+        s = scene_of(params, options)
+        return None if s is None else \
+            {**s, "effects": {**s["effects"], "volume_scattering": "multiple"}}
+
+    return scene
 
 
 def _with_learned(kinds, substrate, base, delta) -> Model:
@@ -518,3 +556,15 @@ def simulator_stack(kinds, channel_params) -> list[dict]:
                         orientation=orientation, flake_f0=per_channel("f0"))
         items.append(item)
     return items
+
+
+def stack_scene(kinds, channel_params, substrate_scene: dict | None = None) -> dict:
+    """The ``outside``, ``stack`` and ``substrate`` or ``below`` of a simulator scene: the layers
+    (:func:`simulator_stack`; ``channel_params`` as there) under an outside of index 1, over
+    ``substrate_scene`` (a substrate model's ``scene_of``; the layers are index-matched, so it
+    sits at the outside's index) or, without one, over the outside's index again. The model's
+    ``scene_of`` and :func:`fitlab.models.presets.preset_scene` both build on it."""
+    items = simulator_stack(kinds, channel_params)
+    if substrate_scene is None:
+        return {"outside": dict(OUTSIDE), "stack": items}
+    return layered_scene(items, OUTSIDE["index"], substrate_scene, {})

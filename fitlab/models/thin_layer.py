@@ -62,7 +62,8 @@ from fitlab.fresnel import (CONDUCTOR_FRESNEL_METHODS, fresnel_dielectric,
                             fresnel_dielectric_Walter2007)
 from fitlab.frame import dot, normalize, reflect
 from fitlab.interface import beer_lambert, refract_down, transmittance
-from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Option, Parameter,
+                                absorbing_slab, interface, sample_result)
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -202,6 +203,14 @@ def _kappa_of_nu(nu):
     return 1.0 / jnp.clip(nu, 1.0 / vmf.KAPPA_MAX, 1.0 / vmf.KAPPA_MIN)
 
 
+def scene_effects(options) -> dict:
+    """max_bounces = the highest subsurface order the model includes (``component=surface``:
+    0). The simulator's total then holds orders 0..K; ``component=subsurface`` or ``k`` is to
+    be compared with the simulated bounce orders 1..K or k (``by_order``). No delta."""
+    _, orders = _included({**DEFAULT_OPTIONS, **options})
+    return {"max_bounces": max(orders, default=0), "delta": False}
+
+
 def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
     kind = _bottom_kind(bottom)
     if roughness not in ROUGHNESS_CHOICES:
@@ -339,6 +348,35 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         f = eval(params, wi, wo, **opts)
         return sample_result(wo, f, p, (wi[..., 2] > 0) & (wo[..., 2] > 0))
 
+    def vmf_roughness(params, i, masking):
+        """Boundary i's vMF NDF as the simulator's keys: κ_i, or α_i (κ = 2/α², the same
+        mapping in the scene), with the masking option (exact: eq. 7, approx: eq. 8)."""
+        key = "kappa" if roughness == "kappa" else "alpha"
+        return {"distribution": "vmf", key: float(params[f"{key}{i}"]), "masking": masking}
+
+    def scene_of(params, options):
+        """The layer of index η (relative to the outside, index 1) with optical depth τ
+        (eq. 27: thickness 1, σa = τ) between the vMF top (κ1) and the vMF bottom (κ2): a
+        conductor substrate (n2, k2), or a dielectric substrate of index eta2, both relative to
+        vacuum as in the scene (an eta2 equal to η is no boundary: the stack ends on a medium
+        below of that index); :func:`scene_effects`."""
+        masking = {**DEFAULT_OPTIONS, **options}["masking"]
+        eta = float(params["eta"])
+        items = (interface(OUTSIDE["index"], eta, **vmf_roughness(params, 1, masking))
+                 + [absorbing_slab(eta, params["tau"])])
+        n2 = float(params[index_name])
+        if kind == "conductor":
+            bottom_part = {"substrate": {"type": "conductor", "n": n2,
+                                         "k": float(params[extinction_name]),
+                                         **vmf_roughness(params, 2, masking)}}
+        elif n2 == eta:
+            bottom_part = {"below": {"index": n2}}
+        else:
+            bottom_part = {"substrate": {"type": "dielectric", "index": n2,
+                                         **vmf_roughness(params, 2, masking)}}
+        return {"outside": dict(OUTSIDE), "stack": items, **bottom_part,
+                "effects": scene_effects(options)}
+
     r_note = "" if roughness == "kappa" else ", widths α with κ = 2/α²"
     return Model(
         name=canonical_name(bottom.name, roughness),
@@ -350,6 +388,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         sample=sample,
         pdf=pdf,
         capabilities=Capabilities(),
+        scene_of=scene_of,
         reference=("Guo, Qian, Pan 2015: eqs 5-6 (vMF NDF), 7-8 (masking), 9 (Fresnel), 12-13 "
                    "(warping), 18, 21 (joint warping), 19 (ENDF), 25-26 (components, NDF tree), "
                    "27 (absorption), section 5.4 (sampling); Walter 2007 eq. 20 (surface)"),

@@ -43,7 +43,8 @@ from fitlab.frame import dot, normalize
 from fitlab.interface import beer_lambert, refract_down, refract_up
 from fitlab import microfacet
 from fitlab.models import rough_conductor
-from fitlab.models.base import Capabilities, Model, Option, Parameter, sample_result
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Option, Parameter,
+                                absorbing_slab, interface, layered_scene, sample_result)
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
 
@@ -82,6 +83,27 @@ def layer_parameters(i: int) -> tuple[Parameter, ...]:
                   f"optical depth of layer {i} at normal incidence τ = σ_{i} d_{i} (eq. 3)",
                   "optical_depth"),
     )
+
+
+def layer_items(params, K: int, distribution: str) -> list[dict]:
+    """Interfaces 1..K-1 and their layers as simulator ``[[stack]]`` items: interface i with the
+    stack's microfacet distribution and width α_i (unclamped: roughness_clamp is the model's
+    fix, Elek section 3, not the stack's), layer i of index n_i (relative to vacuum, the
+    outside) with optical depth τ_i (eq. 3: thickness 1, σa = τ_i). The simulator's
+    interfaces are dielectric: an extinction k_i > 0 (Fresnel of a complex index) has no
+    scene, and raises ValueError."""
+    items, n_above = [], OUTSIDE["index"]
+    for i in range(1, K):
+        n, k = float(params[f"n{i}"]), float(params[f"k{i}"])
+        if k != 0.0:
+            raise ValueError(f"{NAME}: k{i} = {k:g} > 0; the simulator's interfaces are "
+                             f"dielectric (a real index): set k{i} = 0 to compare the model "
+                             "with `fitlab simulate`")
+        items += interface(n_above, n, distribution=distribution,
+                           alpha=float(params[f"alpha{i}"]))
+        items.append(absorbing_slab(n, params[f"tau{i}"]))
+        n_above = n
+    return items
 
 
 def canonical_name(base_name: str, layers: int = 2) -> str:
@@ -236,6 +258,23 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         f = eval(params, wi, wo, **opts)
         return sample_result(wo, f, p, valid)
 
+    def scene_of(params, options):
+        """The interfaces and layers (:func:`layer_items`) over the base's own scene: its
+        ``index`` and ``extinction`` parameters divided by n_{K-1} as the model evaluates them,
+        the scene moved back into layer K-1 (:func:`fitlab.models.base.immersed`), so a
+        conductor base's (n_K, k_K) appear as given. The model approximates every bounce:
+        max_bounces = "all"; no delta."""
+        opts = {**DEFAULT_OPTIONS, **options}
+        n_above = float(params[f"n{K - 1}"])
+        pb = {p.name: float(params[f"{p.name}{K}"]) / (n_above if p.role in
+                                                         ("index", "extinction") else 1.0)
+              for p in base.parameters}
+        base_scene = base.scene_of(pb, {**base.default_options(), **base_options(opts)})
+        if base_scene is None:
+            return None
+        return layered_scene(layer_items(params, K, opts["distribution"]), n_above, base_scene,
+                             {"max_bounces": "all", "delta": False})
+
     return Model(
         name=canonical_name(base.name, layers),
         summary=(f"Weidlich–Wilkie layered BRDF: {n_if} microfacet interface"
@@ -248,6 +287,7 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         capabilities=Capabilities(isotropic=base.capabilities.isotropic,
                                   reciprocal=base.capabilities.reciprocal,
                                   delta=base.capabilities.delta),
+        scene_of=scene_of if base.scene_of is not None else None,
         reference=("Elek 2010 section 2.2 eqs 2 (recursion), 3 (absorption), 4 (TIR term), "
                    "section 3 (m2 >= m1 clamp), Algorithm 1; interfaces: Walter 2007 eq. 20 "
                    f"with complex Fresnel; base: {base.reference}"),
