@@ -344,6 +344,11 @@ def simulator_samples(ctx: Context) -> list[Variant]:
     return out
 
 
+#: Options of layered models that choose how the stack's physics is approximated: every value
+#: is measured against the simulator (the coat's inter-reflections, the thin layer's bounces
+#: and masking, Weidlich–Wilkie's roughness clamp and radiance scaling).
+LAYERED_OPTIONS = ("interreflection", "bounces", "masking", "roughness_clamp",
+                   "radiance_scaling")
 #: Keyword arguments of layered model names that switch an approximation of the same stack on
 #: or off: a material without the keyword is also measured with each value given (when that
 #: model takes the same parameters), one with it also without (SpongeCake's multiple-scattering
@@ -353,23 +358,20 @@ KEYWORD_VARIANTS = {"multiple": ("learned",)}
 
 def _model_variants(ctx: Context) -> list[tuple[str, str, dict, dict]]:
     """(label, model, options, channels) of the material and its layered-physics variants:
-    option approximations of the stack (OPTION_KNOBS) and the model without a KEYWORD_VARIANTS
-    keyword (its parameters restricted to the simpler model's)."""
+    every other value of its LAYERED_OPTIONS, and the model with or without a KEYWORD_VARIANTS
+    keyword (parameters restricted to the other model's)."""
     from fitlab.models import get_model
     from fitlab.models.syntax import parse_call
 
     m = ctx.material
     out = [(f"{m.model} (the material)", m.model, dict(m.options), m.channels)]
-    opts = {o.name: o for o in ctx.model.options}
-    for ok in OPTION_KNOBS:
-        o = opts.get(ok.option)
-        if o is None or ok.option in ("fresnel", "distribution", "shadowing"):
+    for o in ctx.model.options:
+        if o.name not in LAYERED_OPTIONS:
             continue
-        current = str(m.options.get(ok.option, o.default))
-        for v in (ok.reference, *ok.approximations):
-            if v != current and v in map(str, o.choices):
-                out.append((f"{ok.option}={v}", m.model, {**m.options, ok.option: v},
-                            m.channels))
+        current = str(m.options.get(o.name, o.default))
+        for v in map(str, o.choices):
+            if v != current:
+                out.append((f"{o.name}={v}", m.model, {**m.options, o.name: v}, m.channels))
     call = parse_call(m.model)
     if call is not None:
         kwargs = dict(call.kwargs)
