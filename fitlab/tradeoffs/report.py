@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from matplotlib.ticker import NullFormatter
 
 from fitlab.report.html import FigureEntry, document, esc, figure_html, note_html, paragraph, table_html
 from fitlab.report.style import new_figure, render, styled
@@ -67,6 +68,17 @@ def pareto_figure(res):
                         textcoords="offset points")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        # at least a decade in error and half a decade in time, so narrow ranges stay legible
+        lo, hi = e.min(), e.max()
+        if hi / lo < 10:
+            mid = np.sqrt(lo * hi)
+            ax.set_ylim(mid / np.sqrt(10) / 1.3, mid * np.sqrt(10) * 1.3)
+        lo, hi = t.min(), t.max()
+        if hi / lo < 3:
+            mid = np.sqrt(lo * hi)
+            ax.set_xlim(mid / np.sqrt(3) / 1.2, mid * np.sqrt(3) * 1.2)
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(f"time (s {kv[0].time_unit})")
         ax.set_ylabel(ERROR_LABELS[metric])
         ax.set_title(f"{k} ({kv[0].group})")
