@@ -166,6 +166,15 @@ def _exr_cases(data: bytes):
         yield H.Case(name, payload)
 
 
+def _sweep_seed() -> bytes:
+    """The example sweep with its scene named by an absolute path (the cases are written to a
+    temporary folder) and few paths per point."""
+    text = (EXAMPLES / "sweeps" / "coated_lambertian_grid.toml").read_text()
+    scene = (EXAMPLES / "scenes" / "coated_lambertian.toml").as_posix()
+    return text.replace('"../scenes/coated_lambertian.toml"', f'"{scene}"') \
+        .replace("samples = 4000", "samples = 32").encode()
+
+
 # format: (seed loader, case generator, suffix, commands)
 FORMATS = {
     "measurement_csv": (lambda: (EXAMPLES / "walter_rough_glass.csv").read_bytes(),
@@ -203,6 +212,8 @@ FORMATS = {
     "scene_toml_sggx": (lambda: (EXAMPLES / "scenes" / "sggx_fiber_layer.toml").read_bytes(),
                         lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".toml",
                         ["simulate"]),
+    "sweep_toml": (_sweep_seed, lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)),
+                   ".toml", ["sweep"]),
 }
 
 FIT = ROOT / "fits" / "walter_rough_glass.json"
@@ -222,10 +233,12 @@ COMMANDS = {
                                   "--out", o / "r"],
     "report_lut": lambda s, o: ["report", FIT, "--lut", s, "--quiet", "--out", o / "r"],
     "simulate": lambda s, o: ["simulate", s, "--samples", "32", "--quiet", "--out", o / "s.csv"],
+    "sweep": lambda s, o: ["simulate", "--sweep", s, "--out-dir", o / "sw", "--workers", "1",
+                           "--quiet"],
 }
 #: Commands that build a whole report or simulation on success: run on a sample even in CI.
 COSTLY = {"report": 25, "report_chain": 1, "report_lut": 2, "simulate": 1, "fit": 6,
-          "convert_fit": 4}
+          "convert_fit": 4, "sweep": 4}
 #: Formats whose seed is large (MB): every n-th case even in the whole suite.
 LARGE = {"klems": 3, "pgii": 2}
 #: Commands run in the whole suite only (each successful case compiles and fits).
