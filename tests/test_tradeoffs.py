@@ -16,7 +16,7 @@ import pytest
 import fitlab
 from fitlab.export.gltf_material import _measurement
 from fitlab.lobe_metrics import directions
-from fitlab.tradeoffs.report import pareto_front
+from fitlab.report.tradeoffs import pareto_front
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import base64
 import json
-import struct
 
 import numpy as np
 
-from fitlab.export.material import RGB, ExportError, Material
+from fitlab.export.material import ExportError, Material
 from fitlab.lobe_metrics import (ERROR_FLOOR, albedo_sampled, directions, image_errors,
                                  lobe_image, model_evaluator, relative_errors)
 

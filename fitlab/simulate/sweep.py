@@ -166,7 +166,7 @@ def sweep_from_dict(d: dict, source: str, base_dir) -> Sweep:
     validated too. Raises :class:`fitlab.errors.InputFileError` naming ``source``."""
     import difflib
 
-    from fitlab.simulate.scene import load_scene, scene_from_dict  # noqa: F401 - load validates
+    from fitlab.simulate.scene import scene_from_dict
 
     path = source
     for key in d:

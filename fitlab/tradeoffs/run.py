@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.tradeoffs.core import Context, NotApplicable, Variant
-from fitlab.tradeoffs.knobs import GROUPS, KNOBS
+from fitlab.tradeoffs.knobs import KNOBS
 
 FORMAT = "fitlab-tradeoffs"
 VERSION = 1
@@ -189,7 +189,7 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
     registry ``model`` with ``params`` and ``options``, or a SpongeCake ``preset`` (its R, G, B
     parameters; ``data``: a file or Measurement whose directions the errors are measured on). ``knobs``: names to measure (default
     all); ``quick``: fewer sizes, samples and steps. With ``out`` the report is written there
-    (``index.html``, ``tradeoffs.json``, figures; fitlab.tradeoffs.report)."""
+    (``index.html``, ``tradeoffs.json``, figures; fitlab.report.tradeoffs)."""
     import fitlab
     from fitlab.errors import FitlabError
     from fitlab.export.renderers import material_of
@@ -237,7 +237,7 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
                     tuple(variants), skipped, recommend(variants), _machine(),
                     time.perf_counter() - t_start, quick)
     if out is not None:
-        from fitlab.tradeoffs.report import write_report
+        from fitlab.report.tradeoffs import write_report
 
         if fit_path is not None:
             from fitlab.io.files import path_for_record

@@ -12,7 +12,6 @@ from matplotlib.ticker import NullFormatter
 
 from fitlab.report.html import FigureEntry, document, esc, figure_html, note_html, paragraph, table_html
 from fitlab.report.style import new_figure, render, styled
-from fitlab.tradeoffs.knobs import GROUPS
 
 #: The error each group's Pareto plot shows (the first the variants have).
 ERROR_AXES = ("f_rel_rms", "albedo_abs_max", "interval_width_rel_dev")
