@@ -159,6 +159,7 @@ def test_batched_posteriors_by_nuts(synthetic):
     assert rec["fits"][0]["mcmc"]["sampler"] == "nuts"
 
 
+@pytest.mark.slow
 def test_dataset_column_one_fit_per_dataset(tmp_path):
     """A file with a dataset column: fit_many and `fitlab fit FILE --out-dir` fit each dataset
     on its own (α of the three synthetic samples back within 3 standard errors), name the
