@@ -111,8 +111,7 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
     u_best = space.to_unit(ls.native)
     # Spread: the least-squares standard error mapped to the unit box, kept in a sane range.
     eps = 1e-4
-    du = np.abs(space.to_unit(ls.native + ls.stderr) - space.to_unit(ls.native - ls.stderr)) / 2
-    du = np.clip(np.nan_to_num(du, nan=1e-2), 1e-5, 0.05)
+    du = np.clip(unit_stderr(space, ls), 1e-5, 0.05)
     centre = np.clip(u_best, eps, 1 - eps)
     p0 = centre + du * rng.standard_normal((nwalkers, space.ndim)) * 0.5
     p0 = canonical(space, np.clip(p0, eps, 1 - eps))  # into the ordered labelling
@@ -140,6 +139,14 @@ def mcmc_setup(space: FitSpace, data: FitData, loss: str, ls, *, seed: int,
         return out
 
     return {"log_prob": log_prob, "p0": p0, "names": names, "nuisance": nuisance}
+
+
+def unit_stderr(space: FitSpace, ls) -> np.ndarray:
+    """The least-squares standard errors mapped to the unit box (half the width of ±1σ there;
+    1e-2 where a standard error is undefined): the spread of emcee's walkers and of NUTS's
+    initial mass matrix."""
+    du = np.abs(space.to_unit(ls.native + ls.stderr) - space.to_unit(ls.native - ls.stderr)) / 2
+    return np.nan_to_num(du, nan=1e-2)
 
 
 def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps: int = 3000,

@@ -48,15 +48,17 @@ def _logdensity(static, loss: str, order: tuple, ndim: int, problem: dict):
 
 @functools.lru_cache(maxsize=32)
 def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
-    """The compiled sampler of one structure: (keys (chains,), starts (chains, dim), problem)
-    → draws, log-densities, acceptance rates, divergences, step sizes; the data are an
-    argument, so a new dataset of the same structure reuses the compilation."""
+    """The compiled sampler of one structure: (keys (chains,), starts (chains, dim), initial
+    inverse mass matrix (dim,), problem) → draws, log-densities, acceptance rates,
+    divergences, step sizes; the data are an argument, so a new dataset of the same structure
+    reuses the compilation."""
     import blackjax
 
-    def chain(key, x0, problem):
+    def chain(key, x0, inverse_mass, problem):
         logdensity = _logdensity(static, loss, order, ndim, problem)
         k_adapt, k_draw = jax.random.split(key)
-        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity)
+        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity,
+                                           initial_inverse_mass_matrix=inverse_mass)
         (state, params), _ = adapt.run(k_adapt, x0, num_steps=warmup)
         kernel = blackjax.nuts(logdensity, **params).step
 
@@ -67,7 +69,7 @@ def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: in
         _, out = jax.lax.scan(step, state, jax.random.split(k_draw, nsteps))
         return out + (params["step_size"],)
 
-    return jax.jit(jax.vmap(chain, in_axes=(0, 0, None)))
+    return jax.jit(jax.vmap(chain, in_axes=(0, 0, None, None)))
 
 
 def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1000,
@@ -87,8 +89,9 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
         print(f"  NUTS: {nchains} chains × ({warmup} adaptation + {nsteps} draws) in one "
               "compiled call...", file=sys.stderr, flush=True)
     run = _sampler(space.static, loss, order_keys(space), space.ndim, int(nsteps), int(warmup))
+    imm = jnp.asarray(_inverse_mass(space, ls, nuisance))
     with jax.numpy_dtype_promotion("standard"):  # blackjax mixes bool and int internally
-        pos, logd, acc, div, steps = run(keys, jnp.asarray(starts), problem)
+        pos, logd, acc, div, steps = run(keys, jnp.asarray(starts), imm, problem)
     return assemble(space, names, np.asarray(pos), np.asarray(logd), np.asarray(acc),
                     np.asarray(div), nsteps, time.perf_counter() - t0)
 
@@ -123,6 +126,22 @@ def assemble(space: FitSpace, names, pos, logd, acc, div, nsteps: int,
                       trustworthy, warnings, seconds, "nuts")
 
 
+def _inverse_mass(space: FitSpace, ls, nuisance: bool) -> np.ndarray:
+    """The adaptation's initial (diagonal) inverse mass matrix: the least-squares variances in
+    NUTS's coordinates (z = logit u: dz = du / (u (1 − u))), and 1 / (2 dof) for log_noise, so
+    the first adaptation window starts near the posterior's scales instead of at 1 (an
+    identity start sent early trajectories of a layered posterior to the tree-depth limit)."""
+    from fitlab.fitting.mcmc import unit_stderr
+
+    u = np.clip(canonical(space, space.to_unit(np.asarray(ls.native))[None])[0], 1e-6,
+                1 - 1e-6)
+    dz = np.clip(unit_stderr(space, ls) / (u * (1 - u)), 1e-4, 10.0)
+    var = dz ** 2
+    if nuisance:
+        var = np.concatenate([var, [1.0 / (2.0 * max(int(ls.dof), 1))]])
+    return var
+
+
 def _starts(space: FitSpace, ls, nuisance: bool, nchains: int, rng) -> np.ndarray:
     """Chain starts in z coordinates around the least-squares optimum."""
     u0 = np.clip(canonical(space, space.to_unit(np.asarray(ls.native))[None])[0], 1e-6,
@@ -150,8 +169,9 @@ def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
     problem = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
     run = _sampler_many(space0.static, loss, order_keys(space0), space0.ndim, int(nsteps),
                         int(warmup))
+    imm = jnp.asarray(np.stack([_inverse_mass(sp, ls, nuisance) for sp, _, _, ls in items]))
     with jax.numpy_dtype_promotion("standard"):
-        pos, logd, acc, div, _ = run(keys, jnp.asarray(starts), problem)
+        pos, logd, acc, div, _ = run(keys, jnp.asarray(starts), imm, problem)
     seconds = (time.perf_counter() - t0) / len(items)
     return [assemble(sp, names, np.asarray(pos[i]), np.asarray(logd[i]), np.asarray(acc[i]),
                      np.asarray(div[i]), nsteps, seconds) for i, (sp, _, _, _) in
@@ -162,7 +182,7 @@ def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
 def _sampler_many(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
     """:func:`_sampler` vmapped over datasets too (keys, starts and problem per dataset)."""
     one = _sampler(static, loss, order, ndim, nsteps, warmup)
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0)))
 
 
 def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
