@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import sys
+from types import SimpleNamespace
 import time
 from typing import NamedTuple
 
@@ -236,7 +237,10 @@ def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
     size = padded_size(max(p.n_rows for p in problems))
     items = []
     for k, p in enumerate(problems):
-        ls = type("LS", (), {"native": res.native[k], "noise_scale": res.noise_scale[k]})
+        # what NUTS reads of a least-squares result: the start, the noise scale, and the
+        # standard errors and degrees of freedom of its initial mass matrix
+        ls = SimpleNamespace(native=res.native[k], noise_scale=res.noise_scale[k],
+                             stderr=res.stderr[k], dof=res.dof[k])
         items.append((p.space, pad_to(p.data, size), p.loss, ls))
     n_real = len(items)
     items += [items[-1]] * (batch - n_real)  # one compilation for every chunk
