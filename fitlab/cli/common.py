@@ -108,6 +108,23 @@ def channel_params(items) -> dict:
     return {"Y": {n: v[0] for n, v in raw.items()}} if raw else {}
 
 
+def material_arguments(args, sources=("fit", "model")) -> tuple[dict | None, dict | None]:
+    """(params, options) of a command that takes FIT.json or --model NAME with --param and
+    --option (or one of the other ``sources``, e.g. --preset): exactly one source, and
+    --param/--option only with --model."""
+    given = [s for s in sources if getattr(args, s, None) is not None]
+    if len(given) != 1:
+        names = {"fit": "FIT.json", "model": "--model NAME with --param", "preset": "--preset NAME"}
+        raise FitlabError(f"give {' or '.join(names.get(s, s) for s in sources)}"
+                          + ((", not both" if len(given) == 2 else ", not several") if given
+                             else ""))
+    if args.model is None and (args.param or args.option):
+        raise FitlabError("--param and --option go with --model; a fit brings its own values")
+    if args.model is None:
+        return None, None
+    return channel_params(args.param), parse_assignments(args.option, "option")
+
+
 def model_options(model, items, base=None) -> dict:
     """--option items of ``model`` with its defaults filled in (``base``: options they override)."""
     try:
@@ -149,4 +166,4 @@ def model_from_args(args):
 
 __all__ = ["Parser", "RGB", "add_model", "add_param", "add_option", "add_channel", "add_quiet",
            "add_json", "add_format", "get_model", "param_values", "model_params",
-           "channel_params", "model_options", "model_from_args"]
+           "channel_params", "material_arguments", "model_options", "model_from_args"]

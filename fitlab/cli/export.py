@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from fitlab.assignments import parse_assignments
-from fitlab.cli.common import add_channel, add_model, add_option, add_quiet, channel_params
+from fitlab.cli.common import add_channel, add_model, add_option, add_quiet, material_arguments
 from fitlab.errors import FitlabError
 
 
@@ -58,14 +57,7 @@ def add_parser(sub):
 def run(args):
     from fitlab.export.renderers import export_material
 
-    if (args.fit is None) == (args.model is None):
-        raise FitlabError("give FIT.json or --model NAME with --param, not both")
-    if args.fit is not None and (args.param or args.option):
-        raise FitlabError("--param and --option go with --model; a fit brings its own values")
-    params = options = None
-    if args.model is not None:
-        params = channel_params(args.param)
-        options = parse_assignments(args.option, "option")
+    params, options = material_arguments(args)
     if args.check:
         try:
             import mitsuba  # noqa: F401

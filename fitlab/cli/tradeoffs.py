@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from fitlab.cli.common import add_model, add_option, add_quiet, channel_params
+from fitlab.cli.common import add_model, add_option, add_quiet, material_arguments
 from fitlab.errors import FitlabError
 
 
@@ -54,18 +54,10 @@ def add_parser(sub):
 
 
 def run(args):
-    from fitlab.cli.common import parse_assignments
     from fitlab.export.material import ExportError
     from fitlab.tradeoffs import tradeoffs
 
-    if sum(x is not None for x in (args.fit, args.model, args.preset)) != 1:
-        raise FitlabError("give one of FIT.json, --model NAME with --param, or --preset NAME")
-    if args.fit is not None and (args.param or args.option):
-        raise FitlabError("--param and --option go with --model; a fit brings its own values")
-    params = options = None
-    if args.model is not None:
-        params = channel_params(args.param)
-        options = parse_assignments(args.option, "option")
+    params, options = material_arguments(args, ("fit", "model", "preset"))
     try:
         res = tradeoffs(args.fit, model=args.model, params=params, options=options,
                         preset=args.preset, data=args.data, knobs=args.knob,
