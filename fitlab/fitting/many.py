@@ -240,7 +240,8 @@ def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
         # what NUTS reads of a least-squares result: the start, the noise scale, and the
         # standard errors and degrees of freedom of its initial mass matrix
         ls = SimpleNamespace(native=res.native[k], noise_scale=res.noise_scale[k],
-                             stderr=res.stderr[k], dof=res.dof[k])
+                             stderr=res.stderr[k], dof=res.dof[k],
+                             covariance=res.covariance[k])
         items.append((p.space, pad_to(p.data, size), p.loss, ls))
     n_real = len(items)
     items += [items[-1]] * (batch - n_real)  # one compilation for every chunk

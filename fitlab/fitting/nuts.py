@@ -49,7 +49,7 @@ def _logdensity(static, loss: str, order: tuple, ndim: int, problem: dict):
 @functools.lru_cache(maxsize=32)
 def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
     """The compiled sampler of one structure: (keys (chains,), starts (chains, dim), initial
-    inverse mass matrix (dim,), problem) → draws, log-densities, acceptance rates,
+    inverse mass matrix (dim, dim), problem) → draws, log-densities, acceptance rates,
     divergences, step sizes; the data are an argument, so a new dataset of the same structure
     reuses the compilation."""
     import blackjax
@@ -58,6 +58,7 @@ def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: in
         logdensity = _logdensity(static, loss, order, ndim, problem)
         k_adapt, k_draw = jax.random.split(key)
         adapt = blackjax.window_adaptation(blackjax.nuts, logdensity,
+                                           is_mass_matrix_diagonal=False,
                                            initial_inverse_mass_matrix=inverse_mass)
         (state, params), _ = adapt.run(k_adapt, x0, num_steps=warmup)
         kernel = blackjax.nuts(logdensity, **params).step
@@ -127,19 +128,43 @@ def assemble(space: FitSpace, names, pos, logd, acc, div, nsteps: int,
 
 
 def _inverse_mass(space: FitSpace, ls, nuisance: bool) -> np.ndarray:
-    """The adaptation's initial (diagonal) inverse mass matrix: the least-squares variances in
-    NUTS's coordinates (z = logit u: dz = du / (u (1 − u))), and 1 / (2 dof) for log_noise, so
-    the first adaptation window starts near the posterior's scales instead of at 1 (an
-    identity start sent early trajectories of a layered posterior to the tree-depth limit)."""
+    """The adaptation's initial inverse mass matrix (dense, dim × dim): the least-squares
+    covariance mapped to NUTS's coordinates (z = logit u, u = the unit box; the Jacobian
+    dz/dθ by central differences of the elementwise map), and 1 / (2 dof) for log_noise, so the
+    adaptation starts near the posterior's scales and correlations instead of at the identity
+    (which sent early trajectories of a layered posterior to the tree-depth limit). Where the
+    covariance is unusable, or exchangeable lobes are relabelled into canonical order, the
+    diagonal of :func:`unit_stderr`'s variances is used."""
     from fitlab.fitting.mcmc import unit_stderr
 
-    u = np.clip(canonical(space, space.to_unit(np.asarray(ls.native))[None])[0], 1e-6,
-                1 - 1e-6)
-    dz = np.clip(unit_stderr(space, ls) / (u * (1 - u)), 1e-4, 10.0)
-    var = dz ** 2
+    native = np.asarray(ls.native, float)
+    u_raw = space.to_unit(native)
+    u = np.clip(canonical(space, u_raw[None])[0], 1e-6, 1 - 1e-6)
+    var = np.clip(unit_stderr(space, ls) / (u * (1 - u)), 1e-4, 10.0) ** 2
+    cov = np.diag(var)
+    c = getattr(ls, "covariance", None)
+    if c is not None and np.allclose(u, np.clip(u_raw, 1e-6, 1 - 1e-6)):
+        c = np.asarray(c, float)
+        if c.shape == (len(native),) * 2 and np.all(np.isfinite(c)):
+            h = np.maximum(1e-6 * np.abs(native), 1e-9)
+
+            def z(x):
+                uu = np.clip(space.to_unit(x), 1e-12, 1 - 1e-12)
+                return np.log(uu) - np.log1p(-uu)
+            jac = np.array([(z(native + h * e) - z(native - h * e))[k] / (2 * h[k])
+                            for k, e in enumerate(np.eye(len(native)))])
+            dense = jac[:, None] * c * jac[None, :]
+            d = np.sqrt(np.clip(np.diag(dense), 1e-8, 100.0))
+            corr = dense / np.sqrt(np.outer(np.diag(dense), np.diag(dense)).clip(1e-300))
+            corr = 0.99 * np.nan_to_num(corr) + 0.01 * np.eye(len(d))  # keep it positive
+            cand = d[:, None] * corr * d[None, :]
+            if np.all(np.isfinite(cand)) and np.all(np.linalg.eigvalsh(cand) > 0):
+                cov = cand
     if nuisance:
-        var = np.concatenate([var, [1.0 / (2.0 * max(int(ls.dof), 1))]])
-    return var
+        k = cov.shape[0]
+        cov = np.pad(cov, ((0, 1), (0, 1)))
+        cov[k, k] = 1.0 / (2.0 * max(int(ls.dof), 1))
+    return cov
 
 
 def _starts(space: FitSpace, ls, nuisance: bool, nchains: int, rng) -> np.ndarray:
