@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import shutil
 import struct
 from pathlib import Path
 
@@ -167,11 +168,11 @@ def _exr_cases(data: bytes):
 
 
 def _sweep_seed() -> bytes:
-    """The example sweep with its scene named by an absolute path (the cases are written to a
-    temporary folder) and few paths per point."""
+    """The example sweep with few paths per point, its scene named as ``../coated_lambertian.toml``
+    (each case is written one folder below the test's folder, where SUPPORT copies the scene).
+    The seed holds no path of this machine, so the cases picked are the same on every machine."""
     text = (EXAMPLES / "sweeps" / "coated_lambertian_grid.toml").read_text()
-    scene = (EXAMPLES / "scenes" / "coated_lambertian.toml").as_posix()
-    return text.replace('"../scenes/coated_lambertian.toml"', f'"{scene}"') \
+    return text.replace('"../scenes/coated_lambertian.toml"', '"../coated_lambertian.toml"') \
         .replace("samples = 4000", "samples = 32").encode()
 
 
@@ -215,6 +216,10 @@ FORMATS = {
     "sweep_toml": (_sweep_seed, lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)),
                    ".toml", ["sweep"]),
 }
+
+#: Files a format's cases name relative to themselves: copied into the test's folder, the parent
+#: of every case's folder (tests/hostile.py: fresh).
+SUPPORT = {"sweep_toml": [EXAMPLES / "scenes" / "coated_lambertian.toml"]}
 
 FIT = ROOT / "fits" / "walter_rough_glass.json"
 COMMANDS = {
@@ -262,6 +267,8 @@ def test_hostile_inputs(fmt, command, tier, tmp_path, monkeypatch):
     load, generate, suffix, _ = FORMATS[fmt]
     monkeypatch.chdir(ROOT)  # fit files name their data relative to themselves; keep cwd fixed
     data = load()
+    for support in SUPPORT.get(fmt, []):
+        shutil.copyfile(support, tmp_path / support.name)
     cases = list(generate(data))
     assert len({c.name for c in cases}) == len(cases), "case names must be unique"
     every = QUICK_EVERY if tier == "quick" else 1

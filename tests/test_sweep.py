@@ -83,6 +83,15 @@ def test_more_hostile_sweeps(tmp_path):
                      + '\n"stack[1].index" = ' + str([1.5] * 400) + "\n", "more than 100000"),
         "index past the list": ('[grid]\n"stack[7].index" = [1.5]\n', "item [7] does not exist"),
         "bad toml": ("samples = = 3\n", "sweep"),
+        "huge integer": ('[grid]\n"substrate.albedo" = [' + "9" * 400 + "]\n",
+                         "(400 characters) is not a finite number"),
+        "huge integer in a list": ('[grid]\n"substrate.albedo" = [[0.5, 0.5, ' + "9" * 400
+                                   + "]]\n", "is not a number, a string"),
+        "long key": ('[grid]\n"' + "a" * 300 + '" = [1]\n', "field path of 300 characters"),
+        "long index": ('[grid]\n"stack[' + "9" * 100 + '].index" = [1]\n',
+                       "is not a field name"),
+        "long string": ('[grid]\n"substrate.type" = ["' + "x" * 1000 + '"]\n',
+                        "is not a number, a string"),
     }
     for label, (body, want) in cases.items():
         f = tmp_path / "s.toml"
@@ -95,6 +104,7 @@ def test_more_hostile_sweeps(tmp_path):
         with pytest.raises(InputFileError) as e:
             load_sweep(f)
         assert want in str(e.value), (label, str(e.value))
+        assert len(str(e.value)) < len(str(f)) + 300, (label, "the message echoes the file")
     f.write_bytes(b"\xff\xfe garbage")
     with pytest.raises(InputFileError):
         load_sweep(f)

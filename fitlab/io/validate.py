@@ -93,6 +93,17 @@ def decode_text(path, raw: bytes, *, what: str, encoding: str = "utf-8-sig",
 # --------------------------------------------------------------------------------------------
 
 
+def is_finite_number(value) -> bool:
+    """``value`` (from a parsed file) is an int or float, not a bool, that converts to a finite
+    float: NaN, infinities and integers with hundreds of digits are not."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:  # an integer too large for a float
+        return False
+
+
 def parse_number(token, path, *, what: str | None = None, line: int | None = None,
                  column: str | None = None, lo: float | None = None, hi: float | None = None,
                  lo_open: bool = False, integer: bool = False, hint: str | None = None) -> float:
@@ -338,7 +349,7 @@ class Num(Spec):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             yield where, f"is {_kind(value)}; expected {self.description}"
             return
-        if not math.isfinite(float(value)) or abs(value) > 1.7e308:
+        if not is_finite_number(value) or abs(value) > 1.7e308:
             yield where, "is not a finite number"
             return
         low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)

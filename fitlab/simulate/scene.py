@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 from fitlab import microfacet
 from fitlab.errors import InputFileError
-from fitlab.io.validate import load_toml, quote
+from fitlab.io.validate import is_finite_number, load_toml, quote
 from fitlab.io.files import read_bytes
 from fitlab.fresnel import CONDUCTOR_PRESETS
 
@@ -199,11 +199,7 @@ def _number(ctx, table, field, key, *, default=None, lo=None, hi=None, lo_open=F
             ctx.fail(where, "is missing", hint)
         return default
     v = table[key]
-    try:
-        finite = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(float(v))
-    except OverflowError:  # an integer with hundreds of digits
-        finite = False
-    if not finite:
+    if not is_finite_number(v):
         ctx.fail(where, f"{quote(v)} is not a finite number", hint)
     v = float(v)
     bad = (lo is not None and (v <= lo if lo_open else v < lo)) or \

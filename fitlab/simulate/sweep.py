@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.files import read_bytes
-from fitlab.io.validate import load_toml, quote
+from fitlab.io.validate import is_finite_number, load_toml, quote
 
 FORMAT = "fitlab-sweep"
 MODES = ("product", "zip")
@@ -41,8 +41,12 @@ TOP_KEYS = ("format", "version", "name", "description", "scene", "samples", "see
 MAX_POINTS = 100_000
 #: Most values one grid key may list.
 MAX_VALUES = 10_000
+#: Longest grid key (a scene field path).
+MAX_KEY = 128
 POINTS_PER_CHUNK = 8
 #: A field path: names with optional [index] parts, joined by dots (``stack[1].sigma_s``).
+#: Characters of a grid key or string value a message shows; string values are at most this long.
+_SHOWN = 64
 _SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d{1,4}\])*)$")
 
 
@@ -88,7 +92,7 @@ def parse_field(key: str) -> list:
     for part in key.split("."):
         m = _SEGMENT.match(part)
         if not m:
-            raise ValueError(f"{part!r} is not a field name (letters, digits, _) with optional "
+            raise ValueError(f"{quote(part)} is not a field name (letters, digits, _) with optional "
                              "[index]")
         out.append(m.group(1))
         out += [int(x) for x in re.findall(r"\[(\d+)\]", m.group(2))]
@@ -128,6 +132,13 @@ def point_seed(seed: int, i: int) -> int:
     return int.from_bytes(hashlib.sha256(f"{seed}/{i}".encode()).digest()[:4], "little") >> 1
 
 
+def _grid_key(key: str, j: int | None = None) -> str:
+    """How a message names grid key ``key`` (and its value ``j``): ``grid."stack[0].alpha"[2]``,
+    a long key cut short (a message never echoes much of a file)."""
+    shown = key if len(key) <= _SHOWN else f"{key[:_SHOWN]}... ({len(key)} characters)"
+    return f"grid.\"{shown}\"" + ("" if j is None else f"[{j}]")
+
+
 def _fail(path, field, message, hint=None):
     raise InputFileError(path, f"{field}: {message}" if field else message, hint=hint)
 
@@ -146,16 +157,14 @@ def _int(path, d, key, default, lo, hi):
 
 def _grid_value(path, key, j, v):
     """A grid value: a finite number, a string, a bool, or a list of finite numbers."""
-    where = f"grid.\"{key}\"[{j}]"
-    if isinstance(v, bool) or isinstance(v, str):
+    where = _grid_key(key, j)
+    if isinstance(v, bool) or (isinstance(v, str) and len(v) <= _SHOWN):
         return v
     if isinstance(v, (int, float)):
-        if not math.isfinite(v):
+        if not is_finite_number(v):
             _fail(path, where, f"{quote(v)} is not a finite number")
         return v
-    if isinstance(v, list) and v and len(v) <= 16 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-            for x in v):
+    if isinstance(v, list) and v and len(v) <= 16 and all(is_finite_number(x) for x in v):
         return v
     _fail(path, where, f"{quote(v)} is not a number, a string, true/false or a short list of "
           "finite numbers", "give the values the scene field takes (data_formats/scene_toml.md)")
@@ -207,14 +216,17 @@ def sweep_from_dict(d: dict, source: str, base_dir) -> Sweep:
               "e.g. \"stack[0].alpha\" = [0.1, 0.2]")
     keys, columns = [], []
     for key, vals in grid.items():
+        if len(key) > MAX_KEY:
+            _fail(path, _grid_key(key), f"is a field path of {len(key)} characters, more than "
+                  f"{MAX_KEY}", "write a scene field path such as \"stack[0].alpha\"")
         try:
             parse_field(key)
         except ValueError as exc:
-            _fail(path, f"grid.\"{key}\"", str(exc), "write a field path such as "
+            _fail(path, _grid_key(key), str(exc), "write a field path such as "
                   "\"stack[0].alpha\" or \"substrate.albedo\"")
         if not isinstance(vals, list) or not vals or len(vals) > MAX_VALUES:
-            _fail(path, f"grid.\"{key}\"", f"must be a list of 1 to {MAX_VALUES} values",
-                  f"write \"{key}\" = [value, value, ...]")
+            _fail(path, _grid_key(key), f"must be a list of 1 to {MAX_VALUES} values",
+                  "write \"FIELD\" = [value, value, ...]")
         keys.append(key)
         columns.append([_grid_value(path, key, j, v) for j, v in enumerate(vals)])
     if mode == "zip":
@@ -237,12 +249,14 @@ def sweep_from_dict(d: dict, source: str, base_dir) -> Sweep:
         try:
             set_field(copy.deepcopy(base), parse_field(key), col[0])
         except KeyError as exc:
-            _fail(path, f"grid.\"{key}\"", exc.args[0], "sweep only fields whose tables and "
+            _fail(path, _grid_key(key), exc.args[0], "sweep only fields whose tables and "
                   f"list items exist in the base scene {scene_name}")
     sweep = Sweep(str(source), name, scene_path, base, tuple(keys), points, samples, seed,
                   batch, per_chunk)
     for i in range(len(points)):
-        where = f"{source}: point {i} ({', '.join(f'{k} = {v}' for k, v in sweep.values(i).items())})"
+        shown = ", ".join(f"{k} = {quote(v, _SHOWN) if isinstance(v, str) else v}"
+                          for k, v in sweep.values(i).items())
+        where = f"{source}: point {i} ({shown})"
         try:
             scene_from_dict(sweep.scene_dict(i), source=where, base_dir=scene_path.parent)
         except InputFileError as exc:
