@@ -250,6 +250,11 @@ def _shared(params: dict, name: str) -> float:
     return float(params[next(iter(params))][name])
 
 
+def _offers(params: dict, name: str) -> bool:
+    """The glTF model of ``params`` has parameter ``name`` (the extension that carries it)."""
+    return name in params[next(iter(params))]
+
+
 def gltf_document(material: Material, model: str, params: dict, conversion: dict) -> dict:
     """The glTF 2.0 document: the fitted material on a preview sphere."""
     import fitlab
@@ -266,16 +271,17 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
     spec = _shared(params, "specular")
     if spec != 1.0:
         ext["KHR_materials_specular"] = {"specularFactor": spec}
-    if model == "gltf_pbr_clearcoat" and _shared(params, "clearcoat") > 0:
+    if _offers(params, "clearcoat") and _shared(params, "clearcoat") > 0:
         ext["KHR_materials_clearcoat"] = {
             "clearcoatFactor": _shared(params, "clearcoat"),
             "clearcoatRoughnessFactor": _shared(params, "clearcoat_roughness_factor")}
-    anisotropic = model == "gltf_pbr_anisotropic" and _shared(params, "anisotropy_strength") > 0
+    anisotropic = (_offers(params, "anisotropy_strength")
+                   and _shared(params, "anisotropy_strength") > 0)
     if anisotropic:
         ext["KHR_materials_anisotropy"] = {
             "anisotropyStrength": _shared(params, "anisotropy_strength"),
             "anisotropyRotation": float(np.radians(_shared(params, "anisotropy_rotation")))}
-    if model == "gltf_pbr_transmission" and _shared(params, "transmission") > 0:
+    if _offers(params, "transmission") and _shared(params, "transmission") > 0:
         ext["KHR_materials_transmission"] = {"transmissionFactor": _shared(params,
                                                                           "transmission")}
     if ext:
@@ -341,10 +347,11 @@ def conversion_warnings(material: Material, model: str, errors: dict,
     out = []
     # shares that may well be 0 or 1, and the anisotropy's direction, whose bounds ±90° are the
     # same axis
-    ordinary = {"metallic", "base_color", "clearcoat", "specular", "anisotropy_strength",
-                "anisotropy_rotation", "transmission"}
-    for p in get_model(model).parameters:
-        if params is None or p.name in ordinary or p.name == "specular_color":
+    ordinary = {"metallic", "base_color", "clearcoat", "specular", "specular_color",
+                "anisotropy_strength", "anisotropy_rotation", "transmission"}
+    gltf = get_model(model)
+    for p in gltf.parameters:
+        if params is None or p.name in ordinary:
             continue
         v = float(next(iter(params.values()))[p.name])
         if min(v - p.lower, p.upper - v) <= 1e-6 * max(1.0, p.upper - p.lower):
@@ -354,7 +361,7 @@ def conversion_warnings(material: Material, model: str, errors: dict,
     if errors["relative_rms"] > FAR:
         text = (f"the glTF material is far from {material.model}: relative RMS "
                 f"{errors['relative_rms']:.3g} of f·cos over the hemisphere")
-        if model == "gltf_pbr_transmission":
+        if "transmission" in gltf.parameter_names:
             text += ("; KHR_materials_transmission is a thin-walled surface (light leaves "
                      "straight through, blurred by the roughness), which cannot take the "
                      "refraction of a single rough interface into a denser medium")
