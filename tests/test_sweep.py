@@ -87,6 +87,8 @@ def test_more_hostile_sweeps(tmp_path):
                          "(400 characters) is not a finite number"),
         "huge integer in a list": ('[grid]\n"substrate.albedo" = [[0.5, 0.5, ' + "9" * 400
                                    + "]]\n", "is not a number, a string"),
+        "many keys": ("[grid]\n" + "".join(f'"substrate.x{i}" = [1]\n' for i in range(40)),
+                      "has 40 keys, more than 32"),
         "long key": ('[grid]\n"' + "a" * 300 + '" = [1]\n', "field path of 300 characters"),
         "long index": ('[grid]\n"stack[' + "9" * 100 + '].index" = [1]\n',
                        "is not a field name"),

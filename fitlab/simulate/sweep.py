@@ -44,9 +44,11 @@ MAX_VALUES = 10_000
 #: Longest grid key (a scene field path).
 MAX_KEY = 128
 POINTS_PER_CHUNK = 8
-#: A field path: names with optional [index] parts, joined by dots (``stack[1].sigma_s``).
+#: Most keys a grid may have (a scene has a few dozen fields).
+MAX_KEYS = 32
 #: Characters of a grid key or string value a message shows; string values are at most this long.
 _SHOWN = 64
+#: A field path: names with optional [index] parts, joined by dots (``stack[1].sigma_s``).
 _SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d{1,4}\])*)$")
 
 
@@ -214,6 +216,9 @@ def sweep_from_dict(d: dict, source: str, base_dir) -> Sweep:
     if not isinstance(grid, dict) or not grid:
         _fail(path, "grid", "is missing or empty", "give a [grid] table: \"FIELD\" = [values], "
               "e.g. \"stack[0].alpha\" = [0.1, 0.2]")
+    if len(grid) > MAX_KEYS:
+        _fail(path, "grid", f"has {len(grid)} keys, more than {MAX_KEYS}",
+              "sweep a few scene fields at a time")
     keys, columns = [], []
     for key, vals in grid.items():
         if len(key) > MAX_KEY:
