@@ -43,6 +43,9 @@ _MIN_LANES = 256
 
 
 def _mitsuba():
+    from fitlab.simulate.engine import select_libllvm
+
+    select_libllvm()  # Dr.Jit picks its libLLVM at import: one it can use (LLVM >= 17)
     try:
         import drjit as dr
         import mitsuba as mi

@@ -27,6 +27,11 @@ if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):
                if not any(f.startswith(f"--{k}=") for f in _flags)]
     os.environ["XLA_FLAGS"] = " ".join(_flags)
 
+# Dr.Jit picks its libLLVM once, at `import drjit`: choose a usable one (LLVM >= 17, the
+# system's or the pip package's; fitlab/simulate/engine.py) before any test imports mitsuba.
+from fitlab.simulate.engine import select_libllvm  # noqa: E402
+
+select_libllvm()
 
 
 def xla_default_flags(flags: str) -> str:

@@ -59,6 +59,9 @@ def run(args):
 
     params, options = material_arguments(args)
     if args.check:
+        from fitlab.simulate.engine import select_libllvm
+
+        select_libllvm()  # a libLLVM Dr.Jit can use, chosen before mitsuba is imported
         try:
             import mitsuba  # noqa: F401
         except ImportError:

@@ -6,7 +6,7 @@ import sys
 
 from fitlab.cli.common import add_quiet
 from fitlab.errors import FitlabError
-from fitlab.simulate.simulator import DEVICES
+from fitlab.simulate.simulator import BATCH_SIZE, DEVICES
 
 
 def add_parser(sub):
@@ -24,8 +24,8 @@ def add_parser(sub):
         "(data_formats/measurement_csv.md): value = BSDF in 1/sr averaged over each bin or "
         "cone, or with the detector's estimator = \"point\" a point estimate at each exact "
         "direction (next-event estimation), sigma = Monte Carlo standard error, metadata with the effects simulated and "
-        "skipped (and why), samples and seed (the same scene, samples, seed and batch size give "
-        "the same bytes; the run time is printed, not stored), so `fitlab fit OUT.csv --model "
+        "skipped (and why), samples and seed (the same scene, samples and seed give "
+        "the same bytes on one device; the run time is printed, not stored), so `fitlab fit OUT.csv --model "
         "...` works on it. Progress on stderr; the output is written atomically.",
         epilog="example: fitlab simulate data_formats/examples/scenes/rough_dielectric_interface.toml "
         "--samples 200000 --out sim.csv && fitlab fit sim.csv --model rough_dielectric; "
@@ -38,19 +38,19 @@ def add_parser(sub):
                    help="paths traced per incident direction (the standard error falls as "
                    "1/sqrt); required with SCENE.toml (a sweep file states its own)")
     p.add_argument("--seed", type=int, default=None,
-                   help="random seed; the same seed and --batch-size give the same numbers "
+                   help="random seed; the same seed gives the same numbers on one device "
                    "(default 0; a sweep file states its own)")
     p.add_argument("--out", metavar="FILE.csv", help="output measurement CSV (default: standard output)")
     p.add_argument("--split-bounces", action="store_true",
                    help="also write FILE.orders.csv with the bounce-order components (order 0 = top "
                    "surface, 1 = one-bounce subsurface, 2, rest) as channels")
-    p.add_argument("--batch-size", type=int, default=1 << 13,
-                   help="paths traced in parallel (lanes); with 32 lanes' worth of paths per "
-                   "compiled call it bounds the memory (default 8192)")
+    p.add_argument("--batch-size", type=int, default=BATCH_SIZE,
+                   help="paths per launch of the compiled walk: bounds the memory (default "
+                   f"{BATCH_SIZE}); the numbers do not depend on it")
     p.add_argument("--device", choices=DEVICES, default="auto",
-                   help="where the walk runs: auto (JAX's default device: a GPU when JAX has "
-                   "one), cpu, or gpu (an error when JAX sees none; install a CUDA build of "
-                   "jaxlib, e.g. pip install 'jax[cuda12]'); results are reproducible per device")
+                   help="where the walk runs: auto (Dr.Jit's CUDA backend when a GPU is usable, "
+                   "else its LLVM backend on every CPU core), cpu, or gpu (an error when no GPU "
+                   "is usable); results are reproducible per device")
     g = p.add_argument_group(
         "parameter sweeps (data_formats/sweep_toml.md; needs pip install 'fitlab[distributed]')")
     g.add_argument("--sweep", metavar="SWEEP.toml",
@@ -85,7 +85,7 @@ def _run_sweep(args):
     if not args.out_dir:
         raise FitlabError("--sweep needs --out-dir DIR (a measurement CSV per point goes there)")
     if args.device != "auto":
-        raise FitlabError("--sweep runs on the workers' default JAX device; leave out --device")
+        raise FitlabError("--sweep runs on the workers' default device; leave out --device")
     if args.workers is not None and args.scheduler:
         raise FitlabError("give --workers (a local cluster) or --scheduler (a running one), "
                           "not both")

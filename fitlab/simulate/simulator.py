@@ -1,9 +1,10 @@
 """``simulate(scene, samples, seed)``: the Monte Carlo estimate of a scene's BSDF per detector bin
 with standard errors, the split by bounce order, the effect plan and the time taken.
 
-Paths are traced on ``batch_size`` parallel lanes, up to 32 lanes' worth per call of the
-compiled walk (walk.run_batch), and the calls' float64 tallies are summed on the host, so memory
-stays bounded for any sample count. Results are deterministic for a given seed and batch size.
+The walk is Dr.Jit (walk.py) on the CPU's LLVM backend or a GPU's CUDA backend (engine.py);
+every path is one lane, launched in bounded batches, and the per-path results are summed on the
+host in float64 in path order, so memory stays bounded for any sample count and the same seed
+gives the same numbers whatever the thread count or batch size (on one engine and device).
 """
 
 from __future__ import annotations
@@ -12,28 +13,20 @@ import sys
 import time
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from fitlab.phase import sggx_matrix
-from fitlab.simulate import detectors
+from fitlab.simulate import components, detectors, engine
 from fitlab.simulate.effects import EffectPlan, derive_effects
 from fitlab.simulate.scene import Scene
-from fitlab.simulate.walk import ORDER_CLASSES, Detector, WalkArrays, WalkConfig, run_batch
+from fitlab.simulate.walk import ORDER_CLASSES, Detector, Stack, WalkArrays, WalkConfig, \
+    run, seed_words
 
-#: Default number of lanes (paths traced in parallel). 8192 lanes with 32 lanes' worth of paths
-#: per call took the least CPU time per path on the 2-core benchmark machine (32768 lanes: 1.6x
-#: more, the drain of the last long paths of each call keeping the wide batch busy).
-BATCH_SIZE = 1 << 13
-#: Paths per call of the compiled walk, in lanes' worth (exit buffers: ~24 bytes per path).
-CALL_LANES = 32
+#: Paths per launch of the compiled walk (per-path exit slots: ~32 bytes a path).
+BATCH_SIZE = 1 << 20
 #: Events per path after which a path still alive is dropped (reported as truncated).
 MAX_EVENTS = 512
-#: Where the walk runs: JAX's default device, the CPU, or a GPU.
-DEVICES = ("auto", "cpu", "gpu")
-#: Memory of the per-lane running point estimates (bytes): lanes are reduced to fit.
-POINT_LANE_BYTES = 64 << 20
+#: Where the walk runs: a GPU when one is usable (else the CPU), the CPU, or a GPU.
+DEVICES = engine.DEVICES
 
 
 class SimulationResult(NamedTuple):
@@ -153,71 +146,61 @@ class SimulationResult(NamedTuple):
 # --------------------------------------------------------------------------------------------
 
 
-def _channel_values(values, C, channel=None):
-    v = np.broadcast_to(np.asarray(values, dtype=float), (3,) if len(values) == 3 else (1,))
-    if channel is not None:
-        return np.array([v[channel] if v.size == 3 else v[0]])
-    return np.broadcast_to(v, (C,)) if v.size == 1 else v
+def _channel_values(values, channel=None):
+    """A property's three channel values (a grey one repeated); ``channel``: that channel's
+    value in all three (a per-channel walk)."""
+    v = np.asarray(values, dtype=float).reshape(-1)
+    v = np.repeat(v, 3) if v.size == 1 else v
+    return np.full(3, v[channel]) if channel is not None else v
 
 
-def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
+def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events):
     """WalkConfig and WalkArrays; ``channel``: the single channel of a per-channel walk."""
     C = 1 if channel is not None else plan.channels
     M = len(scene.media)
     R = M + 2
     idx = scene.region_indices
     thickness = np.zeros(R)
-    sigma_a = np.zeros((R, C))
+    sigma_a = np.zeros((R, 3))
     sigma_s = np.zeros(R)
-    sigma_s_c = np.zeros((R, C))
-    hg_g = np.zeros(R)
+    sigma_s_c = np.zeros((R, 3))
     S = np.broadcast_to(np.eye(3), (R, 3, 3)).copy()
-    flake_f0 = np.ones((R, C))
+    flake_f0 = np.ones((R, 3))
     phases = [None] * R
+    phase_values = [None] * R
     for j, m in enumerate(scene.media, start=1):
         thickness[j] = m.thickness
         if m.thickness == 0:
             continue
-        sigma_a[j] = _channel_values(m.sigma_a, C, channel)
-        ss = _channel_values(m.sigma_s, C, channel)
+        sigma_a[j] = _channel_values(m.sigma_a, channel)
+        ss = _channel_values(m.sigma_s, channel)
         sigma_s_c[j] = ss
         sigma_s[j] = ss[0]
         if max(m.sigma_s) > 0 or max(m.sigma_a) > 0:
             phases[j] = "sggx" if m.phase.type.startswith("sggx") else m.phase.type
-        hg_g[j] = m.phase.g
         if m.phase.type.startswith("sggx"):
-            flake_f0[j] = _channel_values(m.phase.f0, C, channel)
-            S[j] = np.asarray(sggx_matrix(m.phase.type[5:], jnp.asarray(m.phase.roughness),
-                                          jnp.asarray(m.phase.orientation)))
-    Bd = len(scene.boundaries)
-    alpha = np.zeros(Bd)
-    alpha_y = np.zeros(Bd)
-    eta = np.ones(Bd)
-    albedo = np.zeros((Bd, C))
-    cn = np.ones((Bd, C))
-    ck = np.zeros((Bd, C))
-    groups = []
+            flake_f0[j] = _channel_values(m.phase.f0, channel)
+            S[j] = components.sggx_matrix(m.phase.type[len("sggx_"):], m.phase.roughness,
+                                          m.phase.orientation)
+        phase_values[j] = {"g": m.phase.g, "S": S[j]}
+    specs, values = [], []
+    eta = np.ones(len(scene.boundaries))
     for b, bd in enumerate(scene.boundaries):
-        alpha[b] = bd.alpha
-        alpha_y[b] = bd.alpha if bd.alpha_y is None else bd.alpha_y
-        # the registry family the models sample (vmf: by its masking, vmf_exact or vmf); an
-        # anisotropic NDF is sampled by the anisotropic models (widths alpha, alpha_y)
-        rough = bd.family if bd.alpha_y is None else f"{bd.family}:anisotropic"
         eta[b] = idx[b + 1] / idx[b]
-        if bd.kind == "pass":
-            groups.append("pass")
-        elif bd.kind == "dielectric":
-            groups.append("smooth" if bd.distribution == "smooth" else f"rough:{rough}")
-        elif bd.kind == "lambertian":
-            groups.append("lambertian")
-            albedo[b] = _channel_values(bd.albedo, C, channel)
-        else:
-            groups.append(f"conductor:{rough}")
-            cn[b] = _channel_values(bd.n, C, channel) / idx[b]
-            ck[b] = _channel_values(bd.k, C, channel) / idx[b]
+        aniso = bd.alpha_y is not None
+        specs.append(components.BoundarySpec(bd.kind, bd.family if bd.kind != "lambertian"
+                                             else "smooth", aniso))
+        v = components.BoundaryValues(alpha=bd.alpha,
+                                      alpha_y=bd.alpha_y if aniso else bd.alpha, eta=eta[b])
+        if bd.kind == "lambertian":
+            v = v._replace(albedo=tuple(_channel_values(bd.albedo, channel)))
+        elif bd.kind == "conductor":
+            v = v._replace(n=tuple(_channel_values(bd.n, channel) / idx[b]),
+                           k=tuple(_channel_values(bd.k, channel) / idx[b]))
+        values.append(v)
     det = scene.detector
     cfg = WalkConfig(
-        n_media=M, boundary_groups=tuple(groups), region_phase=tuple(phases), channels=C,
+        n_media=M, boundaries=tuple(specs), region_phase=tuple(phases), channels=C,
         reflection=plan.reflection, transmission=plan.transmission,
         max_bounces=-1 if plan.max_bounces is None else plan.max_bounces,
         russian_roulette=plan.russian_roulette, volume=plan.volume,
@@ -226,12 +209,10 @@ def _walk_setup(scene: Scene, plan: EffectPlan, channel, max_events, dtype):
         end_downward_after_last_bounce=plan.end_downward_after_last_bounce,
         force_top=plan.force_top, force_bottom=plan.force_bottom, split_first=plan.split_first,
         max_events=int(max_events), detector=_walk_detector(det),
-        theta_bins=det.theta_bins, phi_bins=det.phi_bins, dtype=dtype,
+        theta_bins=det.theta_bins, phi_bins=det.phi_bins,
         flake_fresnel=bool(np.any(flake_f0 < 1.0)), **_point_sides(scene, plan))
-    dt = jnp.dtype(dtype)
-    f = lambda a: jnp.asarray(a, dtype=dt)  # noqa: E731
-    arr = WalkArrays(f(thickness), f(sigma_a), f(sigma_s), f(sigma_s_c), f(hg_g), f(S), f(alpha),
-                     f(alpha_y), f(eta), f(albedo), f(cn), f(ck), f(flake_f0))
+    arr = WalkArrays(thickness, sigma_a, sigma_s, sigma_s_c, tuple(phase_values), S,
+                     tuple(values), eta, flake_f0)
     return cfg, arr
 
 
@@ -303,65 +284,37 @@ class _Progress:
                   file=sys.stderr, flush=True)
 
 
-def walk_device(device: str = "auto"):
-    """The JAX device the walk runs on: ``auto`` (JAX's default: a GPU when jaxlib has one),
-    ``cpu`` or ``gpu``. Raises :class:`fitlab.errors.FitlabError` when no such device exists."""
-    from fitlab.errors import FitlabError
-
-    if device not in DEVICES:
-        raise FitlabError(f"device must be one of {', '.join(DEVICES)}, not {device!r}")
-    if device == "auto":
-        return jax.devices()[0]
-    try:
-        return jax.devices(device)[0]
-    except RuntimeError:
-        have = ", ".join(sorted({d.platform for d in jax.devices()}))
-        raise FitlabError(f"no {device} device: JAX sees only {have}; install a CUDA build of "
-                          "jaxlib (pip install 'jax[cuda12]') or use --device cpu") from None
-
-
 def simulate(scene: Scene, samples: int, seed: int = 0, *, batch_size: int = BATCH_SIZE,
-             max_events: int = MAX_EVENTS, dtype: str = "float32",
-             progress: bool = False, device: str = "auto") -> SimulationResult:
+             max_events: int = MAX_EVENTS, progress: bool = False,
+             device: str = "auto") -> SimulationResult:
     """Trace ``samples`` paths per incident direction of ``scene`` and estimate the BSDF of every
     detector bin (data_formats/scene_toml.md).
 
-    Parameters: ``seed`` fixes every random number (results are identical for the same seed and
-    ``batch_size``); ``batch_size`` lanes trace paths in parallel (memory bound); ``max_events``
-    caps the events of one path (paths still alive are dropped and counted in ``truncated``);
-    ``dtype`` of the paths (float32 for throughput; tallies are float64); ``progress`` prints
-    progress on stderr; ``device``: ``auto``, ``cpu`` or ``gpu`` (:func:`walk_device`; the
-    numbers are reproducible on one device, not across devices). Returns a
+    Parameters: ``seed`` fixes every random number (the same seed gives the same numbers on one
+    engine and device, whatever the thread count and ``batch_size``); ``batch_size``: paths per
+    launch of the compiled walk (bounds the memory; point estimates launch fewer when their
+    per-path sums need it); ``max_events`` caps the events of one path
+    (paths still alive are dropped and counted in ``truncated``); ``progress`` prints progress
+    on stderr; ``device``: ``auto``, ``cpu`` or ``gpu`` (:func:`fitlab.simulate.engine.load`).
+    Paths are float32 (Mitsuba's ``llvm_ad_rgb`` / ``cuda_ad_rgb``), tallies float64. Returns a
     :class:`SimulationResult`.
     """
-    with jax.default_device(walk_device(device)):
-        return _simulate(scene, samples, seed, batch_size, max_events, dtype, progress)
-
-
-def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
     if samples < 2:
         raise ValueError("samples must be at least 2 (a standard error needs two paths)")
+    if batch_size < 1:
+        raise ValueError("batch_size must be a positive number of paths")
+    engine.load(device)
+    return _simulate(scene, samples, seed, batch_size, max_events, progress)
+
+
+def _simulate(scene, samples, seed, batch_size, max_events, progress):
     plan = derive_effects(scene)
     t0 = time.perf_counter()
     incid = _incidence_rows(scene)
     channel_walks = list(range(plan.channels)) if plan.walk_per_channel else [plan.channel_pick]
-    setups = [_walk_setup(scene, plan, c, max_events, dtype) for c in channel_walks]
+    stacks = [Stack(*_walk_setup(scene, plan, c, max_events)) for c in channel_walks]
     C = plan.channels
-    # lanes: a power of two up to batch_size; paths per call: up to CALL_LANES lanes' worth
-    lanes = min(batch_size, 1 << max(int(np.ceil(np.log2(max(samples, 2)))), 6))
-    if scene.detector.estimator == "point":
-        # every live lane pays for its connections to every row each event, also while the
-        # last long paths of a call drain: fewer lanes, each tracing many paths in turn
-        # (about CALL_LANES), keep the lanes busy; each lane holds its path's running point
-        # estimates (4 orders × rows × channels)
-        per_lane = 4 * max(len(r[2].tally) for r in incid) * C * 4
-        busy = 1 << max(int(np.ceil(np.log2(max(samples // CALL_LANES, 1)))), 8)
-        memory = 1 << int(np.floor(np.log2(max(POINT_LANE_BYTES // per_lane, 64))))
-        lanes = max(64, min(lanes, busy, memory))
-    batch = lanes * min(CALL_LANES, -(-samples // lanes))
-    n_batches = -(-samples // batch)
     prog = _Progress(samples * len(incid) * len(channel_walks), progress)
-    root = jax.random.PRNGKey(seed)
     all_rows = []
     energy = np.zeros((len(incid), 2, C))
     energy_sig = np.zeros((len(incid), 2, C))
@@ -371,42 +324,37 @@ def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
                  if axes is None else len(rows.tally))
         n_up = 0
         if axes is None:
-            det = Detector(jnp.zeros((1, 3)), jnp.full((1,), 2.0))
+            det = Detector(np.zeros((1, 3)), np.full((1,), 2.0))
         elif scene.detector.estimator == "point":
             # the walk takes the reflection rows first; tally maps each row to its position
             walk_order = np.argsort(axes[:, 2] <= 0, kind="stable")
             n_up = int(np.sum(axes[:, 2] > 0))
             rows = rows._replace(tally=np.argsort(walk_order, kind="stable"))
-            det = Detector(jnp.asarray(axes[walk_order], dtype=jnp.float64),
-                           jnp.zeros((len(axes),)))
+            det = Detector(np.asarray(axes[walk_order], dtype=np.float64),
+                           np.zeros((len(axes),)))
         else:
-            det = Detector(jnp.asarray(axes, dtype=jnp.float64),
-                           jnp.full((len(axes),), detectors.cone_half_angle_cos(
-                               scene.detector.acceptance_sr), dtype=jnp.float64))
-        wi = jnp.asarray(detectors.direction(ti, pi_), dtype=jnp.float64)
+            det = Detector(np.asarray(axes, dtype=np.float64),
+                           np.full((len(axes),), detectors.cone_half_angle_cos(
+                               scene.detector.acceptance_sr)))
+        wi = detectors.direction(ti, pi_)
         S1 = np.zeros((len(ORDER_CLASSES), n_out, C))
         S2 = np.zeros((len(ORDER_CLASSES) + 1, n_out, C))  # per order, and the paths' totals
         E1 = np.zeros((2, 2, C))
         # splitting at the first interface: the reflected branches' sums (bins, per side)
         Q1, Q2, F1 = np.zeros((n_out, C)), np.zeros((n_out, C)), np.zeros((2, 2, C))
-        for ci, (cfg, arr) in enumerate(setups):
-            sl = slice(None) if len(setups) == 1 else slice(ci, ci + 1)
-            for k in range(n_batches):
-                n_valid = min(batch, samples - k * batch)
-                key = jax.random.fold_in(jax.random.fold_in(root, ii), k)
-                s1, s2, side, alive, ev, split = run_batch(
-                    cfg, arr, det, key, wi, n_valid, lanes=lanes, paths=batch, n_out=n_out,
-                    n_up=n_up)
-                S1[..., sl] += np.asarray(s1)
-                S2[..., sl] += np.asarray(s2)
-                E1[..., sl] += np.asarray(side)
-                if split is not None:
-                    Q1[..., sl] += np.asarray(split[0])
-                    Q2[..., sl] += np.asarray(split[1])
-                    F1[..., sl] += np.asarray(split[2])
-                truncated += int(alive)
-                events += int(ev)
-                prog.add(n_valid, f"θi = {ti:g}°")
+        for ci, stack in enumerate(stacks):
+            sl = slice(None) if len(stacks) == 1 else slice(ci, ci + 1)
+            t = run(stack, det, wi, samples, seed_words(seed, ii, ci), n_out, n_up,
+                    launch=batch_size, on_launch=lambda n, ti=ti: prog.add(n, f"θi = {ti:g}°"))
+            S1[..., sl] += t.s1
+            S2[..., sl] += t.s2
+            E1[..., sl] += t.side
+            if t.split is not None:
+                Q1[..., sl] += t.split[0]
+                Q2[..., sl] += t.split[1]
+                F1[..., sl] += t.split[2]
+            truncated += t.truncated
+            events += t.events
         N = float(samples)
         # the split-off reflections are order 0, where the walk itself leaves no reflection
         # (every path that returns has bounced), and independent of the walk: their
@@ -427,7 +375,7 @@ def _simulate(scene, samples, seed, batch_size, max_events, dtype, progress):
         if scene.detector.estimator == "point":
             # a value every path gives alike (one rough interface: the first event's exact
             # BSDF) has no Monte Carlo spread; it is known to the paths' float32 rounding
-            floor = float(np.finfo(np.dtype(dtype)).eps)
+            floor = float(np.finfo(np.float32).eps)
             sigma = np.maximum(sigma, floor * np.abs(value))
             sig_order = np.maximum(sig_order, floor * np.abs(by_order))
         all_rows.append((ti, pi_, rows, value, sigma, by_order, sig_order))

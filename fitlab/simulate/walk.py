@@ -1,67 +1,51 @@
-"""Vectorized random walk through a layer stack, in JAX.
+"""The random walk through a layer stack, in Dr.Jit: one megakernel per stack structure.
 
-One call of :func:`run_batch` traces a fixed number of paths for one incident direction on a
-fixed number of lanes inside one ``lax.while_loop`` (one scattering event per iteration, every
-lane masked by ``alive``; a lane whose path ends starts the next path) and returns the tallies
-in float64: per bounce-order class and detector bin, the sum and the sum of squares of the path
-contributions. Paths are float32 (``WalkConfig.dtype``); only what the effect plan asks for is
-compiled (``WalkConfig`` is static).
+Every path is one lane of a symbolic ``dr.while_loop`` (one scattering event per iteration)
+that runs on Dr.Jit's LLVM backend (all CPU cores) or its CUDA backend (engine.py), calling the
+stack's boundaries and phase functions (components.py: Mitsuba 3's own plugins where Mitsuba
+has them). The loop writes each path's exit — direction, flux weight per channel, bounce order
+— or, for point estimates, its running sums of next-event connections, into per-path slots;
+the host sums them in float64 in path order (:func:`tally_exits`), so the same seed gives the
+same bytes whatever the thread count (no unordered floating-point atomics).
 
 Geometry (scene.py): regions 0..M+1 (0 = outside, M+1 = below), boundary b between regions b
 and b+1. A path has a region, a depth ``z`` below the region's top, a propagation direction
 ``w`` and a weight per channel. Each iteration: a path in a medium flies (free-flight sampling
 by σs when volume scattering is compiled, Beer–Lambert weights for absorption); it either
-scatters in the volume (phase function sampled exactly, fitlab/phase.py) or meets a boundary,
-where the boundary's BSDF is sampled with the existing models (rough dielectric: Walter
-section 5.3 through fitlab.models.rough_dielectric.MODEL.sample, weight eq. 41; rough
-conductor: fitlab.models.rough_conductor.MODEL.sample; Lambertian: cosine sampling; smooth
-dielectric: Fresnel choice between mirror and Snell directions, fitlab.fresnel.fresnel_dielectric). Paths that leave into region 0 upward or region M+1
-downward exit; their final direction and weight are tallied after the loop.
+scatters in the volume (the phase function sampled exactly) or meets a boundary, whose BSDF is
+sampled (flux transport: the weight is the fraction of flux carried). Paths that leave into
+region 0 upward or region M+1 downward exit.
 
 Point estimates (``detector = "points"``): next-event estimation toward exact outgoing
-directions d_o, in the manner of position-free Monte Carlo (Guo, Hašan, Zhao 2018, which
-connects every vertex of a layered walk to the outgoing direction). Every path that leaves along
-d_o has a last non-specular event; after it only specular boundaries (or none) lie between the
-path and the outside, so the direction it must take there is fixed by d_o: reverse refraction
-through the specular boundaries (fitlab.fresnel.fresnel_dielectric) gives the direction d inside
-and the flux factor (1 − F) (η_exit/η_inside)² |cos θo| / |cos θd| of each crossing
-(solid-angle compression). At each event that can be that last event — the first rough boundary
-k from the outside (reflection there from the outside's side, transmission toward the outside
-from the other side) and volume scattering between it and the outside — the walk adds
-β · f_event(−w, d) |cos θd| (a boundary's BSDF, radiance convention, as its sampler) or
-β · p(−w, d) (a phase function) times the transmittance along d to the outside and the crossing
-factors: the flux fraction per steradian leaving along d_o, whose expectation is
-f(wi, d_o) |cos θo| (detectors.py divides by |cos θo|). Where a specular boundary between k and
-the outside could send light back toward the outside, the estimate would miss light: such
-stacks are refused (detectors.point_connections). A path leaving by itself reaches an exact
-direction with probability 0, so it adds nothing; but the events right behind a rough
-dielectric k (volume scattering in the region behind it, events at that region's far boundary)
-reach k two ways: the walk's own path crossing k (its BTDF evaluated toward d: noisy when k is
-sharp) and a connection from the vertex through a reverse sample of k's BSDF (noisy when the
-vertex is sharp). The two are combined with the balance heuristic (:func:`_connect`). Each
-path's connections are summed per lane and per bounce-order class, and a lane's sums go to the
-float64 totals (and their squares to the second moments) when its path ends, so the standard
-error is that of the per-path estimate.
+directions d_o, in the manner of position-free Monte Carlo (Guo, Hašan, Zhao 2018). Every path
+that leaves along d_o has a last non-specular event; after it only specular boundaries (or none)
+lie between the path and the outside, so the direction it must take there is fixed by d_o:
+reverse refraction through the specular exit boundary gives the direction d inside and the flux
+factor (1 − F) (η_exit/η_inside)² |cos θo| / |cos θd| of the crossing (:func:`point_sides`). At
+each event that can be that last event — the first rough boundary k from the outside and volume
+scattering between it and the outside — the walk adds β · f_event(−w, d)|cos θd| (a boundary's
+BSDF, radiance convention) or β · p(−w, d) (a phase function) times the transmittance along d
+to the outside and the crossing factors: the flux fraction per steradian leaving along d_o,
+whose expectation is f(wi, d_o)|cos θo|. The events right behind a rough dielectric k reach k
+two ways, the walk's own crossing of k (its BTDF evaluated toward d) and a connection from the
+vertex through a reverse sample of k's BSDF; the two are combined with the balance heuristic
+(Veach 1997, ch. 9), as :func:`_connect` says. Stacks where a specular boundary could send
+light back toward the outside between k and the exit are refused (detectors.point_connections).
 
 Bounce order: the number of turns from downward to upward travel below the top interface (the
-extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface reflection);
-tallied in four classes 0, 1, 2, ≥3.
+extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface
+reflection); tallied in four classes 0, 1, 2, ≥3.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
+import numpy as np
 
-from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric, fresnel_schlick
-from fitlab.frame import normalize
-from fitlab.models import rough_conductor, rough_dielectric
-from fitlab.models.rough_dielectric import CHOOSE, REFLECT, REFRACT
-from fitlab.phase import PHASE_FUNCTIONS, sggx_sigma
+from fitlab.simulate import components as comp
+from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT
 
 #: Bounce-order classes tallied separately: 0, 1, 2, ≥ 3.
 ORDER_CLASSES = ("order0", "order1", "order2", "rest")
@@ -69,14 +53,18 @@ ORDER_CLASSES = ("order0", "order1", "order2", "rest")
 RR_START = 3
 #: Smallest survival probability of Russian roulette.
 RR_MIN_Q = 0.05
+#: Paths per launch of the kernel for exit tallies (per-path exit slots: ~32 bytes a path).
+LAUNCH_PATHS = 1 << 20
+#: Memory of the per-path point-estimate sums of one launch (bytes).
+POINT_LAUNCH_BYTES = 64 << 20
 
 
 class WalkConfig(NamedTuple):
-    """Static description of the walk (hashable: one compilation per distinct config)."""
+    """Static description of the walk: what is compiled (one kernel per distinct config)."""
 
     n_media: int
-    boundary_groups: tuple  # per boundary: "pass", "smooth", "rough:<dist>", "lambertian", "conductor:<dist|smooth>"
-    region_phase: tuple  # per region 0..M+1: None, "isotropic", "hg", "sggx"
+    boundaries: tuple  # components.BoundarySpec per boundary 0..M
+    region_phase: tuple  # per region 0..M+1: None or a key of components.PHASES
     channels: int
     reflection: bool
     transmission: bool
@@ -92,7 +80,6 @@ class WalkConfig(NamedTuple):
     detector: str  # "bins", "cones" or "points"
     theta_bins: int
     phi_bins: int
-    dtype: str = "float32"
     # points: the boundary where the reflection side connects (first rough one from the top;
     # n_media + 1: volume events only) and the transmission side (last rough one; -1: volume
     # only); None: that side has no requested direction
@@ -102,395 +89,223 @@ class WalkConfig(NamedTuple):
     force_top: bool = False
     force_bottom: bool = False
     # splitting at the first interface (effects.EffectPlan.split_first): the walk's first
-    # crossing refracts (weight 1 − F); the reflected branch is tallied apart (run_batch)
+    # crossing refracts (weight 1 − F); the reflected branch is tallied apart
     split_first: bool = False
     # SGGX flakes with a Schlick reflectance f0 < 1 somewhere (WalkArrays.flake_f0)
     flake_fresnel: bool = False
 
 
 class WalkArrays(NamedTuple):
-    """Per-region and per-boundary properties (a pytree of arrays, float32)."""
+    """Per-region and per-boundary values (NumPy; kernel inputs, never compiled constants)."""
 
-    thickness: jax.Array  # (R,)
-    sigma_a: jax.Array  # (R, C)
-    sigma_s: jax.Array  # (R,) scattering coefficient used for free flights
-    sigma_s_c: jax.Array  # (R, C) σs per channel (extinction-only attenuation)
-    hg_g: jax.Array  # (R,)
-    sggx_S: jax.Array  # (R, 3, 3)
-    alpha: jax.Array  # (Bd,) width (along +x when anisotropic)
-    alpha_y: jax.Array  # (Bd,) width along +y (= alpha when isotropic)
-    eta: jax.Array  # (Bd,) n_below / n_above
-    albedo: jax.Array  # (Bd, C)
-    cond_n: jax.Array  # (Bd, C) relative to the medium above
-    cond_k: jax.Array  # (Bd, C)
-    flake_f0: jax.Array  # (R, C) Schlick reflectance of SGGX flakes (1: none)
+    thickness: np.ndarray  # (R,)
+    sigma_a: np.ndarray  # (R, 3)
+    sigma_s: np.ndarray  # (R,) scattering coefficient used for free flights
+    sigma_s_c: np.ndarray  # (R, 3) σs per channel (extinction-only attenuation)
+    phase_values: tuple  # per region: the phase builder's values ({"g": ...}, {"S": ...}) or None
+    sggx_S: np.ndarray  # (R, 3, 3) (identity where no SGGX medium)
+    boundary_values: tuple  # components.BoundaryValues per boundary
+    eta: np.ndarray  # (Bd,) n_below / n_above
+    flake_f0: np.ndarray  # (R, 3) Schlick reflectance of SGGX flakes (1: none)
 
 
 class Detector(NamedTuple):
     """Per-incidence detector arrays: cones (R, 3) directions and cos of the half angle (R,);
-    points: the requested directions (R, 3) (cone_cos unused); for bins these are unused
-    (size-1 placeholders)."""
+    points: the requested directions (R, 3), reflection rows first (cone_cos unused); bins:
+    unused."""
 
-    cone_dir: jax.Array
-    cone_cos: jax.Array
-
-
-class State(NamedTuple):
-    region: jax.Array
-    z: jax.Array
-    w: jax.Array
-    weight: jax.Array
-    alive: jax.Array
-    exited: jax.Array
-    bounces: jax.Array
-    vol_events: jax.Array
-    events: jax.Array
-    diffuse: jax.Array
-    # the next event's sampled outcomes (see _propose), carried in the loop state
-    prop_wv: jax.Array  # (B, 3) direction after a volume scattering event
-    prop_wb: jax.Array  # (B, 3) direction after the boundary the path travels toward
-    prop_fb: jax.Array  # (B, C) weight factor of that boundary event
-    prop_db: jax.Array  # (B,) whether that boundary event is non-specular
-    # point estimates only (zeros otherwise): the densities of the proposed directions and the
-    # density with which the path's last event sampled its current direction (0: specular)
-    prop_pv: jax.Array  # (B,)
-    prop_pb: jax.Array  # (B,)
-    last_pdf: jax.Array  # (B,)
+    cone_dir: np.ndarray
+    cone_cos: np.ndarray
 
 
-def _flip_z(w):
-    return w * jnp.asarray([1.0, 1.0, -1.0], dtype=w.dtype)
+class Exits(NamedTuple):
+    """Per path: the exit direction (P, 3), the tallied flux weight (P, C) (0: not tallied) and
+    the bounce order (P,)."""
 
-
-def _smooth_dielectric(w, eta, u, force=None):
-    """Smooth interface met by propagation direction w: reflect with probability F (Walter
-    eq. 22, TIR included), else refract by Snell's law; both from one
-    :func:`fitlab.fresnel.fresnel_dielectric` (eta = n_below / n_above; the light comes from
-    above when w.z < 0, i.e. the incident direction -w has a positive cosine). Returns the new
-    direction and the weight factor: 1, or with ``force`` (per lane: CHOOSE, REFLECT, REFRACT
-    as in :func:`fitlab.models.rough_dielectric.walter_sample`) F or 1 − F for a forced
-    branch."""
-    F, cos_t, _, eta_ti = fresnel_dielectric(-w[..., 2], eta)
-    w_t = jnp.stack([w[..., 0] * eta_ti, w[..., 1] * eta_ti, cos_t], axis=-1)
-    reflect = u < F
-    factor = jnp.ones_like(F)
-    if force is not None:
-        reflect = jnp.where(force == CHOOSE, reflect, force == REFLECT)
-        factor = jnp.where(force == CHOOSE, 1.0, jnp.where(reflect, F, 1.0 - F))
-    return jnp.where(reflect[..., None], _flip_z(w), w_t), factor
-
-
-def _forced_branch(cfg, st, b):
-    """Per lane, the branch forcing at boundary b (None when the walk forces nothing): the top
-    boundary refracts light from outside and reflects light from inside when reflection is not
-    observed; the bottom boundary reflects light from above when transmission is not."""
-    if not (cfg.force_top or cfg.force_bottom or cfg.split_first):
-        return None
-    down = st.w[:, 2] < 0
-    force = jnp.full(b.shape, CHOOSE, jnp.int32)
-    if cfg.force_bottom:
-        force = jnp.where((b == cfg.n_media) & down, REFLECT, force)
-    if cfg.force_top:
-        force = jnp.where(b == 0, jnp.where(down, REFRACT, REFLECT), force)
-    if cfg.split_first:  # the first crossing, from outside: its reflection is tallied apart
-        force = jnp.where((b == 0) & down & (st.region == 0), REFRACT, force)
-    return force
-
-
-def _rough(module, group, alpha, alpha_y):
-    """The microfacet model (isotropic or anisotropic) of a rough boundary group
-    ("ggx" or "ggx:anisotropic") and its width parameters."""
-    if group.endswith(":anisotropic"):
-        return module.ANISOTROPIC, {"alpha_x": alpha, "alpha_y": alpha_y}
-    return module.MODEL, {"alpha": alpha}
-
-
-def _boundary_event(cfg, arr, st, b, u, force=None):
-    """New propagation direction, weight factor (B, C), whether the event is non-specular and
-    the density of the sampled direction per solid angle (0 for a specular event), for every
-    path meeting boundary b (B,). ``force``: the branch forcing per lane (default: the walk's,
-    :func:`_forced_branch`)."""
-    dt = st.w.dtype
-    B = st.w.shape[0]
-    C = cfg.channels
-    w = st.w
-    wi = -w  # toward where the light came from
-    new_w = w
-    factor = jnp.ones((B, C), dtype=dt)
-    diffuse = jnp.zeros((B,), dtype=bool)
-    pdf = jnp.zeros((B,), dtype=dt)
-    groups = cfg.boundary_groups
-    if force is None:
-        force = _forced_branch(cfg, st, b)
-    for g in sorted(set(groups)):
-        ids = [j for j, gj in enumerate(groups) if gj == g]
-        sel = functools.reduce(jnp.logical_or, [b == j for j in ids])
-        if g == "pass":
-            continue
-        gp = jnp.zeros((B,), dtype=dt)
-        if g == "smooth":
-            gw, wt = _smooth_dielectric(w, arr.eta[b], u[:, 2], force)
-            gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.zeros((B,), dtype=bool)
-        elif g.startswith("rough:"):
-            model, params = _rough(rough_dielectric, g[6:], arr.alpha[b], arr.alpha_y[b])
-            params = {**params, "eta": arr.eta[b]}
-            gw, wt, gp = rough_dielectric.walter_sample(
-                model.microfacet(params, g[6:].split(":")[0]), params, wi, u[:, 0:3],
-                force=force)
-            gf, gd = jnp.broadcast_to(wt[:, None], (B, C)), jnp.ones((B,), dtype=bool)
-        elif g == "lambertian":
-            # cosine-weighted hemisphere (Malley), weight = albedo
-            r = jnp.sqrt(u[:, 0])
-            phi = 2.0 * jnp.pi * u[:, 1]
-            z = jnp.sqrt(jnp.maximum(1.0 - u[:, 0], 0.0))
-            gw = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi), z], axis=-1)
-            gf, gd, gp = arr.albedo[b], jnp.ones((B,), dtype=bool), z / jnp.pi
-        elif g == "conductor:smooth":
-            gw = _flip_z(w)
-            gf = fresnel_conductor_exact(jnp.abs(w[:, 2:3]), arr.cond_n[b], arr.cond_k[b])
-            gd = jnp.zeros((B,), dtype=bool)
-        elif g.startswith("conductor:"):
-            model, params = _rough(rough_conductor, g[10:], arr.alpha[b][:, None],
-                                   arr.alpha_y[b][:, None])
-            wo, wt, gp = model.sample({**params, "n": arr.cond_n[b], "k": arr.cond_k[b]},
-                                      wi[:, None, :], u[:, None, 0:3],
-                                      distribution=g[10:].split(":")[0])
-            gw, gf, gd, gp = wo[:, 0, :], wt, jnp.ones((B,), dtype=bool), gp[:, 0]
-        else:  # pragma: no cover - scene.py admits no other kind
-            raise ValueError(g)
-        new_w = jnp.where(sel[:, None], gw, new_w)
-        factor = jnp.where(sel[:, None], gf, factor)
-        diffuse = jnp.where(sel, gd, diffuse)
-        pdf = jnp.where(sel, gp, pdf)
-    return new_w, factor, diffuse, pdf
-
-
-def _volume_event(cfg, arr, st, u):
-    """Phase-function sampling for every path (selected by the caller): the new direction and
-    its density."""
-    wi = -st.w
-    new_w = st.w
-    pdf = jnp.zeros(st.w.shape[:1], st.w.dtype)
-    for kind in sorted({p for p in cfg.region_phase if p is not None}):
-        sel = functools.reduce(jnp.logical_or, [st.region == j for j, p in
-                                               enumerate(cfg.region_phase) if p == kind])
-        sample = PHASE_FUNCTIONS[kind][1]
-        if kind == "hg":
-            params = {"g": arr.hg_g[st.region]}
-        elif kind == "sggx":
-            params = {"S": arr.sggx_S[st.region]}
-        else:
-            params = {}
-        wo, p = sample(params, wi, u)
-        new_w = jnp.where(sel[:, None], wo, new_w)
-        pdf = jnp.where(sel, p, pdf)
-    return new_w, pdf
-
-
-def _projected_area(cfg, arr, st):
-    """σ(w) of SGGX media (SpongeCake eq. 3/7): the directional factor of their coefficients."""
-    if "sggx" not in cfg.region_phase:
-        return jnp.ones_like(st.z)
-    sel = functools.reduce(jnp.logical_or, [st.region == j for j, p in
-                                           enumerate(cfg.region_phase) if p == "sggx"])
-    return jnp.where(sel, sggx_sigma(arr.sggx_S[st.region], st.w), 1.0)
-
-
-def _lowbias32(x):
-    """Chris Wellons' 32-bit integer hash ("lowbias32", bias 0.17 of the best known)."""
-    x = x ^ (x >> 16)
-    x = x * jnp.uint32(0x7FEB352D)
-    x = x ^ (x >> 15)
-    x = x * jnp.uint32(0x846CA68B)
-    return x ^ (x >> 16)
-
-
-def uniforms(seed_words, i, n, k, dtype):
-    """(n, k) uniforms in [0, 1) for iteration i: a counter-based hash of (seed, iteration, lane,
-    slot), so every random number of a walk is a pure function of its coordinates (cheaper on
-    CPU than threefry, which cost a sixth of a walk step). 24 random bits each: the smallest
-    nonzero 1 - u is 2^-24, so a sampled free flight is cut at 16.6 mean free paths
-    (probability 6e-8)."""
-    lane = jnp.arange(n, dtype=jnp.uint32)[:, None]
-    slot = jnp.arange(k, dtype=jnp.uint32)[None, :]
-    h = _lowbias32(seed_words[0] ^ _lowbias32(i.astype(jnp.uint32) + jnp.uint32(0x9E3779B9)))
-    h = _lowbias32(h ^ (lane * jnp.uint32(0x85EBCA6B) + seed_words[1]))
-    h = _lowbias32(h + slot * jnp.uint32(0xC2B2AE35))
-    return (h >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype=dtype)
-
-
-def _propose(cfg, arr, key, i, st):
-    """Sample the outcomes iteration i needs from the state at its start: the direction after a
-    volume event (if volume code is compiled) and the event at the boundary the path travels
-    toward. They are stored in the loop state, so XLA materializes them once per iteration:
-    computed inside the step, the sampling chains were fused into each of their many consumers
-    and evaluated several times over (7 copies of the phase function's sin/cos in the compiled
-    step, whose transcendental functions XLA:CPU evaluates in scalar code)."""
-    dt = st.w.dtype
-    B = st.w.shape[0]
-    u = uniforms(key, i, B, 8, dt)
-    down = st.w[:, 2] < 0
-    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, cfg.n_media)
-    w_b, f_b, diff_b, p_b = _boundary_event(cfg, arr, st, b, u[:, 0:3])
-    w_v, p_v = _volume_event(cfg, arr, st, u[:, 4:6]) if cfg.volume else (st.prop_wv, st.prop_pv)
-    if cfg.detector != "points":  # the densities serve the point estimates' weights only
-        p_b, p_v = st.prop_pb, st.prop_pv
-    return st._replace(prop_wv=w_v, prop_wb=w_b, prop_fb=f_b, prop_db=diff_b, prop_pv=p_v,
-                       prop_pb=p_b)
-
-
-def _step(cfg, arr, key, i, st, pts=None):
-    """One event of every live lane, with the outcomes sampled by ``_propose(..., i, st)``.
-    With ``pts`` (:func:`_point_setup`), also the next-event connections of this event to the
-    requested directions: returns (state, contributions (B, 4, R, C)); else the state."""
-    dt = st.w.dtype
-    B = st.w.shape[0]
-    M = cfg.n_media
-    u = uniforms(key, i, B, 8, dt)
-    wz = st.w[:, 2]
-    down = wz < 0
-    in_medium = st.alive & (st.region >= 1) & (st.region <= M)
-
-    # --- flight through the current medium -------------------------------------------------
-    thick = arr.thickness[st.region]
-    abs_wz = jnp.abs(wz)
-    horizontal = abs_wz < 1e-7
-    safe_wz = jnp.where(horizontal, 1.0, abs_wz)
-    d_boundary = jnp.where(down, thick - st.z, st.z) / safe_wz
-    d_boundary = jnp.where(in_medium, jnp.maximum(d_boundary, 0.0), 0.0)
-    proj = _projected_area(cfg, arr, st) if (cfg.volume or cfg.absorption or cfg.extinction_only) \
-        else None
-    scatter = jnp.zeros((B,), dtype=bool)
-    d = d_boundary
-    factor = jnp.ones_like(st.weight)
-    if cfg.volume:
-        sig_s = arr.sigma_s[st.region] * proj
-        can = sig_s > 0
-        if cfg.volume_limit >= 0:
-            can = can & (st.vol_events < cfg.volume_limit)
-        t = -jnp.log1p(-u[:, 3]) / jnp.where(can, sig_s, 1.0)
-        scatter = in_medium & can & (t < d_boundary)
-        d = jnp.where(scatter, t, d_boundary)
-        if cfg.volume_limit >= 0:
-            # after the allowed events σs only attenuates (the unscattered part of the light)
-            lost = in_medium & ~can
-            factor = factor * jnp.exp(-jnp.where(lost, sig_s * d, 0.0))[:, None]
-    if cfg.absorption:
-        sig_a = arr.sigma_a[st.region] * proj[:, None]
-        factor = factor * jnp.exp(-jnp.where(in_medium[:, None], sig_a * d[:, None], 0.0))
-    if cfg.extinction_only:
-        sig = arr.sigma_s_c[st.region] * proj[:, None]
-        factor = factor * jnp.exp(-jnp.where(in_medium[:, None], sig * d[:, None], 0.0))
-    z = jnp.where(in_medium, st.z - d * wz, st.z)
-    weight = st.weight * factor
-    alive = st.alive & ~(in_medium & horizontal & ~scatter)  # a horizontal flight never ends
-
-    # --- next-event connections of this event to the requested directions --------------------
-    hit = alive & ~scatter
-    b = jnp.clip(jnp.where(down, st.region, st.region - 1), 0, M)
-    nee = None if pts is None else _connect(cfg, arr, pts, st, weight, z, scatter & alive, hit,
-                                            b, key, i)
-
-    # --- volume scattering -------------------------------------------------------------------
-    w = st.w
-    vol_events = st.vol_events
-    diffuse = st.diffuse
-    if cfg.volume:
-        w_v = st.prop_wv
-        if cfg.flake_fresnel:
-            weight = weight * jnp.where(scatter[:, None], _flake_F(
-                cfg, arr, st.region, -st.w[:, None], w_v[:, None])[:, 0], 1.0)
-        w = jnp.where(scatter[:, None], w_v, w)
-        vol_events = vol_events + scatter.astype(jnp.int32)
-        diffuse = diffuse | scatter
-
-    # --- boundary events ---------------------------------------------------------------------
-    w_b, f_b, diff_b = st.prop_wb, st.prop_fb, st.prop_db
-    w = jnp.where(hit[:, None], w_b, w)
-    weight = jnp.where(hit[:, None], weight * f_b, weight)
-    diffuse = diffuse | (hit & diff_b)
-    last_pdf = st.last_pdf
-    if pts is not None:
-        last_pdf = jnp.where(scatter, st.prop_pv, jnp.where(hit, jnp.where(diff_b, st.prop_pb, 0.0),
-                                                            last_pdf))
-    # float32 rounding of the sampled directions would compound over long paths (the phase
-    # functions' local frames assume unit vectors): renormalize after every event
-    w = normalize(w)
-    up_new = w[:, 2] > 0
-    region = jnp.where(hit, jnp.where(up_new, b, b + 1), st.region)
-    z = jnp.where(hit, jnp.where(up_new, arr.thickness[b], 0.0), z)
-
-    # --- bounce order: a downward → upward turn below the top interface --------------------
-    turned = alive & down & up_new & (scatter | (b >= 1))
-    bounces = st.bounces + turned.astype(jnp.int32)
-
-    # --- exits -------------------------------------------------------------------------------
-    out_top = alive & (region == 0) & up_new
-    out_bottom = alive & (region == M + 1) & ~up_new
-    leaving = out_top | out_bottom
-    tallied = (out_top & cfg.reflection) | (out_bottom & cfg.transmission)
-    if not cfg.delta:
-        tallied = tallied & diffuse
-    if cfg.max_bounces >= 0:
-        tallied = tallied & (bounces <= cfg.max_bounces)
-    exited = st.exited | tallied
-    alive = alive & ~leaving
-
-    # --- what can no longer reach an observed quantity ends here ---------------------------
-    if cfg.max_bounces >= 0:
-        alive = alive & (bounces <= cfg.max_bounces)
-        if cfg.end_downward_after_last_bounce:
-            alive = alive & ~((bounces == cfg.max_bounces) & ~up_new & (region >= 1))
-    alive = alive & jnp.any(weight > 0, axis=1)
-    events = st.events + alive.astype(jnp.int32)
-    if cfg.russian_roulette:
-        q = jnp.clip(jnp.max(weight, axis=1), RR_MIN_Q, 1.0)
-        play = alive & (events > RR_START)
-        survive = u[:, 7] < q
-        alive = alive & (~play | survive)
-        weight = jnp.where((play & survive)[:, None], weight / q[:, None], weight)
-    new = st._replace(region=region, z=z, w=w, weight=weight, alive=alive, exited=exited,
-                      bounces=bounces, vol_events=vol_events, events=events, diffuse=diffuse,
-                      last_pdf=last_pdf)
-    return new if pts is None else (new, nee)
+    w: np.ndarray
+    x: np.ndarray
+    order: np.ndarray
 
 
 # --------------------------------------------------------------------------------------------
-# Point estimates: next-event connections (module text, "Point estimates")
+# The stack on the device: components and region arrays as kernel inputs
 # --------------------------------------------------------------------------------------------
+
+
+class Stack:
+    """The compiled walk's inputs: boundary and phase objects, region arrays (opaque)."""
+
+    def __init__(self, cfg: WalkConfig, arr: WalkArrays):
+        import drjit as dr
+        import mitsuba as mi
+
+        M = cfg.n_media
+        self.cfg = cfg
+        self.arr = arr
+        forceable = {0: cfg.force_top or cfg.split_first, M: cfg.force_bottom}
+        self.boundary = [comp.make_boundary(s, v, forceable.get(j, False))
+                         for j, (s, v) in enumerate(zip(cfg.boundaries, arr.boundary_values))]
+        self.phase = [None if p is None else comp.PHASES[p](v)
+                      for p, v in zip(cfg.region_phase, arr.phase_values)]
+        F = _device_floats
+        self.thickness = F(arr.thickness)
+        self.sigma_a = F(arr.sigma_a)
+        self.sigma_s = F(arr.sigma_s)
+        self.sigma_s_c = F(arr.sigma_s_c)
+        self.flake_f0 = F(arr.flake_f0)
+        self.eta = [dr.opaque(mi.Float, float(e)) for e in arr.eta]
+
+    def region_f(self, table, region, active=True):
+        import drjit as dr
+        import mitsuba as mi
+
+        return dr.gather(mi.Float, table, mi.UInt32(region), active)
+
+    def region_c(self, table, region, active=True):
+        import drjit as dr
+        import mitsuba as mi
+
+        idx = mi.UInt32(region) * 3
+        return mi.Spectrum(dr.gather(mi.Float, table, idx, active),
+                           dr.gather(mi.Float, table, idx + 1, active),
+                           dr.gather(mi.Float, table, idx + 2, active))
+
+    def projected_area(self, region, w, active):
+        """σ(w) of the SGGX medium of each lane's region (SpongeCake eq. 3/7), else 1."""
+        import drjit as dr
+        import mitsuba as mi
+
+        proj = mi.Float(1.0)
+        for j, ph in enumerate(self.phase):
+            if self.cfg.region_phase[j] == "sggx":
+                proj = dr.select(region == j, ph.projected_area(w, active), proj)
+        return proj
+
+    def sigma_t_along(self, region, w, active):
+        """σt per channel of each lane's region along w: what attenuates an unscattered flight
+        (σs when volume scattering or extinction-only is compiled, σa when absorption is),
+        with the SGGX projected area σ(w)."""
+        import mitsuba as mi
+
+        cfg = self.cfg
+        base = mi.Spectrum(0.0)
+        if cfg.volume or cfg.extinction_only:
+            base = base + self.region_c(self.sigma_s_c, region, active)
+        if cfg.absorption:
+            base = base + self.region_c(self.sigma_a, region, active)
+        return base * self.projected_area(region, w, active)
+
+    def boundary_sample(self, b, wi, s1, s2, force, active, need_pdf):
+        """Sample the boundary b of each lane: (wo, weight, pdf, nonspecular)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        wo = -wi
+        weight = mi.Spectrum(1.0)
+        pdf = mi.Float(0.0)
+        nonspec = mi.Bool(False)
+        for j, bd in enumerate(self.boundary):
+            if bd is None:
+                continue
+            sel = active & (b == j)
+            w_j, f_j, p_j = bd.sample(wi, s1, s2, force, sel, need_pdf)
+            wo = dr.select(sel, w_j, wo)
+            weight = dr.select(sel, f_j, weight)
+            pdf = dr.select(sel, p_j, pdf)
+            nonspec = nonspec | (sel & bd.nonspecular)
+        return wo, weight, pdf, nonspec
+
+    def phase_sample(self, region, wi, s1, s2, active):
+        import drjit as dr
+        import mitsuba as mi
+
+        wo = -wi
+        pdf = mi.Float(0.0)
+        for j, ph in enumerate(self.phase):
+            if ph is None:
+                continue
+            sel = active & (region == j)
+            w_j, _, p_j = ph.sample(wi, s1, s2, sel)
+            wo = dr.select(sel, w_j, wo)
+            pdf = dr.select(sel, p_j, pdf)
+        return wo, pdf
+
+    def phase_eval(self, region, wi, wo, active, regions=None):
+        import drjit as dr
+        import mitsuba as mi
+
+        p = mi.Float(0.0)
+        for j, ph in enumerate(self.phase):
+            if ph is None or (regions is not None and j not in regions):
+                continue
+            sel = active & (region == j)
+            p = dr.select(sel, ph.eval(wi, wo, sel), p)
+        return p
+
+    def flake_F(self, region, wi, wo, active):
+        """Schlick(f0, |h·wi|) of each lane's region's flakes for the scattering wi → wo, h the
+        flake normal (wi + wo normalised): F(h) of SpongeCake eq. 5 (Table 2: f0 = 1, no
+        Fresnel term); 1 without ``cfg.flake_fresnel``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        if not self.cfg.flake_fresnel:
+            return mi.Spectrum(1.0)
+        h = dr.normalize(wi + wo)
+        c = dr.abs(dr.dot(wi, h))
+        f0 = self.region_c(self.flake_f0, region, active)
+        return f0 + (1.0 - f0) * dr.power(1.0 - dr.clip(c, 0.0, 1.0), 5.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Point estimates: the requested directions' connection data (host side, per incidence)
+# --------------------------------------------------------------------------------------------
+
+
+def _fresnel_np(cos_i, eta):
+    """Walter eq. 22 with the refracted cosine, for a boundary of relative index eta = n_below /
+    n_above met from the side of cos_i's sign (NumPy): (F, cos_t, eta_ti)."""
+    cos_i = np.asarray(cos_i, dtype=float)
+    e = np.where(cos_i >= 0, eta, 1.0 / eta)  # η_t / η_i
+    c = np.abs(cos_i)
+    cos_t2 = 1.0 - (1.0 - c * c) / (e * e)
+    tir = cos_t2 <= 0
+    ct = np.sqrt(np.maximum(cos_t2, 0.0))
+    rs = (c - e * ct) / np.maximum(c + e * ct, 1e-300)
+    rp = (e * c - ct) / np.maximum(e * c + ct, 1e-300)
+    F = np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
+    cos_t = np.where(tir, 0.0, -np.sign(np.where(cos_i == 0, 1.0, cos_i)) * ct)
+    return F, cos_t, 1.0 / e
 
 
 class PointSide(NamedTuple):
-    """One side's connection data for the requested directions (R of them)."""
+    """One side's connection data for its requested directions (R of them)."""
 
-    d: jax.Array  # (R, 3) propagation direction inside, just past the connecting event
-    chain: jax.Array  # (R,) crossing factors of the specular boundaries to the outside
-    sigma_t: jax.Array  # (regions, R, C) extinction along d per region
-    depth: jax.Array  # (regions, R, C) optical depth of the regions between a region and the exit
+    d: np.ndarray  # (R, 3) propagation direction inside, just past the connecting event
+    chain: np.ndarray  # (R,) crossing factors of the specular boundaries to the outside
+    sigma_t: np.ndarray  # (regions, R, 3) extinction along d per region
+    depth: np.ndarray  # (regions, R, 3) optical depth of the regions between a region and the exit
+    exit_t: np.ndarray  # (R, 3) transmittance from the connecting boundary k to the outside
 
 
-def _extinction(cfg, arr, d):
-    """σt (regions, R, C) of every region along directions d (R, 3) (:func:`_sigma_t_along`)."""
+def _sigma_t_np(cfg, arr, d):
     regions = arr.thickness.shape[0]
-    return _sigma_t_along(cfg, arr, jnp.arange(regions, dtype=jnp.int32),
-                          jnp.broadcast_to(d[None], (regions,) + d.shape))
+    base = np.zeros((regions, 3))
+    if cfg.volume or cfg.extinction_only:
+        base = base + arr.sigma_s_c
+    if cfg.absorption:
+        base = base + arr.sigma_a
+    proj = np.ones((regions, d.shape[0]))
+    for r, p in enumerate(cfg.region_phase):
+        if p == "sggx":
+            proj[r] = np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", d, arr.sggx_S[r], d), 0.0))
+    return base[:, None, :] * proj[..., None]
 
 
-def _reverse_crossing(wo, eta):
-    """The direction d inside a specular dielectric boundary that leaves along wo (unit, on the
-    outside of the crossing) and the flux factor per solid angle of wo, (1 − F) η_ti² |wo_z| /
-    |d_z| (η_ti = η_exit / η_inside): the reverse ray -wo refracted by Snell's law."""
-    F, cos_t, _, eta_ti = fresnel_dielectric(wo[..., 2], eta)
-    d = -jnp.stack([-wo[..., 0] * eta_ti, -wo[..., 1] * eta_ti, cos_t], axis=-1)
-    factor = (1.0 - F) * eta_ti**2 * jnp.abs(wo[..., 2]) / jnp.where(cos_t == 0, 1.0,
-                                                                       jnp.abs(cos_t))
-    return normalize(d), jnp.where(cos_t == 0, 0.0, factor)
-
-
-def _point_setup(cfg, arr, wo_all, n_up):
-    """Per side, the connection data of its requested directions: the reflection side's are
-    the first ``n_up`` rows of ``wo_all`` (wo_z > 0), the transmission side's the rest. A side
-    without rows is left out; a side with rows but not simulated gets its row count (zeros)."""
+def point_sides(cfg: WalkConfig, arr: WalkArrays, wo_all: np.ndarray, n_up: int) -> dict:
+    """Per side ("up", "down"), the connection data of its requested directions: the reflection
+    side's are the first ``n_up`` rows of ``wo_all``, the transmission side's the rest. A side
+    without rows is left out; a side with rows but not simulated maps to its row count."""
     M = cfg.n_media
     out = {}
     for side, k, wo in (("up", cfg.point_up, wo_all[:n_up]), ("down", cfg.point_down,
@@ -502,434 +317,658 @@ def _point_setup(cfg, arr, wo_all, n_up):
             continue
         observed = wo[:, 2] > 0 if side == "up" else wo[:, 2] < 0
         exit_b = 0 if side == "up" else M
-        connect_at_exit = (k == exit_b) or cfg.boundary_groups[exit_b] == "pass"
-        if connect_at_exit:
-            d, chain = wo, jnp.ones(wo.shape[:1], wo.dtype)
-        else:  # a specular dielectric between the connection and the outside
-            d, chain = _reverse_crossing(wo, arr.eta[exit_b])
-        chain = jnp.where(observed, chain, 0.0)
-        sig = _extinction(cfg, arr, d)
-        tau = sig * arr.thickness[:, None, None] / jnp.maximum(jnp.abs(d[:, 2]), 1e-30)[None, :, None]
+        if k == exit_b or cfg.boundaries[exit_b].kind == "pass":
+            d, chain = wo.copy(), np.ones(wo.shape[0])
+        else:  # a specular dielectric between the connection and the outside: -wo refracted
+            F, cos_t, eta_ti = _fresnel_np(wo[:, 2], arr.eta[exit_b])
+            d = -np.stack([-wo[:, 0] * eta_ti, -wo[:, 1] * eta_ti, cos_t], axis=-1)
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            chain = np.where(cos_t == 0, 0.0, (1.0 - F) * eta_ti**2 * np.abs(wo[:, 2])
+                             / np.where(cos_t == 0, 1.0, np.abs(cos_t)))
+        chain = np.where(observed, chain, 0.0)
+        sig = _sigma_t_np(cfg, arr, d)
+        tau = sig * arr.thickness[:, None, None] / np.maximum(np.abs(d[:, 2]), 1e-30)[None, :, None]
         if side == "up":  # the regions above region r: 1 .. r-1
-            depth = jnp.cumsum(tau, axis=0) - tau
+            depth = np.cumsum(tau, axis=0) - tau
+            r_b, z_b = k, (arr.thickness[min(k, M + 1)] if k <= M else 0.0)
         else:  # the regions below region r: r+1 .. M
-            depth = jnp.flip(jnp.cumsum(jnp.flip(tau, 0), axis=0), 0) - tau
-        out[side] = PointSide(d, chain, sig, depth)
+            depth = np.flip(np.cumsum(np.flip(tau, 0), axis=0), 0) - tau
+            r_b, z_b = k + 1, 0.0
+        length = z_b if side == "up" else arr.thickness[r_b] - z_b
+        exit_od = depth[r_b] + sig[r_b] * (length / np.maximum(np.abs(d[:, 2]), 1e-30))[:, None]
+        exit_t = np.exp(-exit_od) * chain[:, None]
+        out[side] = PointSide(d, chain, sig, depth, exit_t)
     return out
 
 
-def _boundary_f(cfg, arr, k, wi, d, with_pdf=False):
-    """The BSDF (radiance convention, no cosine) of boundary k from wi (B, R, 3) to d (B, R, 3):
-    (B, R, C); with ``with_pdf`` also the density (B, R) with which the walk samples d there.
-    Boundary k is never specular (the connection boundary or a vertex next to it)."""
-    C = cfg.channels
-    g = cfg.boundary_groups[k]
-    if g.startswith("rough:"):
-        model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
-        params = {**params, "eta": arr.eta[k]}
-        dist = g[6:].split(":")[0]
-        f = model.eval(params, wi, d, distribution=dist)
-        f = jnp.broadcast_to(f[..., None], f.shape + (C,))
-        pdf = model.pdf(params, wi, d, distribution=dist) if with_pdf else None
-    elif g == "lambertian":
-        up = (wi[..., 2] > 0) & (d[..., 2] > 0)
-        f = jnp.where(up[..., None], arr.albedo[k] / jnp.pi, 0.0)
-        pdf = jnp.where(up, d[..., 2] / jnp.pi, 0.0) if with_pdf else None
-    elif g.startswith("conductor:") and g != "conductor:smooth":
-        model, params = _rough(rough_conductor, g[10:], arr.alpha[k], arr.alpha_y[k])
-        dist = g[10:].split(":")[0]
-        params = {**params, "n": arr.cond_n[k], "k": arr.cond_k[k]}
-        f = model.eval(params, wi[..., None, :], d[..., None, :], distribution=dist)
-        pdf = model.pdf(params, wi[..., None, :], d[..., None, :],
-                        distribution=dist)[..., 0] if with_pdf else None
-    else:  # pragma: no cover - the caller connects at non-specular boundaries only
-        raise ValueError(f"boundary {k} ({g}) cannot take a next-event connection")
-    return (f, pdf) if with_pdf else f
+# --------------------------------------------------------------------------------------------
+# The kernel
+# --------------------------------------------------------------------------------------------
 
 
-def _phase_p(cfg, arr, region, wi, d, kinds=None):
-    """Phase function of each lane's region from wi (B, R, 3) to d (B, R, 3): (B, R); it is
-    also the density with which the walk samples d (exact phase sampling). ``kinds``: the
-    phase functions to consider (default: every one in the stack)."""
-    p = jnp.zeros(wi.shape[:-1], wi.dtype)
-    if kinds is None:
-        kinds = {q for q in cfg.region_phase if q is not None}
-    for kind in sorted(kinds):
-        sel = functools.reduce(jnp.logical_or, [region == j for j, q in
-                                               enumerate(cfg.region_phase) if q == kind])
-        if kind == "hg":
-            params = {"g": arr.hg_g[region][:, None]}
-        elif kind == "sggx":
-            params = {"S": arr.sggx_S[region][:, None]}
-        else:
-            params = {}
-        p = jnp.where(sel[:, None], PHASE_FUNCTIONS[kind][0](params, wi, d), p)
-    return p
+class _Rows:
+    """One side's requested directions on the device (gathered by row index in the loop)."""
+
+    def __init__(self, ps: PointSide, first: int):
+        import drjit as dr
+        import mitsuba as mi
+
+        F = _device_floats
+        self.n = ps.d.shape[0]
+        self.first = first
+        self.d = F(ps.d)
+        self.sigma_t = F(np.transpose(ps.sigma_t, (1, 0, 2)))  # (R, regions, 3)
+        self.depth = F(np.transpose(ps.depth, (1, 0, 2)))
+        self.exit_t = F(ps.exit_t)
+        self.chain = F(ps.chain)
+        self.regions = ps.sigma_t.shape[0]
+
+    def vec(self, r):
+        import drjit as dr
+        import mitsuba as mi
+
+        i = mi.UInt32(r) * 3
+        return mi.Vector3f(dr.gather(mi.Float, self.d, i), dr.gather(mi.Float, self.d, i + 1),
+                           dr.gather(mi.Float, self.d, i + 2))
+
+    def spec(self, table, idx):
+        import drjit as dr
+        import mitsuba as mi
+
+        i = mi.UInt32(idx) * 3
+        return mi.Spectrum(dr.gather(mi.Float, table, i), dr.gather(mi.Float, table, i + 1),
+                           dr.gather(mi.Float, table, i + 2))
 
 
-def _flake_F(cfg, arr, region, wi, d):
-    """(B, R, C) reflectance of each lane's region's flakes for the scattering wi → d:
-    Schlick(f0, |h·wi|) with h the flake normal (wi + d normalized), the F(h) of SpongeCake
-    eq. 5 (Table 2: f0 = 1, no Fresnel term); 1 outside SGGX media and without
-    ``cfg.flake_fresnel``."""
-    one = jnp.ones(wi.shape[:1] + d.shape[1:-1] + (cfg.channels,), wi.dtype)
-    if not cfg.flake_fresnel:
-        return one
-    h = normalize(wi + d)
-    c = jnp.abs(jnp.sum(wi * h, axis=-1))[..., None]
-    return fresnel_schlick(c, arr.flake_f0[region][:, None, :])
+def _device_floats(a):
+    """A NumPy array as an evaluated Dr.Jit Float (a kernel input)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    v = mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())
+    dr.make_opaque(v)
+    return v
 
 
-def _sigma_t_along(cfg, arr, region, d):
-    """σt (B, R, C) of each lane's region along directions d (B, R, 3): what attenuates an
-    unscattered flight in the walk (σs when volume scattering or extinction-only is compiled,
-    σa when absorption is), with the SGGX projected area σ(d)."""
-    base = jnp.zeros_like(arr.sigma_a[region])
-    if cfg.volume or cfg.extinction_only:
-        base = base + arr.sigma_s_c[region]
-    if cfg.absorption:
-        base = base + arr.sigma_a[region]
-    base = jnp.broadcast_to(base[:, None, :], d.shape[:-1] + base.shape[-1:])
-    if "sggx" in cfg.region_phase:
-        is_sggx = jnp.asarray([p == "sggx" for p in cfg.region_phase])[region]
-        proj = jnp.where(is_sggx[:, None], sggx_sigma(arr.sggx_S[region][:, None], d), 1.0)
-        base = base * proj[..., None]
-    return base
+def _order_class(order):
+    import drjit as dr
+    import mitsuba as mi
+
+    return mi.UInt32(dr.minimum(order, len(ORDER_CLASSES) - 1))
 
 
-def _connect(cfg, arr, pts, st, beta, z, scatter, hit, b, key, i):
-    """This event's contributions (B, 4, R, C) to the per-path point estimates (the flux
-    fraction per steradian leaving along each requested direction), by bounce-order class.
+class _Walk:
+    """The walk of one stack for one incidence and one launch of paths."""
 
-    Two strategies reach the connecting rough dielectric boundary k from the vertices right
-    behind it (volume events in the region behind k, events at the boundary behind that region
-    that send the path toward k), combined by the balance heuristic (Veach 1997, ch. 9):
+    def __init__(self, stack: Stack, sides: dict | None, n_rows: int):
+        self.S = stack
+        self.cfg = stack.cfg
+        self.sides = sides
+        self.n_rows = n_rows
+        self.rows = {}
+        if sides:
+            first = 0
+            for side in ("up", "down"):
+                if side not in sides:
+                    continue
+                ps = sides[side]
+                n = ps if isinstance(ps, int) else ps.d.shape[0]
+                if not isinstance(ps, int):
+                    self.rows[side] = _Rows(ps, first)
+                first += n
 
-    * crossing (C): the walk's own path reaches k and the BSDF of k is evaluated toward the
-      requested direction; its density is that of the vertex's sampling, p_v(d');
-    * vertex (V): at the vertex, d' is sampled from k's BSDF in reverse, from the requested
-      direction's side (density q(d')), and the vertex's BSDF or phase function is evaluated;
-      by the generalized reciprocity of the BTDF (Walter eq. 21), f_k(−d' → d) =
-      (η_d / η_d')² f_k(d → −d'), so the sample's weight (eq. 41) gives the contribution.
+    # ---- one event ---------------------------------------------------------------------------
 
-    Weights q/(q + p_v) and p_v/(q + p_v) for the same (vertex, d'), so the sum stays
-    unbiased; events farther away have only the crossing, events on the exit's side of k only
-    the direct connection."""
-    M = cfg.n_media
-    B = st.w.shape[0]
-    wi = -st.w[:, None, :]
-    down = st.w[:, 2] < 0
-    classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
-    parts = []
-    for side, ps in pts.items():
-        if isinstance(ps, int):  # rows of a side that is not simulated
-            parts.append(jnp.zeros((B, len(ORDER_CLASSES), ps, cfg.channels), beta.dtype))
-            continue
-        total = 0.0
-        R = ps.d.shape[0]
-        k = cfg.point_up if side == "up" else cfg.point_down
-        wi_full, d = jnp.broadcast_arrays(wi, ps.d[None])
-        inv_dz = 1.0 / jnp.maximum(jnp.abs(ps.d[:, 2]), 1e-30)
-        if side == "up":
-            vol = scatter & (st.region <= k)
-            r_b, z_b = k, arr.thickness[min(k, M + 1)] if k <= M else 0.0
-        else:
-            vol = scatter & (st.region >= k + 1)
-            r_b, z_b = k + 1, 0.0
-        at_k = hit & (b == k) if 0 <= k <= M else jnp.zeros((B,), bool)
-        value = jnp.zeros((B, R, cfg.channels), beta.dtype)
-        # transmittance from boundary k to the outside along d (and the crossing factors)
-        exit_od = ps.depth[r_b] + ps.sigma_t[r_b] * (
-            (z_b if side == "up" else arr.thickness[r_b] - z_b) * inv_dz)[:, None]
-        exit_t = jnp.exp(-exit_od) * ps.chain[:, None]  # (R, C)
-        # the vertex strategy exists behind a rough dielectric k with a medium behind it
-        behind = k + 1 if side == "up" else k
-        v_ok = (0 <= k <= M and cfg.boundary_groups[k].startswith("rough:")
-                and 1 <= behind <= M)
-        if 0 <= k <= M:
-            fb = _boundary_f(cfg, arr, k, wi_full, d) * jnp.abs(ps.d[:, 2])[None, :, None]
-            if v_ok:
-                # crossing strategy weight, for paths whose last event could have connected
-                g = cfg.boundary_groups[k]
-                model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
-                # q: the reverse sample's density of t = -w (the path's direction reversed)
-                q = model.pdf({**params, "eta": arr.eta[k]}, d, wi_full,
-                              distribution=g[6:].split(":")[0])
-                p_last = st.last_pdf[:, None]
-                w_c = jnp.where(p_last > 0, p_last / jnp.maximum(p_last + q, 1e-30), 1.0)
-                crossing = at_k & (st.region == behind)
-                fb = fb * jnp.where(crossing[:, None], w_c, 1.0)[..., None]
-            value = jnp.where(at_k[:, None, None], fb * exit_t[None], value)
-        exit_side = range(1, min(k, M) + 1) if side == "up" else range(max(k + 1, 1), M + 1)
-        if cfg.volume and any(cfg.region_phase[j] is not None for j in exit_side):
-            # direct connection of volume events on the exit's side of k
-            r = st.region
-            dist = z if side == "up" else arr.thickness[r] - z
-            od = ps.depth[r] + ps.sigma_t[r] * (dist[:, None] * inv_dz[None, :])[..., None]
-            pv = (_phase_p(cfg, arr, r, wi_full, d)[..., None] * _flake_F(cfg, arr, r, wi_full, d)
-                  * jnp.exp(-od) * ps.chain[None, :, None])
-            value = jnp.where(vol[:, None, None], pv, value)
-        value = value * beta[:, None, :]
-        value = jnp.where((at_k | vol)[:, None, None], value, 0.0)
-        # bounce order of the connected path: a downward path sent upward below the top turns
-        turn = down & (vol | (at_k & (k >= 1))) if side == "up" else jnp.zeros_like(down)
-        orders = [(value, st.bounces + turn.astype(jnp.int32))]
-        if v_ok:
-            orders.append(_vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i,
-                                           side, k, behind, wi_full, exit_t))
-        for val, order in orders:
-            if cfg.max_bounces >= 0:
-                val = jnp.where((order <= cfg.max_bounces)[:, None, None], val, 0.0)
-            onehot = (jnp.minimum(order, len(ORDER_CLASSES) - 1)[:, None] == classes[None, :])
-            total = total + onehot.astype(val.dtype)[:, :, None, None] * val[:, None]
-        parts.append(total)
-    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=2)
+    def step(self, st, acc, path):
+        """One event of every live lane (st: the loop state dict); point estimates add this
+        event's connections to ``acc`` (per path: 4 orders × rows × 3)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        S, cfg = self.S, self.cfg
+        M = cfg.n_media
+        rng = st["rng"]
+        alive = st["alive"]
+        region, z, w, weight = st["region"], st["z"], st["w"], st["weight"]
+        down = w.z < 0
+        in_medium = alive & (region >= 1) & (region <= M)
+
+        # --- flight through the current medium -----------------------------------------------
+        thick = S.region_f(S.thickness, region)
+        abs_wz = dr.abs(w.z)
+        horizontal = abs_wz < 1e-7
+        safe_wz = dr.select(horizontal, 1.0, abs_wz)
+        d_boundary = dr.select(down, thick - z, z) / safe_wz
+        d_boundary = dr.select(in_medium, dr.maximum(d_boundary, 0.0), 0.0)
+        needs_proj = cfg.volume or cfg.absorption or cfg.extinction_only
+        proj = S.projected_area(region, w, in_medium) if needs_proj else None
+        scatter = mi.Bool(False)
+        dist = d_boundary
+        factor = mi.Spectrum(1.0)
+        u_flight = rng.next_float32()
+        if cfg.volume:
+            sig_s = S.region_f(S.sigma_s, region) * proj
+            can = sig_s > 0
+            if cfg.volume_limit >= 0:
+                can = can & (st["vol_events"] < cfg.volume_limit)
+            t = -dr.log(dr.maximum(1.0 - u_flight, 2.0**-24)) / dr.select(can, sig_s, 1.0)
+            scatter = in_medium & can & (t < d_boundary)
+            dist = dr.select(scatter, t, d_boundary)
+            if cfg.volume_limit >= 0:
+                # after the allowed events σs only attenuates (the unscattered part of the light)
+                lost = in_medium & ~can
+                factor = factor * dr.exp(-dr.select(lost, sig_s * dist, 0.0))
+        if cfg.absorption:
+            sig_a = S.region_c(S.sigma_a, region) * proj
+            factor = factor * dr.exp(-dr.select(in_medium, sig_a * dist, 0.0))
+        if cfg.extinction_only:
+            sig = S.region_c(S.sigma_s_c, region) * proj
+            factor = factor * dr.exp(-dr.select(in_medium, sig * dist, 0.0))
+        z = dr.select(in_medium, z - dist * w.z, z)
+        weight = weight * factor
+        alive = alive & ~(in_medium & horizontal & ~scatter)  # a horizontal flight never ends
+
+        hit = alive & ~scatter
+        b = mi.Int32(dr.clip(dr.select(down, region, region - 1), 0, M))
+        scatter = scatter & alive
+
+        # --- next-event connections of this event to the requested directions ----------------
+        if self.rows:
+            self._connect(st, acc, path, rng, weight, z, scatter, hit, b)
+
+        # --- volume scattering ---------------------------------------------------------------
+        wi = -w
+        last_pdf = st["last_pdf"]
+        new_w = w
+        vol_events = st["vol_events"]
+        diffuse = st["diffuse"]
+        u_v1 = rng.next_float32()
+        u_v2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+        if cfg.volume:
+            w_v, p_v = S.phase_sample(region, wi, u_v1, u_v2, scatter)
+            if cfg.flake_fresnel:
+                weight = dr.select(scatter, weight * S.flake_F(region, wi, w_v, scatter), weight)
+            new_w = dr.select(scatter, w_v, new_w)
+            vol_events = vol_events + dr.select(scatter, 1, 0)
+            diffuse = diffuse | scatter
+            last_pdf = dr.select(scatter, p_v, last_pdf)
+
+        # --- boundary events -----------------------------------------------------------------
+        force = self._forced_branch(region, b, down)
+        u_b1 = rng.next_float32()
+        u_b2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+        w_b, f_b, p_b, diff_b = S.boundary_sample(b, wi, u_b1, u_b2, force, hit,
+                                                  bool(self.rows))
+        new_w = dr.select(hit, w_b, new_w)
+        weight = dr.select(hit, weight * f_b, weight)
+        diffuse = diffuse | (hit & diff_b)
+        if self.rows:
+            last_pdf = dr.select(hit, dr.select(diff_b, p_b, 0.0), last_pdf)
+        # float32 rounding of the sampled directions would compound over long paths
+        new_w = dr.normalize(new_w)
+        up_new = new_w.z > 0
+        region = dr.select(hit, dr.select(up_new, b, b + 1), region)
+        z = dr.select(hit, dr.select(up_new, S.region_f(S.thickness, b), 0.0), z)
+
+        # --- bounce order: a downward → upward turn below the top interface ----------------
+        turned = alive & down & up_new & (scatter | (b >= 1))
+        bounces = st["bounces"] + dr.select(turned, 1, 0)
+
+        # --- exits -----------------------------------------------------------------------------
+        out_top = alive & (region == 0) & up_new
+        out_bottom = alive & (region == M + 1) & ~up_new
+        leaving = out_top | out_bottom
+        tallied = (out_top & cfg.reflection) | (out_bottom & cfg.transmission)
+        if not cfg.delta:
+            tallied = tallied & diffuse
+        if cfg.max_bounces >= 0:
+            tallied = tallied & (bounces <= cfg.max_bounces)
+        exited = st["exited"] | tallied
+        alive = alive & ~leaving
+
+        # --- what can no longer reach an observed quantity ends here -----------------------
+        if cfg.max_bounces >= 0:
+            alive = alive & (bounces <= cfg.max_bounces)
+            if cfg.end_downward_after_last_bounce:
+                alive = alive & ~((bounces == cfg.max_bounces) & ~up_new & (region >= 1))
+        alive = alive & (dr.max(weight) > 0)
+        events = st["events"] + dr.select(alive, 1, 0)
+        u_rr = rng.next_float32()
+        if cfg.russian_roulette:
+            q = dr.clip(dr.max(weight), RR_MIN_Q, 1.0)
+            play = alive & (events > RR_START)
+            survive = u_rr < q
+            alive = alive & (~play | survive)
+            weight = dr.select(play & survive, weight / q, weight)
+        capped = alive & (events >= cfg.max_events)
+        st.update(region=region, z=z, w=new_w, weight=weight, alive=alive & ~capped,
+                  exited=exited, bounces=bounces, vol_events=vol_events, events=events,
+                  diffuse=diffuse, last_pdf=last_pdf, capped=st["capped"] | capped,
+                  steps=st["steps"] + 1, rng=rng)
+
+    def _forced_branch(self, region, b, down):
+        """Per lane, the branch forcing at boundary b: the top boundary refracts light from
+        outside and reflects light from inside when reflection is not observed; the bottom
+        boundary reflects light from above when transmission is not."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cfg = self.cfg
+        force = mi.UInt32(FORCE_CHOOSE)
+        if cfg.force_bottom:
+            force = dr.select((b == cfg.n_media) & down, FORCE_REFLECT, force)
+        if cfg.force_top:
+            force = dr.select(b == 0, dr.select(down, FORCE_REFRACT, FORCE_REFLECT), force)
+        if cfg.split_first:  # the first crossing, from outside: its reflection is tallied apart
+            force = dr.select((b == 0) & down & (region == 0), FORCE_REFRACT, force)
+        return force
+
+    # ---- next-event estimation ------------------------------------------------------------
+
+    def _connect(self, st, acc, path, rng, beta, z, scatter, hit, b):
+        """This event's contributions to the per-path point estimates (the flux fraction per
+        steradian leaving along each requested direction), by bounce-order class, added to
+        ``acc``.
+
+        Two strategies reach the connecting rough dielectric boundary k from the vertices right
+        behind it (volume events in the region behind k, events at the boundary behind that
+        region that send the path toward k), combined by the balance heuristic:
+
+        * crossing (C): the walk's own path reaches k and the BSDF of k is evaluated toward the
+          requested direction; its density is that of the vertex's sampling, p_v(d');
+        * vertex (V): at the vertex, d' is sampled from k's BSDF in reverse, from the requested
+          direction's side (density q(d')), and the vertex's BSDF or phase function is
+          evaluated; by the generalized reciprocity of the BTDF (Walter eq. 21),
+          f_k(−d' → d) = (η_d / η_d')² f_k(d → −d'), so the sample's weight gives the
+          contribution.
+
+        Weights q/(q + p_v) and p_v/(q + p_v) for the same (vertex, d'), so the sum stays
+        unbiased; events farther away have only the crossing, events on the exit's side of k
+        only the direct connection."""
+        import drjit as dr
+        import mitsuba as mi
+
+        S, cfg = self.S, self.cfg
+        M = cfg.n_media
+        w = st["w"]
+        region = st["region"]
+        wi = -w
+        down = w.z < 0
+        any_event = scatter | hit
+        for side, rows in self.rows.items():
+            k = cfg.point_up if side == "up" else cfg.point_down
+            k_ok = 0 <= k <= M
+            if side == "up":
+                vol = scatter & (region <= k)
+            else:
+                vol = scatter & (region >= k + 1)
+            at_k = (hit & (b == k)) if k_ok else mi.Bool(False)
+            behind = k + 1 if side == "up" else k
+            v_ok = (k_ok and cfg.boundaries[k].kind == "dielectric"
+                    and cfg.boundaries[k].nonspecular and 1 <= behind <= M)
+            exit_side = range(1, min(k, M) + 1) if side == "up" else range(max(k + 1, 1), M + 1)
+            direct_vol = cfg.volume and any(cfg.region_phase[j] is not None for j in exit_side)
+            active = any_event & (at_k | vol | (self._vertex_candidates(st, scatter, hit, b,
+                                                                        side, k, behind)
+                                                if v_ok else False))
+            r = mi.UInt32(0)
+            n_rows = rows.n
+
+            def cond(r, *_):
+                return r < n_rows
+
+            def body(r, rng_state, active=active, rows=rows, side=side, k=k, vol=vol,
+                     at_k=at_k, behind=behind, v_ok=v_ok, direct_vol=direct_vol,
+                     k_ok=k_ok):
+                rng_l = mi.PCG32(rng)
+                rng_l.state = rng_state
+                d = rows.vec(r)
+                exit_t = rows.spec(rows.exit_t, r)
+                value = mi.Spectrum(0.0)
+                if k_ok:
+                    bd = S.boundary[k]
+                    fb = bd.eval(wi, d, active & at_k) * dr.abs(d.z)
+                    if v_ok:
+                        # crossing strategy weight, for paths whose last event could have
+                        # connected: q is the reverse sample's density of -w
+                        q = bd.pdf(d, wi, active & at_k)
+                        p_last = st["last_pdf"]
+                        w_c = dr.select(p_last > 0, p_last / dr.maximum(p_last + q, 1e-30), 1.0)
+                        crossing = at_k & (region == behind)
+                        fb = fb * dr.select(crossing, w_c, 1.0)
+                    value = dr.select(at_k, fb * exit_t, value)
+                if direct_vol:
+                    dist = z if side == "up" else S.region_f(S.thickness, region) - z
+                    idx = r * rows.regions + mi.UInt32(region)
+                    od = rows.spec(rows.depth, idx) + rows.spec(rows.sigma_t, idx) * (
+                        dist / dr.maximum(dr.abs(d.z), 1e-30))
+                    pv = (S.phase_eval(region, wi, d, active & vol)
+                          * S.flake_F(region, wi, d, active & vol) * dr.exp(-od)
+                          * dr.gather(mi.Float, rows.chain, r))
+                    value = dr.select(vol, pv, value)
+                value = value * beta
+                value = dr.select(at_k | vol, value, 0.0)
+                if side == "up":
+                    turn = down & (vol | (at_k & (k >= 1)))
+                else:
+                    turn = mi.Bool(False)
+                self._add(acc, path, rows, r, value, st["bounces"] + dr.select(turn, 1, 0),
+                          active)
+                if v_ok:
+                    val_v, order_v = self._vertex_strategy(st, rng_l, beta, z, scatter, hit, b,
+                                                           side, k, behind, d, exit_t, active)
+                    self._add(acc, path, rows, r, val_v, order_v, active)
+                return r + 1, rng_l.state
+
+            r, state = dr.while_loop((r, rng.state), cond, body, labels=("r", "rng"),
+                                     label=f"rows_{side}")
+            rng.state = state
+
+    def _vertex_candidates(self, st, scatter, hit, b, side, k, behind):
+        """Lanes whose event is a vertex of the vertex strategy (see :meth:`_vertex_strategy`)."""
+        import mitsuba as mi
+
+        cfg = self.cfg
+        M = cfg.n_media
+        far = behind if side == "up" else behind - 1
+        vol = (scatter & (st["region"] == behind)) if cfg.volume and \
+            cfg.region_phase[behind] is not None else mi.Bool(False)
+        far_ok = 0 <= far <= M and cfg.boundaries[far].nonspecular
+        at_far = (hit & (b == far)) if far_ok else mi.Bool(False)
+        return vol | at_far
+
+    def _vertex_strategy(self, st, rng, beta, z, scatter, hit, b, side, k, behind, d, exit_t,
+                         active):
+        """The vertex strategy of :meth:`_connect` for one requested direction: events in region
+        ``behind`` (volume) or at the boundary on its far side, connected through the rough
+        dielectric k by a reverse sample of k's BSDF. Returns (contribution, order)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        S, cfg = self.S, self.cfg
+        M = cfg.n_media
+        region = st["region"]
+        w = st["w"]
+        wi = -w
+        down = w.z < 0
+        far = behind if side == "up" else behind - 1
+        # reverse sample of k from the requested direction's side: t into region `behind`
+        u1 = rng.next_float32()
+        u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+        t, weight, q = S.boundary[k].sample(d, u1, u2, mi.UInt32(FORCE_CHOOSE), active, True)
+        weight = weight.x
+        into = (t.z < 0) if side == "up" else (t.z > 0)
+        dp = -t  # the path's direction from the vertex toward k
+        dz = dr.maximum(dr.abs(dp.z), 1e-30)
+        eta2 = dr.square(S.eta[k])
+        ratio = 1.0 / eta2 if side == "up" else eta2  # (η on d's side / η on d′'s side)²
+        w_rev = dr.select(into, ratio * weight * dr.abs(d.z) / dz, 0.0)
+        vol = (scatter & (region == behind)) if cfg.volume and \
+            cfg.region_phase[behind] is not None else mi.Bool(False)
+        far_ok = 0 <= far <= M and cfg.boundaries[far].nonspecular
+        at_far = (hit & (b == far)) if far_ok else mi.Bool(False)
+        f_v = mi.Spectrum(0.0)
+        p_v = mi.Float(0.0)
+        if far_ok:
+            bd = S.boundary[far]
+            f_v = dr.select(at_far, bd.eval(wi, dp, active & at_far) * dz, f_v)
+            p_v = dr.select(at_far, bd.pdf(wi, dp, active & at_far), p_v)
+        if cfg.volume and cfg.region_phase[behind] is not None:
+            ph = S.phase_eval(region, wi, dp, active & vol, regions={behind})
+            f_v = dr.select(vol, ph * S.flake_F(region, wi, dp, active & vol), f_v)
+            p_v = dr.select(vol, ph, p_v)
+        # attenuation across `behind` from the vertex to k
+        thick_b = S.region_f(S.thickness, mi.UInt32(behind))
+        length = dr.select(at_far, thick_b, z if side == "up" else thick_b - z)
+        sig = S.sigma_t_along(mi.UInt32(behind), dp, active)
+        att = dr.exp(-sig * (length / dz))
+        w_v = q / dr.maximum(q + p_v, 1e-30)
+        val = beta * f_v * att * (w_rev * w_v) * exit_t
+        val = dr.select((vol | at_far) & into & dr.all(dr.isfinite(val)), val, 0.0)
+        turn = (down & (vol | at_far)) if side == "up" else mi.Bool(False)
+        return val, st["bounces"] + dr.select(turn, 1, 0)
+
+    def _add(self, acc, path, rows, r, value, order, active):
+        """acc[path, class(order), rows.first + r, :] += value (each lane its own slots)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cfg = self.cfg
+        ok = active
+        if cfg.max_bounces >= 0:
+            ok = ok & (order <= cfg.max_bounces)
+        ok = ok & (dr.max(value) > 0)
+        slot = ((path * len(ORDER_CLASSES) + _order_class(order)) * self.n_rows
+                + rows.first + r) * 3
+        for c in range(3):
+            dr.scatter_add(acc, value[c], slot + c, ok)
 
 
-def _vertex_strategy(cfg, arr, ps, st, beta, z, scatter, hit, b, key, i, side, k, behind,
-                     wi_full, exit_t):
-    """The vertex strategy of :func:`_connect` (contributions (B, R, C) and their orders):
-    events in region ``behind`` (volume) or at the boundary on its far side, connected through
-    the rough dielectric k by a reverse sample of k's BSDF."""
-    M = cfg.n_media
-    B, R = wi_full.shape[:2]
-    dt = wi_full.dtype
-    g = cfg.boundary_groups[k]
-    model, params = _rough(rough_dielectric, g[6:], arr.alpha[k], arr.alpha_y[k])
-    params = {**params, "eta": arr.eta[k]}
-    dist_name = g[6:].split(":")[0]
-    far = behind if side == "up" else behind - 1  # region r lies between boundaries r-1 and r
-    down = st.w[:, 2] < 0
-    # reverse sample of k from the requested direction's side: t into region `behind`
-    u = uniforms((key[0] ^ jnp.uint32(0x5BD1E995), key[1]), i, B, 3 * R, dt).reshape(B, R, 3)
-    d_k = jnp.broadcast_to(ps.d[None], (B, R, 3))
-    t, weight, q = model.sample(params, d_k, u, distribution=dist_name)
-    into = t[..., 2] < 0 if side == "up" else t[..., 2] > 0
-    dp = -t  # the path's direction from the vertex toward k
-    dz = jnp.maximum(jnp.abs(dp[..., 2]), 1e-30)
-    eta2 = arr.eta[k] ** 2
-    ratio = 1.0 / eta2 if side == "up" else eta2  # (η on d's side / η on d′'s side)²
-    w_rev = jnp.where(into, ratio * weight * jnp.abs(ps.d[:, 2])[None, :] / dz, 0.0)
-    # the vertices: volume events in `behind`, events at `far` sending the path toward k
-    vol = scatter & (st.region == behind) if cfg.volume and cfg.region_phase[behind] is not None \
-        else jnp.zeros((B,), bool)
-    far_ok = 0 <= far <= M and cfg.boundary_groups[far] not in ("pass", "smooth",
-                                                                 "conductor:smooth")
-    at_far = hit & (b == far) if far_ok else jnp.zeros((B,), bool)
-    f_v = jnp.zeros((B, R, cfg.channels), dt)
-    p_v = jnp.zeros((B, R), dt)
-    if far_ok:
-        fb, pb = _boundary_f(cfg, arr, far, wi_full, dp, with_pdf=True)
-        f_v = jnp.where(at_far[:, None, None], fb * dz[..., None], f_v)
-        p_v = jnp.where(at_far[:, None], pb, p_v)
-    if cfg.volume and cfg.region_phase[behind] is not None:
-        ph = _phase_p(cfg, arr, st.region, wi_full, dp, kinds={cfg.region_phase[behind]})
-        f_v = jnp.where(vol[:, None, None],
-                        ph[..., None] * _flake_F(cfg, arr, st.region, wi_full, dp), f_v)
-        p_v = jnp.where(vol[:, None], ph, p_v)
-    # attenuation across `behind` from the vertex to k
-    length = jnp.where(at_far, arr.thickness[behind],
-                       z if side == "up" else arr.thickness[behind] - z)
-    sig = _sigma_t_along(cfg, arr, jnp.full((B,), behind, jnp.int32), dp)
-    att = jnp.exp(-sig * (length[:, None] / dz)[..., None])
-    w_v = q / jnp.maximum(q + p_v, 1e-30)
-    val = (beta[:, None, :] * f_v * att * (w_rev * w_v)[..., None] * exit_t[None])
-    val = jnp.where(((vol | at_far)[:, None] & into)[..., None], val, 0.0)
-    val = jnp.where(jnp.isfinite(val), val, 0.0)
-    turn = down & (vol | at_far) if side == "up" else jnp.zeros_like(down)
-    return val, st.bounces + turn.astype(jnp.int32)
+def path_rng(n: int, words, first_path: int):
+    """The PCG32 streams of paths first_path .. first_path + n − 1, seeded as Mitsuba's
+    ``independent`` sampler seeds its lanes: state and stream of path p are TEA hashes
+    (``mi.sample_tea_64``) of p and the seed words, so a path's random numbers depend on its id
+    and the seed, not on the launch it is traced in (consecutive unhashed seeds give correlated
+    first draws)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    p = dr.arange(mi.UInt32, n) + mi.UInt32(first_path & 0xFFFFFFFF)
+    w0 = mi.UInt32(words[0] & 0xFFFFFFFF) ^ mi.UInt32(words[0] >> 32)
+    w1 = mi.UInt32(words[1] & 0xFFFFFFFF) ^ mi.UInt32(words[1] >> 32)
+    rng = mi.PCG32(n)
+    rng.seed(mi.sample_tea_64(p, w0), mi.sample_tea_64(w1, p))
+    return rng
 
 
-def _bin_index(cfg, w):
-    """Hemisphere bin of exit directions w: side (0 = reflection, 1 = transmission), θ bin
+def _state(cfg, n, wi, words, first_path):
+    """The loop state of n new paths at the top of the stack, travelling along -wi."""
+    import drjit as dr
+    import mitsuba as mi
+
+    rng = path_rng(n, words, first_path)
+    return {
+        "region": dr.zeros(mi.Int32, n), "z": dr.zeros(mi.Float, n),
+        "w": mi.Vector3f(dr.full(mi.Float, -wi[0], n), dr.full(mi.Float, -wi[1], n),
+                         dr.full(mi.Float, -wi[2], n)),
+        "weight": dr.full(mi.Spectrum, 1.0, n), "alive": dr.full(mi.Bool, True, n),
+        "exited": dr.full(mi.Bool, False, n), "bounces": dr.zeros(mi.Int32, n),
+        "vol_events": dr.zeros(mi.Int32, n), "events": dr.zeros(mi.Int32, n),
+        "diffuse": dr.full(mi.Bool, False, n), "last_pdf": dr.zeros(mi.Float, n),
+        "capped": dr.full(mi.Bool, False, n), "steps": dr.zeros(mi.UInt32, n), "rng": rng,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Launches and host tallies
+# --------------------------------------------------------------------------------------------
+
+#: How the path loop is compiled: "symbolic" (one megakernel) or "evaluated" (a kernel per
+#: iteration, finished lanes compressed away); benchmarks/walk_engines.py measures both.
+LOOP_MODE = "symbolic"
+
+
+def seed_words(*keys: int) -> tuple[int, int]:
+    """Two 64-bit words from integer keys (seed, incidence, channel walk) by SplitMix64: the
+    PCG32 initial state and stream of path 0; path p uses state + p, stream + p."""
+    x = 0x9E3779B97F4A7C15
+    out = []
+    for salt in (0x243F6A8885A308D3, 0x13198A2E03707344):
+        h = salt
+        for k in keys:
+            h = (h ^ (int(k) & 0xFFFFFFFFFFFFFFFF)) & 0xFFFFFFFFFFFFFFFF
+            h = (h + x) & 0xFFFFFFFFFFFFFFFF
+            h = ((h ^ (h >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+            h = ((h ^ (h >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+            h ^= h >> 31
+        out.append(h)
+    return out[0], out[1]
+
+
+class Tallies(NamedTuple):
+    """Float64 sums over paths: per order class and output row (4, n_out, C); sums of squares
+    per order class and (last) of each path's all-order total (5, n_out, C); the flux leaving
+    per side (2 moments, 2 sides, C); the first crossings' split-off reflections (n_out, C)
+    sums and squares and (2, 2, C) per side, or None; paths dropped at the event cap; events."""
+
+    s1: np.ndarray
+    s2: np.ndarray
+    side: np.ndarray
+    split: tuple | None
+    truncated: int
+    events: int
+
+
+def bin_index(cfg: WalkConfig, w: np.ndarray) -> np.ndarray:
+    """Hemisphere bin of exit directions w (P, 3): side (0 = reflection, 1 = transmission), θ bin
     over [0°, 90°] from the side's pole, φ bin over [0°, 360°)."""
-    side = (w[:, 2] < 0).astype(jnp.int32)
-    ct = jnp.clip(jnp.abs(w[:, 2]), 0.0, 1.0)
-    st = jnp.sqrt(w[:, 0] ** 2 + w[:, 1] ** 2)
-    theta = jnp.arctan2(st, ct)
-    tb = jnp.clip((theta / (0.5 * jnp.pi) * cfg.theta_bins).astype(jnp.int32), 0, cfg.theta_bins - 1)
-    phi = jnp.mod(jnp.arctan2(w[:, 1], w[:, 0]), 2.0 * jnp.pi)
-    pb = jnp.clip((phi / (2.0 * jnp.pi) * cfg.phi_bins).astype(jnp.int32), 0, cfg.phi_bins - 1)
+    side = (w[:, 2] < 0).astype(np.int64)
+    ct = np.clip(np.abs(w[:, 2]), 0.0, 1.0)
+    theta = np.arctan2(np.hypot(w[:, 0], w[:, 1]), ct)
+    tb = np.clip((theta / (0.5 * np.pi) * cfg.theta_bins).astype(np.int64), 0, cfg.theta_bins - 1)
+    phi = np.mod(np.arctan2(w[:, 1], w[:, 0]), 2.0 * np.pi)
+    pb = np.clip((phi / (2.0 * np.pi) * cfg.phi_bins).astype(np.int64), 0, cfg.phi_bins - 1)
     return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
 
 
-def _tally(cfg, det, w, x, order, n_out):
-    """Float64 sums and sums of squares of path contributions x (P, C) (0 for paths that did
-    not exit into an observed bin) per order class and bin (4, n_out, C), and per exit side
-    (2 moments, 2 sides, C); w (P, 3) exit directions, order (P,) bounce classes."""
-    C = cfg.channels
-    order = jnp.minimum(order, len(ORDER_CLASSES) - 1)
-    if cfg.detector == "points":  # the point estimates are tallied in the walk
-        s1 = s2 = None
-    elif cfg.detector == "bins":
-        seg = order * n_out + _bin_index(cfg, w)
-        n_seg = len(ORDER_CLASSES) * n_out
-        s1 = jax.ops.segment_sum(x, seg, num_segments=n_seg).reshape(-1, n_out, C)
-        s2 = jax.ops.segment_sum(x * x, seg, num_segments=n_seg).reshape(-1, n_out, C)
-    else:
-        # cones may overlap: a (paths × cones) membership matrix, built in chunks of paths so
-        # that memory stays bounded (4096 × cones at a time)
-        classes = jnp.arange(len(ORDER_CLASSES), dtype=jnp.int32)
-        chunk = math.gcd(w.shape[0], 4096)
-
-        def part(carry, blk):
-            wb, xb, ob = blk
-            oh = (ob[:, None] == classes[None, :]).astype(jnp.float64)
-            inside = ((wb.astype(jnp.float64) @ det.cone_dir.T) >= det.cone_cos[None, :])
-            inside = inside.astype(jnp.float64)
-            return (carry[0] + jnp.einsum("bo,br,bc->orc", oh, inside, xb),
-                    carry[1] + jnp.einsum("bo,br,bc->orc", oh, inside, xb * xb)), None
-
-        zero = jnp.zeros((len(ORDER_CLASSES), det.cone_dir.shape[0], C), jnp.float64)
-        blocks = (w.reshape(-1, chunk, 3), x.reshape(-1, chunk, C), order.reshape(-1, chunk))
-        (s1, s2), _ = jax.lax.scan(part, (zero, zero), blocks)
-    down = (w[:, 2] < 0)[:, None]
-    xs = jnp.stack([jnp.where(down, 0.0, x), jnp.where(down, x, 0.0)])
-    side = jnp.stack([jnp.sum(xs, axis=1), jnp.sum(xs * xs, axis=1)])
+def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
+    """Float64 sums and sums of squares of the exits' weights per order class and bin or cone
+    (4, n_out, C) and per exit side (2 moments, 2 sides, C), summed in path order."""
+    C = ex.x.shape[1]
+    K = len(ORDER_CLASSES)
+    ok = np.all(np.isfinite(ex.w), axis=1) & np.all(np.isfinite(ex.x), axis=1)
+    x = np.where(ok[:, None], ex.x, 0.0).astype(np.float64)
+    ex = ex._replace(w=np.where(ok[:, None], ex.w, np.float32([0.0, 0.0, 1.0])))
+    order = np.minimum(ex.order, K - 1)
+    s1 = np.zeros((K, n_out, C))
+    s2 = np.zeros((K, n_out, C))
+    if cfg.detector == "bins":
+        seg = order * n_out + bin_index(cfg, ex.w.astype(np.float64))
+        for c in range(C):
+            s1[..., c] = np.bincount(seg, x[:, c], K * n_out).reshape(K, n_out)
+            s2[..., c] = np.bincount(seg, x[:, c] ** 2, K * n_out).reshape(K, n_out)
+    elif cfg.detector == "cones":
+        # cones may overlap: a (paths × cones) membership matrix of the tallied paths, in
+        # blocks of paths, summed per order class in path order
+        sel = np.flatnonzero(np.any(x != 0.0, axis=1))
+        w64, xt, ot = ex.w[sel].astype(np.float64), x[sel], order[sel]
+        for lo in range(0, len(sel), 1 << 16):
+            blk = slice(lo, lo + (1 << 16))
+            inside = (w64[blk] @ det.cone_dir.T >= det.cone_cos[None, :]).astype(np.float64)
+            for o in range(K):
+                m = ot[blk] == o
+                if m.any():
+                    xo = xt[blk][m]
+                    s1[o] += inside[m].T @ xo
+                    s2[o] += inside[m].T @ (xo * xo)
+    down = (ex.w[:, 2] < 0)[:, None]
+    xs = np.stack([np.where(down, 0.0, x), np.where(down, x, 0.0)])
+    side = np.stack([xs.sum(axis=1), (xs * xs).sum(axis=1)])
     return s1, s2, side
 
 
-def _first_reflection(cfg, arr, det, key, wi, n_valid, paths, n_out):
+def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int):
+    """Trace paths first .. first + n − 1; returns their Exits (or the point sums (n, 4,
+    n_out, 3)), the capped mask and the events traced."""
+    import drjit as dr
+    import mitsuba as mi
+
+    st = _state(stack.cfg, n, wi, words, first)
+    points = bool(walk.rows)
+    acc = dr.zeros(mi.Float, n * len(ORDER_CLASSES) * n_out * 3) if points else None
+    path = dr.arange(mi.UInt32, n)
+
+    def cond(s):
+        return s["alive"]
+
+    def body(s):
+        walk.step(s, acc, path)
+        return (s,)
+
+    kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
+    (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
+    x = dr.select(st["exited"], st["weight"], 0.0)
+    dr.eval(st["w"], x, st["bounces"], st["capped"], st["steps"], acc)
+    capped = np.array(st["capped"], dtype=bool)
+    events = int(np.array(st["steps"], dtype=np.int64).sum())
+    ex = Exits(np.array(st["w"], dtype=np.float32).T.reshape(n, 3),
+               np.array(x, dtype=np.float32).T.reshape(n, 3),
+               np.array(st["bounces"], dtype=np.int64))
+    a = None
+    if points:
+        a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
+        a[capped] = 0.0  # a truncated path's connections are dropped, as its exit would be
+    return ex, a, capped, events
+
+
+def _split_first(stack: Stack, det: Detector, wi, n: int, first: int, words, n_out: int):
     """Splitting at the first interface: the reflected branch of each path's first crossing of
-    the top boundary, weight F (rough: F(i·m) times Walter's eq. 41 weight), sampled with its
-    own random numbers (independent of the walk, whose first crossing is forced to refract
-    with weight 1 − F) and tallied as bounce order 0: (n_out, C) sums and sums of squares per
-    bin and the (2, 2, C) flux per side, as :func:`_tally`."""
-    dt = wi.dtype
-    st = _fresh(cfg, wi, paths, dt)
-    u = uniforms((key[0] ^ jnp.uint32(0x27D4EB2F), key[1] ^ jnp.uint32(0x165667B1)),
-                 jnp.int32(0), paths, 3, dt)
-    b = jnp.zeros((paths,), jnp.int32)
-    w, f, diffuse, _ = _boundary_event(cfg, arr, st, b, u, jnp.full((paths,), REFLECT))
-    keep = (jnp.arange(paths) < n_valid) & (w[:, 2] > 0)
+    the top boundary (forced reflection, weight F times the sample weight), sampled with its own
+    random numbers, tallied as bounce order 0."""
+    import drjit as dr
+    import mitsuba as mi
+
+    cfg = stack.cfg
+    rng = path_rng(n, (words[0] ^ 0x27D4EB2F165667B1, words[1] ^ 0x165667B19E3779F9), first)
+    wi_v = mi.Vector3f(float(wi[0]), float(wi[1]), float(wi[2]))
+    u1 = rng.next_float32()
+    u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+    wo, f, _, diffuse = stack.boundary_sample(mi.Int32(0), wi_v, u1, u2,
+                                              mi.UInt32(FORCE_REFLECT), mi.Bool(True), False)
+    keep = wo.z > 0
     if not cfg.delta:
         keep = keep & diffuse
-    x = jnp.where(keep[:, None], f, 0.0).astype(jnp.float64)
-    s1, s2, side = _tally(cfg, det, w, x, jnp.zeros((paths,), jnp.int32), n_out)
-    return s1[0], s2[0], side
+    x = dr.select(keep, f, 0.0)
+    dr.eval(wo, x)
+    ex = Exits(np.array(wo, dtype=np.float32).T.reshape(n, 3),
+               np.array(x, dtype=np.float32).T.reshape(n, 3), np.zeros(n, dtype=np.int64))
+    return tally_exits(cfg, det, ex, n_out)
 
 
-def _fresh(cfg, wi, n, dt):
-    """State of n new paths at the top of the stack, travelling along -wi."""
-    return State(
-        region=jnp.zeros((n,), jnp.int32), z=jnp.zeros((n,), dt),
-        w=jnp.broadcast_to(-wi, (n, 3)), weight=jnp.ones((n, cfg.channels), dt),
-        alive=jnp.ones((n,), bool), exited=jnp.zeros((n,), bool),
-        bounces=jnp.zeros((n,), jnp.int32), vol_events=jnp.zeros((n,), jnp.int32),
-        events=jnp.zeros((n,), jnp.int32), diffuse=jnp.zeros((n,), bool),
-        prop_wv=jnp.zeros((n, 3), dt), prop_wb=jnp.zeros((n, 3), dt),
-        prop_fb=jnp.zeros((n, cfg.channels), dt), prop_db=jnp.zeros((n,), bool),
-        prop_pv=jnp.zeros((n,), dt), prop_pb=jnp.zeros((n,), dt), last_pdf=jnp.zeros((n,), dt))
-
-
-class _Loop(NamedTuple):
-    i: jax.Array  # iteration
-    st: State
-    path: jax.Array  # (lanes,) id of the path each lane traces
-    next_path: jax.Array  # next path id to start
-    exit_w: jax.Array  # (paths, 3) exit direction of each path
-    exit_x: jax.Array  # (paths, C) tallied weight (0: not tallied)
-    exit_order: jax.Array  # (paths,)
-    events: jax.Array
-    truncated: jax.Array
-    # point estimates (zero-size when the detector has none): per lane, the running sum of its
-    # path's connections (lanes, 4, R, C), and the float64 sums over finished paths of those
-    # sums (4, R, C) and of their squares, per order and (last) of the all-order sum (5, R, C)
-    point_acc: jax.Array
-    point_s1: jax.Array
-    point_s2: jax.Array
-
-
-@functools.partial(jax.jit, static_argnames=("cfg", "lanes", "paths", "n_out", "n_up"))
-def run_batch(cfg: WalkConfig, arr: WalkArrays, det: Detector, key, wi, n_valid, *, lanes: int,
-              paths: int, n_out: int, n_up: int = 0):
-    """Trace ``paths`` paths (the first ``n_valid`` count) lit from direction ``wi`` (unit, z > 0,
-    pointing toward the light) on ``lanes`` parallel lanes. Returns float64 (4, n_out, C) sums
-    of the path contributions per order class and bin, (5, n_out, C) sums of their squares per
-    order class and (last) of the squares of each path's all-order total, the (2, 2, C) sums
-    and sums of squares of the flux leaving per side (up, down), the number of paths dropped
-    after ``cfg.max_events`` events, the total number of events, and with
-    ``cfg.split_first`` the first crossings' reflected branches (:func:`_first_reflection`:
-    independent of the rest, so the caller adds their variances), else None.
-
-    Path regeneration: a lane whose path ends starts the next path at once, so every lane stays
-    busy until the last paths drain (one compiled loop, no idle tail per path). Each path exits
-    at most once: its exit direction, weight and order go to per-path buffers, tallied after the
-    loop. Point detectors: the walk's rows are the reflection rows first, ``n_up`` of them."""
-    dt = jnp.dtype(cfg.dtype)
+def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,
+        launch: int = LAUNCH_PATHS, on_launch=None) -> Tallies:
+    """Trace ``n_paths`` paths lit from direction ``wi`` (unit, z > 0, toward the light) and sum
+    their contributions (:class:`Tallies`). ``words``: the PCG32 seed words (:func:`seed_words`);
+    ``on_launch(n)``: called after each launch of n paths (progress). Point detectors: the
+    rows are the reflection rows first, ``n_up`` of them. ``launch``: paths per launch (at
+    most; point estimates launch fewer when their per-path sums would pass
+    :data:`POINT_LAUNCH_BYTES`). The result does not depend on ``launch``."""
+    cfg = stack.cfg
     C = cfg.channels
-    wi = wi.astype(dt)
-    key = jax.random.bits(key, (2,), jnp.uint32)  # the walk's two seed words
-    n_valid = jnp.minimum(n_valid, paths)
-    lane = jnp.arange(lanes, dtype=jnp.int32)
+    K = len(ORDER_CLASSES)
     points = cfg.detector == "points"
-    pts = _point_setup(cfg, arr, det.cone_dir.astype(dt), n_up) if points else None
-    n_pts = n_out if points else 0
-    st0 = _fresh(cfg, wi, lanes, dt)
-    st0 = _propose(cfg, arr, key, jnp.int32(0), st0._replace(alive=lane < n_valid))
-    classes = len(ORDER_CLASSES)
-    carry = _Loop(jnp.int32(0), st0, lane, jnp.minimum(jnp.int32(lanes), n_valid),
-                  jnp.zeros((paths, 3), dt), jnp.zeros((paths, C), dt),
-                  jnp.zeros((paths,), jnp.int32), jnp.int32(0), jnp.int32(0),
-                  jnp.zeros((lanes if points else 0, classes, n_pts, C), dt),
-                  jnp.zeros((classes, n_pts, C), jnp.float64),
-                  jnp.zeros((classes + 1, n_pts, C), jnp.float64))
-    fresh = _fresh(cfg, wi, lanes, dt)
-
-    def cond(c):
-        return jnp.any(c.st.alive)
-
-    def body(c):
-        was_alive = c.st.alive
-        if points:
-            st, nee = _step(cfg, arr, key, c.i, c.st, pts)
-            acc = c.point_acc + nee
-        else:
-            st = _step(cfg, arr, key, c.i, c.st)
-        # record the paths that exited into an observed bin in this event
-        new_exit = st.exited & was_alive
-        target = jnp.where(new_exit, c.path, paths)  # out of range: dropped
-        exit_w = c.exit_w.at[target].set(st.w, mode="drop")
-        exit_x = c.exit_x.at[target].set(st.weight, mode="drop")
-        exit_order = c.exit_order.at[target].set(st.bounces, mode="drop")
-        # paths at the event cap are dropped (counted)
-        capped = st.alive & (st.events >= cfg.max_events)
-        alive = st.alive & ~capped
-        # lanes whose path ended take the next paths in order
-        ended = ~alive
-        s1p, s2p = c.point_s1, c.point_s2
-        if points:
-            # a finished path's sums go to the totals (a truncated path's are dropped, as its
-            # exit would be); the lane starts its next path from zero
-            done = (ended & ~capped).astype(jnp.float64)
-            flat = acc.reshape(lanes, -1).astype(jnp.float64)
-            s1p = s1p + (done @ flat).reshape(s1p.shape)
-            tot = acc.sum(axis=1).astype(jnp.float64)  # the path's estimate, all orders
-            sq = jnp.concatenate([flat * flat, (tot * tot).reshape(lanes, -1)], axis=1)
-            s2p = s2p + (done @ sq).reshape(s2p.shape)
-            acc = jnp.where(ended[:, None, None, None], 0.0, acc)
-        else:
-            acc = c.point_acc
-        rank = jnp.cumsum(ended, dtype=jnp.int32) - 1
-        new_id = c.next_path + rank
-        start = ended & (new_id < n_valid)
-        st = jax.tree_util.tree_map(
-            lambda f, s: jnp.where(start.reshape((-1,) + (1,) * (s.ndim - 1)), f, s),
-            fresh, st._replace(alive=alive, exited=jnp.zeros_like(alive)))
-        st = _propose(cfg, arr, key, c.i + 1, st)
-        path = jnp.where(start, new_id, c.path)
-        next_path = jnp.minimum(c.next_path + jnp.sum(ended, dtype=jnp.int32), n_valid)
-        return _Loop(c.i + 1, st, path, next_path, exit_w, exit_x, exit_order,
-                     c.events + jnp.sum(was_alive, dtype=jnp.int32),
-                     c.truncated + jnp.sum(capped, dtype=jnp.int32), acc, s1p, s2p)
-
-    c = jax.lax.while_loop(cond, body, carry)
-    s1, s2, side = _tally(cfg, det, c.exit_w, c.exit_x.astype(jnp.float64), c.exit_order, n_out)
+    sides = point_sides(cfg, stack.arr, det.cone_dir, n_up) if points else None
+    walk = _Walk(stack, sides, n_out if points else 0)
     if points:
-        s1, s2 = c.point_s1, c.point_s2
-    else:  # each path exits in one order class: its total's square is its order's
-        s2 = jnp.concatenate([s2, s2.sum(axis=0, keepdims=True)])
-    split = None
-    if cfg.split_first:
-        split = _first_reflection(cfg, arr, det, key, wi, n_valid, paths, n_out)
-    return s1, s2, side, c.truncated, c.events, split
+        launch = min(launch, max(1024, POINT_LAUNCH_BYTES // (K * n_out * 3 * 4)))
+    s1 = np.zeros((K, n_out, C))
+    s2 = np.zeros((K + 1, n_out, C))
+    side = np.zeros((2, 2, C))
+    split = [np.zeros((n_out, C)), np.zeros((n_out, C)), np.zeros((2, 2, C))] \
+        if cfg.split_first else None
+    truncated = events = 0
+    for first in range(0, n_paths, launch):
+        n = min(launch, n_paths - first)
+        ex, a, capped, ev = _launch(stack, walk, wi, n, first, words, n_out)
+        truncated += int(capped.sum())
+        events += ev
+        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out)
+        side += t_side
+        if points:
+            a = a[..., :C].astype(np.float64)
+            s1 += a.sum(axis=0)
+            s2[:K] += (a * a).sum(axis=0)
+            tot = a.sum(axis=1)
+            s2[K] += (tot * tot).sum(axis=0)
+        else:
+            s1 += t1
+            s2[:K] += t2
+            s2[K] += t2.sum(axis=0)  # each path exits in one order class
+        if split is not None:
+            q1, q2, q_side = _split_first(stack, det, wi, n, first, words, n_out)
+            split[0] += q1[0, :, :C]
+            split[1] += q2[0, :, :C]
+            split[2] += q_side[..., :C]
+        if on_launch is not None:
+            on_launch(n)
+    return Tallies(s1, s2, side, None if split is None else tuple(split), truncated, events)
