@@ -146,9 +146,11 @@ def _agree(res, value, sigma, z_max=4.0):
     table = np.c_[res.theta_o, res.phi_o, fv, fs, value, sigma, z]
     assert np.all(fv > 0) and np.all(value > 0), table
     assert np.all(np.abs(z) < z_max), table
-    # the same estimator: relative standard errors alike (same path counts; an estimate of a
-    # standard error from heavy-tailed per-path sums is itself noisy, hence the loose bound)
-    assert np.all(np.abs(sigma / value / (fs / fv) - 1.0) < 0.35), table
+    # the same estimator, fitlab sampling its GGX boundaries by visible normals (Mitsuba's
+    # roughdielectric) where the peer samples D(m)|m·n| (Walter section 5.3): fitlab's relative
+    # standard errors at most the peer's (same path counts; an estimate of a standard error from
+    # heavy-tailed per-path sums is itself noisy, hence the loose bound)
+    assert np.all((fs / fv) / (sigma / value) < 1.35), table
 
 
 @pytest.mark.slow

@@ -4,27 +4,24 @@ variants) with ``distribution`` = beckmann_rational, phong, vmf, vmf_exact (the 
 take every family of fitlab.microfacet.REGISTRY; their option lists only Walter's).
 
 * eval and pdf on ~2000 direction pairs per family and boundary (both sides, normal incidence,
-  89°, α 1e-3 … 1 (κ up to 2e6), η 1.5, 1/1.5, 1.01): float32 against float64. The criterion is
+  89°, α 1e-3 … 1 (κ = 2/α² from 2 to 2e6, and κ = 0.01 for vMF), η 1.5, 1/1.5, 1.01; three
+  (n, k) per conductor): float32 against float64. The criterion is
   relative 1e-3, widened by the problem's own conditioning: the spread of the float64 reference
   under perturbations of the directions by ~8 float32 ulps (near the critical angle, or for
   η = 1.01 with α = 1e-3, a float32 evaluation cannot do better whatever its formulas);
 * sampling: the sampled wo agrees with the JAX sampler's for the same random numbers; weight,
   forced weights (times F or 1 - F) and pdf equal the reference's eval·|cos θo|/pdf, F and pdf at
   the sampled direction (flux transport: Walter eq. 41, no η² factor);
-* the mean sample weight (and two weighted means) over 1e6 samples equals the quadrature of the
-  reference's f|cos θo| (the albedo); the exact vMF masking's albedo is ≤ 1, and a k → ∞
-  conductor's is the Smith energy of its NDF;
+* the mean sample weight (and two weighted means) over 1e6 samples equals the quadrature of
+  f|cos θo| (the albedo; f the eval checked above); the exact vMF masking's albedo is ≤ 1, and a
+  k → ∞ conductor's is the Smith energy of its NDF (JAX's D and G1 integrated over m);
 * everything traces inside a symbolic ``dr.while_loop`` and is finite at the hard cases.
 
-Needs Mitsuba's llvm_ad_rgb variant (libLLVM ≥ 16 for Dr.Jit 1.5's ``llvm.maximum``; a libLLVM 15
-aborts the process in LLVM's instruction selection, so the variant is probed in a child process).
+Needs Mitsuba's llvm_ad_rgb variant on a libLLVM ≥ 17 (fitlab.simulate.engine picks it).
 """
 
 from __future__ import annotations
 
-import functools
-import subprocess
-import sys
 import zlib
 
 import jax.numpy as jnp
@@ -38,33 +35,37 @@ pytestmark = pytest.mark.mitsuba
 FAMILIES = [("beckmann_rational", False), ("beckmann_rational", True), ("phong", False),
             ("vmf", False), ("vmf_exact", False)]
 ALPHAS = (1e-3, 1e-2, 0.1, 0.5, 1.0)
+#: and for the vMF families α = 14.1, κ = 2/α² = 0.01, the broadest lobe (α > 1 is outside the
+#: models' parameter range; the hard cases evaluate it for every family)
+ALPHA_BROAD = 14.1421356
 ETAS = (1.5, 1 / 1.5, 1.01)
-#: conductor (n, k) per RGB channel: a metal, a weak absorber, a dielectric-like n < 1 with k = 0
+#: conductor (n, k) per RGB channel: a metal (0.2, 3.9), a weak absorber (1, 0.05), a dielectric
+#: (1.5, 0)
 N_RGB = (0.2, 1.0, 1.5)
 K_RGB = (3.9, 0.05, 0.0)
+#: lanes of a test batch (every grid of parameters divides it: one shape for every JAX call)
+N_LANES = 2160
 RTOL = 1e-3
 #: values below this (1/sr) are "tiny": compared in absolute terms
 ATOL = 1e-5
 #: relative size of the perturbations that measure the reference's conditioning (~8 ulps)
 DELTA = 1e-6
 
-_PROBE = ("import mitsuba as mi, drjit as dr; mi.set_variant('llvm_ad_rgb'); "
-          "x = dr.maximum(mi.Float([1.0, -1.0]), 0.0); dr.eval(x); print(x)")
-
 
 @pytest.fixture(scope="module")
 def mi():
+    """Mitsuba in its llvm_ad_rgb variant, on the libLLVM fitlab's engine picks (LLVM >= 17: an
+    older one aborts the process on these kernels; tests/conftest.py selects it before Dr.Jit
+    loads)."""
+    from fitlab.errors import FitlabError
+
     try:
-        import mitsuba
-    except ImportError:
-        skip_or_fail("mitsuba is not installed (pip install -e '.[test]')")
-    probe = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
-                           timeout=300)
-    if probe.returncode != 0:
-        tail = (probe.stderr.strip().splitlines() or ["?"])[-1]
-        skip_or_fail("Mitsuba's llvm_ad_rgb variant does not run here (Dr.Jit needs libLLVM >= "
-                     f"16; set DRJIT_LIBLLVM_PATH, or apt-get install libllvm19): {tail}")
-    mitsuba.set_variant("llvm_ad_rgb")
+        from fitlab.simulate import engine
+
+        mitsuba = engine.load("cpu").mi
+        mitsuba.set_variant("llvm_ad_rgb")
+    except (ImportError, FitlabError) as exc:
+        skip_or_fail(f"Mitsuba's llvm_ad_rgb variant is unavailable: {exc}")
     return mitsuba
 
 
@@ -118,6 +119,15 @@ def _vec(mi, v):
     return mi.Vector3f(v[:, 0], v[:, 1], v[:, 2])
 
 
+def _evaluated(*xs):
+    """Evaluate the outputs of one call together (one kernel; reading them one by one would
+    run one kernel each)."""
+    import drjit as dr
+
+    dr.eval(*xs)
+    return xs
+
+
 def _np_vec(v):
     return np.stack([np.array(v.x), np.array(v.y), np.array(v.z)], axis=-1).astype(np.float64)
 
@@ -139,8 +149,8 @@ def _assert_close(got, ref, spread, what):
     bad = err > tol
     if bad.any():
         i = np.argsort((err - tol).ravel())[-5:]
-        pytest.fail(f"{what}: {bad.sum()} of {bad.size} outside tolerance; worst got "
-                    f"{got.ravel()[i]}, ref {ref.ravel()[i]}, tol {tol.ravel()[i]}")
+        pytest.fail(f"{what}: {bad.sum()} of {bad.size} outside tolerance; worst (lanes {i}) "
+                    f"got {got.ravel()[i]}, ref {ref.ravel()[i]}, tol {tol.ravel()[i]}")
 
 
 def _reference(fn, rng, wi, wo, n_perturb=3):
@@ -154,25 +164,20 @@ def _reference(fn, rng, wi, wo, n_perturb=3):
     return ref, spread
 
 
-@functools.lru_cache(maxsize=None)
-def _jitted(model, name, family):
-    """The JAX model's function, compiled once per family (fixed shapes: every call in a test
-    uses the same lanes)."""
-    import jax
-
+def _reference_fn(model, name, family):
+    """The JAX model's function for one family, run op by op (not jitted: every call in this file
+    has the same lane count, so JAX compiles each operation once for all families and models,
+    which takes a fraction of the time of compiling each model function whole)."""
     fn = getattr(model, name)
-    return jax.jit(lambda params, wi, wo: fn(params, wi, wo, distribution=family))
+    return lambda params, wi, wo: fn(params, wi, wo, distribution=family)
 
 
-@functools.lru_cache(maxsize=None)
-def _jitted_fresnel(kind):
-    import jax
-
+def _fresnel_fn(kind):
     from fitlab.fresnel import fresnel_conductor_exact, fresnel_dielectric
 
     if kind == "conductor":
-        return jax.jit(fresnel_conductor_exact)
-    return jax.jit(lambda c, eta: fresnel_dielectric(c, eta)[0])
+        return fresnel_conductor_exact
+    return lambda c, eta: fresnel_dielectric(jnp.asarray(c), jnp.asarray(eta))[0]
 
 
 class Case:
@@ -205,7 +210,7 @@ class Case:
         return {**self.params, "n": N_RGB[c] * ones, "k": K_RGB[c] * ones}
 
     def ref(self, name, wi, wo, c=0):
-        fn = _jitted(self.model, name, self.family)
+        fn = _reference_fn(self.model, name, self.family)
         return np.asarray(fn(self.channel_params(c), jnp.asarray(wi), jnp.asarray(wo)))
 
     def F_ref(self, wi, wo, c=0):
@@ -213,7 +218,7 @@ class Case:
         F for reflection, 1 - F for refraction (fitlab.fresnel, float64)."""
         if self.kind == "conductor":
             h = _normalize(wi + wo)
-            return np.asarray(_jitted_fresnel("conductor")(np.sum(wi * h, -1), N_RGB[c],
+            return np.asarray(_fresnel_fn("conductor")(np.sum(wi * h, -1), N_RGB[c],
                                                           K_RGB[c]))
         eta = np.asarray(self.params["eta"])
         s = np.where(wi[:, 2] < 0, -1.0, 1.0)
@@ -224,13 +229,15 @@ class Case:
         is_r = wo_u[:, 2] > 0
         h = wi_u + np.where(is_r, 1.0, e)[:, None] * wo_u
         h = _normalize(h * np.where(h[:, 2] < 0, -1.0, 1.0)[:, None])
-        F = np.asarray(_jitted_fresnel("dielectric")(np.sum(wi_u * h, -1), e))
+        F = np.asarray(_fresnel_fn("dielectric")(np.sum(wi_u * h, -1), e))
         return np.where(is_r, F, 1.0 - F)
 
 
-def _lanes(rng, aniso, kind, per_case):
-    """Per-lane parameters over the grid of α (× η for a dielectric)."""
-    grid = [(a, e) for a in ALPHAS for e in (ETAS if kind == "dielectric" else (None,))]
+def _lanes(rng, family, aniso, kind):
+    """Per-lane parameters over the grid of α (× η for a dielectric), N_LANES lanes."""
+    alphas = ALPHAS + ((ALPHA_BROAD,) if family.startswith("vmf") else ())
+    grid = [(a, e) for a in alphas for e in (ETAS if kind == "dielectric" else (None,))]
+    per_case = N_LANES // len(grid)
     alpha = np.repeat([g[0] for g in grid], per_case)
     eta = np.repeat([g[1] or 1.0 for g in grid], per_case)
     ratio = rng.choice([0.25, 4.0], size=alpha.size)
@@ -238,15 +245,15 @@ def _lanes(rng, aniso, kind, per_case):
     return alpha, eta, alpha_y
 
 
-def _case_and_pairs(mi, ob, rng, kind, family, aniso, per_case):
-    alpha, eta, alpha_y = _lanes(rng, aniso, kind, per_case)
+def _case_and_pairs(mi, ob, rng, kind, family, aniso):
+    alpha, eta, alpha_y = _lanes(rng, family, aniso, kind)
     n = alpha.size
     case = Case(mi, ob, kind, family, aniso, alpha, eta if kind == "dielectric" else None, alpha_y)
     wi = _incident(rng, n)
     if kind == "conductor":  # mostly from above (the only side that scatters)
         wi[:, 2] = np.where(rng.random(n) < 0.85, np.abs(wi[:, 2]), wi[:, 2])
     # wo: half from the reference sampler (inside the lobes), half uniform, a few mirrors / -wi
-    wo_s = np.asarray(_jitted(case.model, "sample", family)(
+    wo_s = np.asarray(_reference_fn(case.model, "sample", family)(
         case.channel_params(0), jnp.asarray(wi), jnp.asarray(rng.random((n, 3))))[0])
     ok = np.all(np.isfinite(wo_s), -1) & (np.linalg.norm(wo_s, axis=-1) > 0.5)
     wo = np.where(ok[:, None] & (rng.random(n) < 0.5)[:, None], wo_s, _sphere(rng, n))
@@ -264,10 +271,10 @@ def _case_and_pairs(mi, ob, rng, kind, family, aniso, per_case):
 @pytest.mark.parametrize("family,aniso", FAMILIES)
 def test_eval_pdf_agree_with_jax(mi, ob, kind, family, aniso):
     rng = _rng(kind, family, aniso)
-    case, wi, wo = _case_and_pairs(mi, ob, rng, kind, family, aniso,
-                                   140 if kind == "dielectric" else 400)
-    f = _np_spec(case.bsdf.eval(_vec(mi, wi), _vec(mi, wo), True))
-    p = np.array(case.bsdf.pdf(_vec(mi, wi), _vec(mi, wo), True)).astype(np.float64)
+    case, wi, wo = _case_and_pairs(mi, ob, rng, kind, family, aniso)
+    f, p = _evaluated(case.bsdf.eval(_vec(mi, wi), _vec(mi, wo), True),
+                      case.bsdf.pdf(_vec(mi, wi), _vec(mi, wo), True))
+    f, p = _np_spec(f), np.array(p).astype(np.float64)
     for c in range(3 if kind == "conductor" else 1):
         ref, spread = _reference(lambda a, b: case.ref("eval", a, b, c), rng, wi, wo)
         _assert_close(f[:, c], ref, spread, f"{kind} {family} eval channel {c}")
@@ -289,7 +296,7 @@ def test_sample_matches_eval_over_pdf(mi, ob, kind, family, aniso):
     """Same u as the JAX sampler: the same wo (away from the Fresnel choice's boundary); weight
     = f|cos θo|/pdf (times F or 1 - F when forced) and pdf = the reference's at that wo."""
     rng = _rng(kind, family, aniso, 1)
-    alpha, eta, alpha_y = _lanes(rng, aniso, kind, 140 if kind == "dielectric" else 400)
+    alpha, eta, alpha_y = _lanes(rng, family, aniso, kind)
     case = Case(mi, ob, kind, family, aniso, alpha, eta if kind == "dielectric" else None,
                 alpha_y)
     n = alpha.size
@@ -303,6 +310,7 @@ def test_sample_matches_eval_over_pdf(mi, ob, kind, family, aniso):
     for force in forces:
         wo, w, p = case.bsdf.sample(_vec(mi, wi), mi.Float(u[:, 2]), mi.Point2f(u[:, 0], u[:, 1]),
                                     mi.UInt32(np.full(n, force, np.uint32)), True)
+        wo, w, p = _evaluated(wo, w, p)
         out[force] = _np_vec(wo), _np_spec(w), np.array(p).astype(np.float64)
     wo, w, p = out[ob.FORCE_CHOOSE]
     assert np.all(np.isfinite(wo)) and np.all(np.isfinite(w)) and np.all(np.isfinite(p))
@@ -311,7 +319,7 @@ def test_sample_matches_eval_over_pdf(mi, ob, kind, family, aniso):
     assert np.all(w[~valid] == 0)
 
     # the JAX sampler with the same u (unforced; walter_sample for the dielectric)
-    wo_ref, _, p_ref = _jitted(case.model, "sample", family)(
+    wo_ref, _, p_ref = _reference_fn(case.model, "sample", family)(
         case.channel_params(0), jnp.asarray(wi), jnp.asarray(_f32(u)))
     wo_ref, p_ref = np.asarray(wo_ref), np.asarray(p_ref)
     both = valid & (p_ref > 0)
@@ -384,8 +392,8 @@ STAT_CASES = [  # kind, θi (deg, > 90: from below), α, η
 
 @pytest.mark.parametrize("family", ["beckmann_rational", "phong", "vmf", "vmf_exact"])
 def test_mean_weight_is_albedo(mi, ob, family):
-    from fitlab.models import rough_conductor, rough_dielectric
-
+    """E[weight g(wo)] over 1e6 samples = ∫ f |cos θo| g dωo by quadrature (g = 1: the albedo;
+    the reflected fraction; wo.x), with f the eval that test_eval_pdf_agree_with_jax checks."""
     rng = _rng(family)
     nodes, wq = _sphere_rule()
     N = 1_000_000
@@ -394,21 +402,18 @@ def test_mean_weight_is_albedo(mi, ob, family):
         wi1 = _f32(_polar(np.array([theta_i]), np.array([20.0])))
         if kind == "dielectric":
             bsdf = ob.OwnRoughDielectric(family, alpha, None, eta)
-            f = np.asarray(_jitted(rough_dielectric.MODEL, "eval", family)(
-                {"alpha": alpha, "eta": eta}, jnp.asarray(np.repeat(wi1, len(nodes), 0)),
-                jnp.asarray(nodes)))
         else:
             k = 1e4 if kind == "conductor_kinf" else K_RGB[0]
             n = 1.0 if kind == "conductor_kinf" else N_RGB[0]
             bsdf = ob.OwnRoughConductor(family, alpha, None, n, k)
-            f = np.asarray(_jitted(rough_conductor.MODEL, "eval", family)(
-                {"alpha": alpha, "n": n, "k": k}, jnp.asarray(np.repeat(wi1, len(nodes), 0)),
-                jnp.asarray(nodes)))
+        (f,) = _evaluated(bsdf.eval(_vec(mi, wi1), _vec(mi, nodes), True))
+        f = np.array(f[0]).astype(np.float64)
         fc = f * np.abs(nodes[:, 2]) * wq
         tests = {"albedo": np.ones(len(nodes)), "reflected": (nodes[:, 2] * wi1[0, 2] > 0) * 1.0,
                  "wo.x": nodes[:, 0]}
-        wo, w, _ = bsdf.sample(_vec(mi, np.repeat(wi1, N, 0)), mi.Float(u[:, 2]),
+        wo, w, _ = bsdf.sample(_vec(mi, wi1), mi.Float(u[:, 2]),
                                mi.Point2f(u[:, 0], u[:, 1]), mi.UInt32(0), True)
+        wo, w = _evaluated(wo, w)
         wo, w = _np_vec(wo), np.array(w[0]).astype(np.float64)
         assert np.all(np.isfinite(w)) and w.min() >= 0
         g_of_wo = {"albedo": np.ones(N), "reflected": (wo[:, 2] * wi1[0, 2] > 0) * 1.0,
@@ -429,15 +434,12 @@ def test_mean_weight_is_albedo(mi, ob, family):
 def _smith_energy(family, alpha, wi):
     """∫ (i·m) G1(i) G1(o(m)) D(m) / |i·n| dω_m over the facets that reflect wi upward (the k → ∞
     conductor's albedo, Walter eqs 20, 14 rewritten in m), by quadrature over m."""
-    import jax
-
     from fitlab import microfacet
 
     nodes, wq = _sphere_rule()
     up = nodes[:, 2] > 0
     m, w = nodes[up], wq[up]
 
-    @jax.jit
     def integrand(m, wi):
         dist = microfacet.REGISTRY[family](alpha)
         c = m @ wi
@@ -499,7 +501,7 @@ def test_hard_cases_finite(mi, ob, kind):
     wo = np.concatenate([wo, -wo, wi[: len(wo)] * [-1, -1, 1], -wi[: len(wo)]])
     u_vals = np.array([0.0, 1e-7, 0.5, 1 - 2**-24], np.float32)
     u = np.stack(np.meshgrid(u_vals, u_vals, u_vals, indexing="ij"), -1).reshape(-1, 3)
-    params = [(a, e) for a in (1e-4, 1e-3, 1.0)
+    params = [(a, e) for a in (1e-4, 1e-3, 1.0, ALPHA_BROAD)
               for e in ((1.01, 1 / 1.5, 1.5) if kind == "dielectric" else (1.0,))]
     # every (direction pair, parameters) and every (wi, u, parameters)
     P = len(params)
@@ -522,12 +524,14 @@ def test_hard_cases_finite(mi, ob, kind):
         b_e, b_s = make(family, aniso, e_a, e_e), make(family, aniso, s_a, s_e)
         for active in (True, False):
             act = mi.Bool(active)
-            vals = [_np_spec(b_e.eval(_vec(mi, e_wi), _vec(mi, e_wo), act)),
-                    np.array(b_e.pdf(_vec(mi, e_wi), _vec(mi, e_wo), act))]
+            f, p = _evaluated(b_e.eval(_vec(mi, e_wi), _vec(mi, e_wo), act),
+                              b_e.pdf(_vec(mi, e_wi), _vec(mi, e_wo), act))
+            vals = [_np_spec(f), np.array(p)]
             for force in (0, 1, 2):
                 wo_s, w_s, p_s = b_s.sample(_vec(mi, s_wi), mi.Float(s_u[:, 2]),
                                             mi.Point2f(s_u[:, 0], s_u[:, 1]), mi.UInt32(force),
                                             act)
+                wo_s, w_s, p_s = _evaluated(wo_s, w_s, p_s)
                 vals += [_np_vec(wo_s), _np_spec(w_s), np.array(p_s)]
             what = f"{kind} {family} anisotropic={aniso} active={active}"
             for v in vals:

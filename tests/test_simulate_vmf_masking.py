@@ -147,12 +147,13 @@ def test_masking_key_defaults_to_exact_and_chooses_the_family():
                                                               "substrate")
     ggx = scene_from_dict(_scene(distribution="ggx")).boundaries[0]
     assert ggx.masking is None and ggx.family == "ggx"
-    # the walk samples the masking's family: the boundary groups name it
+    # the walk samples the masking's family: the boundary specs name it
     for masking, family in (("exact", "vmf_exact"), ("approx", "vmf")):
-        for where, group in (("stack", "rough"), ("substrate", "conductor")):
+        for where, kind in (("stack", "dielectric"), ("substrate", "conductor")):
             scene = scene_from_dict(_scene(masking, where=where))
-            cfg, _ = _walk_setup(scene, derive_effects(scene), None, 64, "float32")
-            assert f"{group}:{family}" in cfg.boundary_groups, (masking, where)
+            cfg, _ = _walk_setup(scene, derive_effects(scene), None, 64)
+            assert (kind, family) in [(b.kind, b.distribution) for b in cfg.boundaries], \
+                (masking, where)
 
 
 @pytest.mark.parametrize("masking, where, distribution, fragment", [

@@ -115,6 +115,16 @@ def _load(device: str) -> Engine:
     return _with_variant(Engine(dr, mi, VARIANTS["llvm"], "llvm", path, source))
 
 
+def gpu_available() -> bool:
+    """Whether Dr.Jit has a usable CUDA backend (a GPU with a working driver)."""
+    try:
+        select_libllvm()
+    except FitlabError:
+        pass
+    dr, _ = _import_modules()
+    return bool(dr.has_backend(dr.JitBackend.CUDA))
+
+
 def _import_modules():
     """The ``drjit`` and ``mitsuba`` modules, or a one-line error saying what to install."""
     try:

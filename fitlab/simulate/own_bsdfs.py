@@ -308,18 +308,33 @@ def D_vMF(m, alpha, alpha_y=None):
     return dr.select(ok, val, 0.0)
 
 
-def G1_vMF(v, alpha, alpha_y=None):
-    """Paper eq. 8: G1 = A3 cos θv / (a cos(b θv)), a = (A3 + 1)²/4, b = A3^{1/3}, clamped to
-    [0, 1] (fitlab.vmf.G1_approx)."""
+def vmf_one_minus_A3(kappa):
+    """1 - A3(κ) without cancellation: 1/κ - 2e^{-2κ}/(1 - e^{-2κ}) for κ ≥ 1 (→ 1/κ)."""
     import drjit as dr
 
-    a3 = vmf_A3(vmf_kappa(alpha))
+    small, _, kb = _where_small(kappa)
+    e = dr.exp(-2.0 * kb)
+    return dr.select(small, 1.0 - vmf_A3(kappa), 1.0 / kb - 2.0 * e / (1.0 - e))
+
+
+def G1_vMF(v, alpha, alpha_y=None):
+    """Paper eq. 8: G1 = A3 cos θv / (a cos(b θv)), a = (A3 + 1)²/4, b = A3^{1/3}, clamped to
+    [0, 1] (fitlab.vmf.G1_approx). Near the horizon cos(b θv) of a sharp lobe (b → 1) cancels:
+    written as sin((π/2 - θv) + (1 - b) θv), with the elevation π/2 - θv = atan2(|v_z|, sin θv)
+    and 1 - b = (1 - A3)/(1 + b + b²)."""
+    import drjit as dr
+
+    kappa = vmf_kappa(alpha)
+    a3 = vmf_A3(kappa)
     a = 0.25 * dr.square(a3 + 1.0)
     b = dr.cbrt(a3)
+    one_minus_b = vmf_one_minus_A3(kappa) / (1.0 + b + b * b)
     s2, _ = _sin2_cos2(v)
+    sin_v = dr.sqrt(s2)
     cz = dr.abs(v.z)
-    theta = dr.atan2(dr.sqrt(s2), cz)
-    return dr.clip(_safe_div(a3 * cz, a * dr.cos(b * theta)), 0.0, 1.0)
+    theta = dr.atan2(sin_v, cz)
+    cos_b_theta = dr.sin(dr.atan2(cz, sin_v) + one_minus_b * theta)
+    return dr.clip(_safe_div(a3 * cz, a * cos_b_theta), 0.0, 1.0)
 
 
 def _gl_rule():

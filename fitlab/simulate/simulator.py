@@ -344,7 +344,7 @@ def _simulate(scene, samples, seed, batch_size, max_events, progress):
         Q1, Q2, F1 = np.zeros((n_out, C)), np.zeros((n_out, C)), np.zeros((2, 2, C))
         for ci, stack in enumerate(stacks):
             sl = slice(None) if len(stacks) == 1 else slice(ci, ci + 1)
-            t = run(stack, det, wi, samples, seed_words(seed, ii, ci), n_out, n_up,
+            t = run(stack, det, wi, samples, seed_words(seed, ii), n_out, n_up,
                     launch=batch_size, on_launch=lambda n, ti=ti: prog.add(n, f"θi = {ti:g}°"))
             S1[..., sl] += t.s1
             S2[..., sl] += t.s2

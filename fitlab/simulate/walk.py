@@ -57,6 +57,10 @@ RR_MIN_Q = 0.05
 LAUNCH_PATHS = 1 << 20
 #: Memory of the per-path point-estimate sums of one launch (bytes).
 POINT_LAUNCH_BYTES = 64 << 20
+#: Paths whose contributions the host sums together before adding the sum to the totals, in
+#: path order; launches are whole multiples of it, so the float64 totals do not depend on the
+#: launch size.
+TALLY_BLOCK = 4096
 
 
 class WalkConfig(NamedTuple):
@@ -901,10 +905,10 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     return ex, a, capped, events
 
 
-def _split_first(stack: Stack, det: Detector, wi, n: int, first: int, words, n_out: int):
+def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
     """Splitting at the first interface: the reflected branch of each path's first crossing of
     the top boundary (forced reflection, weight F times the sample weight), sampled with its own
-    random numbers, tallied as bounce order 0."""
+    random numbers: its exits, tallied as bounce order 0."""
     import drjit as dr
     import mitsuba as mi
 
@@ -920,9 +924,8 @@ def _split_first(stack: Stack, det: Detector, wi, n: int, first: int, words, n_o
         keep = keep & diffuse
     x = dr.select(keep, f, 0.0)
     dr.eval(wo, x)
-    ex = Exits(np.array(wo, dtype=np.float32).T.reshape(n, 3),
-               np.array(x, dtype=np.float32).T.reshape(n, 3), np.zeros(n, dtype=np.int64))
-    return tally_exits(cfg, det, ex, n_out)
+    return Exits(np.array(wo, dtype=np.float32).T.reshape(n, 3),
+                 np.array(x, dtype=np.float32).T.reshape(n, 3), np.zeros(n, dtype=np.int64))
 
 
 def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,
@@ -930,9 +933,9 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     """Trace ``n_paths`` paths lit from direction ``wi`` (unit, z > 0, toward the light) and sum
     their contributions (:class:`Tallies`). ``words``: the PCG32 seed words (:func:`seed_words`);
     ``on_launch(n)``: called after each launch of n paths (progress). Point detectors: the
-    rows are the reflection rows first, ``n_up`` of them. ``launch``: paths per launch (at
-    most; point estimates launch fewer when their per-path sums would pass
-    :data:`POINT_LAUNCH_BYTES`). The result does not depend on ``launch``."""
+    rows are the reflection rows first, ``n_up`` of them. ``launch``: paths per launch (a
+    whole multiple of :data:`TALLY_BLOCK`, at least one; point estimates launch fewer when their
+    per-path sums would pass :data:`POINT_LAUNCH_BYTES`). The result does not depend on it."""
     cfg = stack.cfg
     C = cfg.channels
     K = len(ORDER_CLASSES)
@@ -940,7 +943,8 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     sides = point_sides(cfg, stack.arr, det.cone_dir, n_up) if points else None
     walk = _Walk(stack, sides, n_out if points else 0)
     if points:
-        launch = min(launch, max(1024, POINT_LAUNCH_BYTES // (K * n_out * 3 * 4)))
+        launch = min(launch, POINT_LAUNCH_BYTES // (K * n_out * 3 * 4))
+    launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
     s1 = np.zeros((K, n_out, C))
     s2 = np.zeros((K + 1, n_out, C))
     side = np.zeros((2, 2, C))
@@ -949,26 +953,31 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     truncated = events = 0
     for first in range(0, n_paths, launch):
         n = min(launch, n_paths - first)
-        ex, a, capped, ev = _launch(stack, walk, wi, n, first, words, n_out)
+        ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out)
+        sp = _split_first(stack, wi, n, first, words) if split is not None else None
         truncated += int(capped.sum())
         events += ev
-        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out)
-        side += t_side
-        if points:
-            a = a[..., :C].astype(np.float64)
-            s1 += a.sum(axis=0)
-            s2[:K] += (a * a).sum(axis=0)
-            tot = a.sum(axis=1)
-            s2[K] += (tot * tot).sum(axis=0)
-        else:
-            s1 += t1
-            s2[:K] += t2
-            s2[K] += t2.sum(axis=0)  # each path exits in one order class
-        if split is not None:
-            q1, q2, q_side = _split_first(stack, det, wi, n, first, words, n_out)
-            split[0] += q1[0, :, :C]
-            split[1] += q2[0, :, :C]
-            split[2] += q_side[..., :C]
+        for lo in range(0, n, TALLY_BLOCK):
+            blk = slice(lo, lo + TALLY_BLOCK)
+            bx = Exits(ex.w[blk], ex.x[blk, :C], ex.order[blk])
+            t1, t2, t_side = tally_exits(cfg, det, bx, n_out)
+            side += t_side
+            if points:
+                a = acc[blk, ..., :C].astype(np.float64)
+                s1 += a.sum(axis=0)
+                s2[:K] += (a * a).sum(axis=0)
+                tot = a.sum(axis=1)
+                s2[K] += (tot * tot).sum(axis=0)
+            else:
+                s1 += t1
+                s2[:K] += t2
+                s2[K] += t2.sum(axis=0)  # each path exits in one order class
+            if sp is not None:
+                q1, q2, q_side = tally_exits(cfg, det, Exits(sp.w[blk], sp.x[blk, :C],
+                                                             sp.order[blk]), n_out)
+                split[0] += q1[0]
+                split[1] += q2[0]
+                split[2] += q_side
         if on_launch is not None:
             on_launch(n)
     return Tallies(s1, s2, side, None if split is None else tuple(split), truncated, events)
