@@ -13,12 +13,14 @@ radiance transport), and its ``eval`` is f(wi, wo)|cos θo| with f in fitlab's (
 convention — checked against fitlab's JAX models in tests/test_simulate_engine.py.
 
 Used from Mitsuba (variant llvm_ad_rgb / cuda_ad_rgb): ``roughdielectric`` and
-``roughconductor`` (GGX, Beckmann, isotropic and anisotropic, visible-normal sampling),
+``roughconductor`` (GGX, isotropic and anisotropic, visible-normal sampling),
 ``conductor``, ``diffuse``, the ``hg`` and ``isotropic`` phase functions, Mitsuba's SGGX
 functions (``sggx_sample``, ``sggx_pdf``, ``sggx_projected_area``: see :class:`SGGXPhase` for why
 not its ``sggx`` plugin), and ``mi.fresnel`` / ``mi.refract`` / ``mi.reflect`` for the smooth
-dielectric (Mitsuba's ``dielectric`` plugin keeps η as a constant compiled into the kernel). fitlab's own: the vMF,
-Phong and rational-Beckmann interfaces, the SGGX flakes' Schlick Fresnel (SpongeCake eq. 5).
+dielectric (Mitsuba's ``dielectric`` plugin keeps η as a constant compiled into the kernel). fitlab's own: the
+Beckmann (exact and rational masking), Phong and vMF interfaces (see
+:data:`MITSUBA_DISTRIBUTIONS` for why not Mitsuba's Beckmann), the SGGX flakes' Schlick Fresnel
+(SpongeCake eq. 5).
 """
 
 from __future__ import annotations
@@ -29,8 +31,11 @@ import numpy as np
 
 from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT
 
-#: Microfacet distributions Mitsuba's rough plugins implement (fitlab name → Mitsuba name).
-MITSUBA_DISTRIBUTIONS = {"ggx": "ggx", "beckmann": "beckmann"}
+#: Microfacet distributions Mitsuba's rough plugins implement as fitlab defines them (fitlab name
+#: → Mitsuba name). Mitsuba's ``beckmann`` masks with Walter's rational eq. 27 (0.3 % from the
+#: exact erf G1 of fitlab's ``beckmann``), and its visible-normal sampling follows the exact one,
+#: so neither Beckmann family is Mitsuba's: both are written in own_bsdfs.py.
+MITSUBA_DISTRIBUTIONS = {"ggx": "ggx"}
 
 
 class BoundarySpec(NamedTuple):

@@ -547,7 +547,7 @@ class _Walk:
         capped = alive & (events >= cfg.max_events)
         st.update(region=region, z=z, w=new_w, weight=weight, alive=alive & ~capped,
                   exited=exited, bounces=bounces, vol_events=vol_events, events=events,
-                  diffuse=diffuse, last_pdf=last_pdf, capped=st["capped"] | capped,
+                  diffuse=diffuse, last_pdf=last_pdf, capped=capped,
                   steps=st["steps"] + 1, rng=rng)
 
     def _forced_branch(self, region, b, down):
@@ -748,39 +748,61 @@ class _Walk:
             dr.scatter_add(acc, value[c], slot + c, ok)
 
 
+def _tea_seeds(path, words):
+    """PCG32 initial state and stream of global path ids ``path`` (UInt32): TEA hashes
+    (``mi.sample_tea_64``) of the id and the seed words, as Mitsuba's ``independent`` sampler
+    seeds its lanes (consecutive unhashed seeds give correlated first draws)."""
+    import mitsuba as mi
+
+    import drjit as dr
+
+    # kernel inputs, not constants: another seed, incidence or launch reuses the kernel
+    w0 = dr.opaque(mi.UInt32, (words[0] & 0xFFFFFFFF) ^ (words[0] >> 32))
+    w1 = dr.opaque(mi.UInt32, (words[1] & 0xFFFFFFFF) ^ (words[1] >> 32))
+    return mi.sample_tea_64(path, w0), mi.sample_tea_64(w1, path)
+
+
 def path_rng(n: int, words, first_path: int):
-    """The PCG32 streams of paths first_path .. first_path + n − 1, seeded as Mitsuba's
-    ``independent`` sampler seeds its lanes: state and stream of path p are TEA hashes
-    (``mi.sample_tea_64``) of p and the seed words, so a path's random numbers depend on its id
-    and the seed, not on the launch it is traced in (consecutive unhashed seeds give correlated
-    first draws)."""
+    """The PCG32 streams of paths first_path .. first_path + n − 1 (:func:`_tea_seeds`): a path's
+    random numbers depend on its id and the seed, not on the launch or lane it is traced in."""
     import drjit as dr
     import mitsuba as mi
 
-    p = dr.arange(mi.UInt32, n) + mi.UInt32(first_path & 0xFFFFFFFF)
-    w0 = mi.UInt32(words[0] & 0xFFFFFFFF) ^ mi.UInt32(words[0] >> 32)
-    w1 = mi.UInt32(words[1] & 0xFFFFFFFF) ^ mi.UInt32(words[1] >> 32)
     rng = mi.PCG32(n)
-    rng.seed(mi.sample_tea_64(p, w0), mi.sample_tea_64(w1, p))
+    rng.seed(*_tea_seeds(dr.arange(mi.UInt32, n)
+                         + dr.opaque(mi.UInt32, first_path & 0xFFFFFFFF), words))
     return rng
 
 
-def _state(cfg, n, wi, words, first_path):
-    """The loop state of n new paths at the top of the stack, travelling along -wi."""
+def _fresh(n, wi):
+    """The per-path fields of n new paths at the top of the stack, travelling along -wi."""
     import drjit as dr
     import mitsuba as mi
 
-    rng = path_rng(n, words, first_path)
+    d = [dr.opaque(mi.Float, -float(c)) for c in wi]  # kernel inputs, not constants
     return {
         "region": dr.zeros(mi.Int32, n), "z": dr.zeros(mi.Float, n),
-        "w": mi.Vector3f(dr.full(mi.Float, -wi[0], n), dr.full(mi.Float, -wi[1], n),
-                         dr.full(mi.Float, -wi[2], n)),
+        "w": mi.Vector3f(d[0] + dr.zeros(mi.Float, n), d[1] + dr.zeros(mi.Float, n),
+                         d[2] + dr.zeros(mi.Float, n)),
         "weight": dr.full(mi.Spectrum, 1.0, n), "alive": dr.full(mi.Bool, True, n),
         "exited": dr.full(mi.Bool, False, n), "bounces": dr.zeros(mi.Int32, n),
         "vol_events": dr.zeros(mi.Int32, n), "events": dr.zeros(mi.Int32, n),
         "diffuse": dr.full(mi.Bool, False, n), "last_pdf": dr.zeros(mi.Float, n),
-        "capped": dr.full(mi.Bool, False, n), "steps": dr.zeros(mi.UInt32, n), "rng": rng,
+        "capped": dr.full(mi.Bool, False, n),
     }
+
+
+def _state(lanes, wi, words, first_path):
+    """The loop state: ``lanes`` lanes, lane l tracing paths l, l + lanes, l + 2·lanes, ... of
+    the launch (path regeneration: a lane whose path ends starts its next one, so SIMD packets
+    stay busy until the launch's last paths drain)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    st = _fresh(lanes, wi)
+    st.update(rng=path_rng(lanes, words, first_path), path=dr.arange(mi.UInt32, lanes),
+              steps=dr.zeros(mi.UInt32, lanes))
+    return st
 
 
 # --------------------------------------------------------------------------------------------
@@ -871,38 +893,76 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
     return s1, s2, side
 
 
+#: Lanes of one launch (each traces about launch / LANES paths in turn).
+LANES = 1 << 15
+
+
 def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int):
-    """Trace paths first .. first + n − 1; returns their Exits (or the point sums (n, 4,
-    n_out, 3)), the capped mask and the events traced."""
+    """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
+    the point sums (n, 4, n_out, 3) or None, the capped mask (n,) and the events traced."""
     import drjit as dr
     import mitsuba as mi
 
-    st = _state(stack.cfg, n, wi, words, first)
+    lanes = min(n, LANES)
+    st = _state(lanes, wi, words, first)
+    # kernel inputs, not constants: launches of other sizes or offsets reuse the kernel
+    n_v, lanes_v = dr.opaque(mi.UInt32, n), dr.opaque(mi.UInt32, lanes)
+    first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
     points = bool(walk.rows)
     acc = dr.zeros(mi.Float, n * len(ORDER_CLASSES) * n_out * 3) if points else None
-    path = dr.arange(mi.UInt32, n)
+    ex_w = [dr.zeros(mi.Float, n) for _ in range(3)]
+    ex_x = [dr.zeros(mi.Float, n) for _ in range(3)]
+    ex_order = dr.zeros(mi.Int32, n)
+    capped_paths = dr.zeros(mi.Bool, n)
+    fresh = _fresh(1, wi)
 
     def cond(s):
         return s["alive"]
 
     def body(s):
-        walk.step(s, acc, path)
+        walk.step(s, acc, s["path"])
+        ended = ~s["alive"]
+        path = s["path"]
+        done = ended & s["exited"]
+        for c in range(3):
+            dr.scatter(ex_w[c], s["w"][c], path, done)
+            dr.scatter(ex_x[c], s["weight"][c], path, done)
+        dr.scatter(ex_order, s["bounces"], path, done)
+        dr.scatter(capped_paths, True, path, ended & s["capped"])
+        # the lane's next path
+        nxt = path + lanes_v
+        start = ended & (nxt < n_v)
+        for key, v in fresh.items():
+            s[key] = dr.select(start, type(s[key])(v), s[key])
+        s["alive"] = s["alive"] | start
+        state, inc = _tea_rng_fields(nxt + first_v, words)
+        s["rng"].state = dr.select(start, state, s["rng"].state)
+        s["rng"].inc = dr.select(start, inc, s["rng"].inc)
+        s["path"] = dr.select(start, nxt, path)
         return (s,)
 
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
-    x = dr.select(st["exited"], st["weight"], 0.0)
-    dr.eval(st["w"], x, st["bounces"], st["capped"], st["steps"], acc)
-    capped = np.array(st["capped"], dtype=bool)
+    dr.eval(ex_w, ex_x, ex_order, capped_paths, st["steps"], acc)
+    capped = np.array(capped_paths, dtype=bool)
     events = int(np.array(st["steps"], dtype=np.int64).sum())
-    ex = Exits(np.array(st["w"], dtype=np.float32).T.reshape(n, 3),
-               np.array(x, dtype=np.float32).T.reshape(n, 3),
-               np.array(st["bounces"], dtype=np.int64))
+    ex = Exits(np.stack([np.array(v, dtype=np.float32) for v in ex_w], axis=1),
+               np.stack([np.array(v, dtype=np.float32) for v in ex_x], axis=1),
+               np.array(ex_order, dtype=np.int64))
     a = None
     if points:
         a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
         a[capped] = 0.0  # a truncated path's connections are dropped, as its exit would be
     return ex, a, capped, events
+
+
+def _tea_rng_fields(path, words):
+    """PCG32 (state, inc) of global path ids ``path``, as ``PCG32.seed`` sets them."""
+    import mitsuba as mi
+
+    rng = mi.PCG32()
+    rng.seed(*_tea_seeds(path, words))
+    return rng.state, rng.inc
 
 
 def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
@@ -914,7 +974,7 @@ def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
 
     cfg = stack.cfg
     rng = path_rng(n, (words[0] ^ 0x27D4EB2F165667B1, words[1] ^ 0x165667B19E3779F9), first)
-    wi_v = mi.Vector3f(float(wi[0]), float(wi[1]), float(wi[2]))
+    wi_v = mi.Vector3f(*[dr.opaque(mi.Float, float(c)) for c in wi])
     u1 = rng.next_float32()
     u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
     wo, f, _, diffuse = stack.boundary_sample(mi.Int32(0), wi_v, u1, u2,
