@@ -290,7 +290,13 @@ def _chunk_id(sweep: Sweep, indices: list) -> str:
         ref = scene.detector.file
         parts.append([i, sweep.scene_dict(i), point_seed(sweep.seed, i),
                       sha256_of(ref) if ref else None])
-    return digest("fitlab-sweep", sweep.samples, sweep.batch_size, parts)
+    # the walk that made the numbers, not the batch size (which changes no number): a sweep
+    # resumed after an upgrade of the walk simulates its points again
+    return digest("fitlab-sweep", sweep.samples, WALK_ENGINE, parts)
+
+
+#: The walk's identity in chunk ids (the JAX walk's chunks, made before it, are run again).
+WALK_ENGINE = "drjit-walk-1"
 
 
 def _simulate_chunk(sweep: Sweep, indices: list, records: dict, out_dir: str,

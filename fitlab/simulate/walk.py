@@ -47,6 +47,9 @@ import numpy as np
 from fitlab.simulate import components as comp
 from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT
 
+#: How a lane reaches its boundary's sampling: "mask" (every boundary's code on every lane,
+#: masked) or "switch" (Dr.Jit's dr.switch: an indirect call per boundary).
+DISPATCH = "switch"
 #: Bounce-order classes tallied separately: 0, 1, 2, ≥ 3.
 ORDER_CLASSES = ("order0", "order1", "order2", "rest")
 #: Russian roulette starts after this many events of a path.
@@ -123,12 +126,14 @@ class Detector(NamedTuple):
 
 
 class Exits(NamedTuple):
-    """Per path: the exit direction (P, 3), the tallied flux weight (P, C) (0: not tallied) and
-    the bounce order (P,)."""
+    """Per path: the exit direction (P, 3), the tallied flux weight (P, C) (0: not tallied), the
+    bounce order (P,) and, for hemisphere bins, the tally segment order class × n_out + bin
+    (:func:`bin_index`, computed on the device), else None."""
 
     w: np.ndarray
     x: np.ndarray
     order: np.ndarray
+    seg: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -204,13 +209,29 @@ class Stack:
         import drjit as dr
         import mitsuba as mi
 
+        used = [(j, bd) for j, bd in enumerate(self.boundary) if bd is not None]
+        if DISPATCH == "switch" and len(used) > 1:
+            def target(bd):
+                def f(wi, s1, s2, force, active):
+                    wo, w, p = bd.sample(wi, s1, s2, force, active, need_pdf)
+                    return wo, mi.Spectrum(w), mi.Float(p), mi.Bool(bd.nonspecular)
+                return f
+
+            index = mi.UInt32(0)
+            sel = mi.Bool(False)
+            for k, (j, _) in enumerate(used):
+                index = dr.select(b == j, k, index)
+                sel = sel | (b == j)
+            sel = sel & active  # lanes at a "pass" boundary call nothing
+            wo, weight, pdf, nonspec = dr.switch(index, [target(bd) for _, bd in used],
+                                                 wi, s1, s2, force, sel)
+            return (dr.select(sel, wo, -wi), dr.select(sel, weight, 1.0),
+                    dr.select(sel, pdf, 0.0), nonspec & sel)
         wo = -wi
         weight = mi.Spectrum(1.0)
         pdf = mi.Float(0.0)
         nonspec = mi.Bool(False)
-        for j, bd in enumerate(self.boundary):
-            if bd is None:
-                continue
+        for j, bd in used:
             sel = active & (b == j)
             w_j, f_j, p_j = bd.sample(wi, s1, s2, force, sel, need_pdf)
             wo = dr.select(sel, w_j, wo)
@@ -486,10 +507,12 @@ class _Walk:
         new_w = w
         vol_events = st["vol_events"]
         diffuse = st["diffuse"]
-        u_v1 = rng.next_float32()
-        u_v2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+        # a lane scatters in the volume or meets a boundary, never both: one set of uniforms
+        # serves whichever sampling the lane takes
+        u1 = rng.next_float32()
+        u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
         if cfg.volume:
-            w_v, p_v = S.phase_sample(region, wi, u_v1, u_v2, scatter)
+            w_v, p_v = S.phase_sample(region, wi, u1, u2, scatter)
             if cfg.flake_fresnel:
                 weight = dr.select(scatter, weight * S.flake_F(region, wi, w_v, scatter), weight)
             new_w = dr.select(scatter, w_v, new_w)
@@ -499,10 +522,7 @@ class _Walk:
 
         # --- boundary events -----------------------------------------------------------------
         force = self._forced_branch(region, b, down)
-        u_b1 = rng.next_float32()
-        u_b2 = mi.Point2f(rng.next_float32(), rng.next_float32())
-        w_b, f_b, p_b, diff_b = S.boundary_sample(b, wi, u_b1, u_b2, force, hit,
-                                                  bool(self.rows))
+        w_b, f_b, p_b, diff_b = S.boundary_sample(b, wi, u1, u2, force, hit, bool(self.rows))
         new_w = dr.select(hit, w_b, new_w)
         weight = dr.select(hit, weight * f_b, weight)
         diffuse = diffuse | (hit & diff_b)
@@ -857,40 +877,75 @@ def bin_index(cfg: WalkConfig, w: np.ndarray) -> np.ndarray:
     return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
 
 
+def _bincount_blocks(key, weights, nb, size):
+    """Per block of :data:`TALLY_BLOCK` paths, the sums of ``weights`` by ``key`` (nb, size):
+    one ``np.bincount`` (sequential in path order) over the block-offset keys."""
+    block = np.arange(len(key)) // TALLY_BLOCK
+    return np.bincount(block * size + key, weights, nb * size).reshape(nb, size)
+
+
+def _device_bin(cfg: WalkConfig, w):
+    """:func:`bin_index` in the kernel (float32)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    side = mi.UInt32(dr.select(w.z < 0, 1, 0))
+    theta = dr.atan2(dr.sqrt(dr.square(w.x) + dr.square(w.y)), dr.clip(dr.abs(w.z), 0.0, 1.0))
+    tb = mi.UInt32(dr.clip(mi.Int32(theta * (2.0 / dr.pi) * cfg.theta_bins), 0,
+                           cfg.theta_bins - 1))
+    phi = dr.atan2(w.y, w.x)
+    phi = dr.select(phi < 0, phi + 2.0 * dr.pi, phi)
+    pb = mi.UInt32(dr.clip(mi.Int32(phi * (0.5 / dr.pi) * cfg.phi_bins), 0, cfg.phi_bins - 1))
+    return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
+
+
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
-    """Float64 sums and sums of squares of the exits' weights per order class and bin or cone
-    (4, n_out, C) and per exit side (2 moments, 2 sides, C), summed in path order."""
+    """Float64 sums and sums of squares of the exits' weights per block of
+    :data:`TALLY_BLOCK` paths, order class and bin or cone, (nb, 4, n_out, C) each, and per exit
+    side (nb, 2 moments, 2 sides, C), each block summed in path order."""
     C = ex.x.shape[1]
     K = len(ORDER_CLASSES)
+    P = len(ex.x)
+    nb = -(-P // TALLY_BLOCK)
     ok = np.all(np.isfinite(ex.w), axis=1) & np.all(np.isfinite(ex.x), axis=1)
     x = np.where(ok[:, None], ex.x, 0.0).astype(np.float64)
-    ex = ex._replace(w=np.where(ok[:, None], ex.w, np.float32([0.0, 0.0, 1.0])))
+    w = np.where(ok[:, None], ex.w, np.float32([0.0, 0.0, 1.0]))
     order = np.minimum(ex.order, K - 1)
-    s1 = np.zeros((K, n_out, C))
-    s2 = np.zeros((K, n_out, C))
+    s1 = np.zeros((nb, K, n_out, C))
+    s2 = np.zeros((nb, K, n_out, C))
     if cfg.detector == "bins":
-        seg = order * n_out + bin_index(cfg, ex.w.astype(np.float64))
+        seg = ex.seg if ex.seg is not None else order * n_out + bin_index(cfg, w)
+        seg = np.where(ok, seg, 0)
         for c in range(C):
-            s1[..., c] = np.bincount(seg, x[:, c], K * n_out).reshape(K, n_out)
-            s2[..., c] = np.bincount(seg, x[:, c] ** 2, K * n_out).reshape(K, n_out)
+            s1[..., c] = _bincount_blocks(seg, x[:, c], nb, K * n_out).reshape(nb, K, n_out)
+            s2[..., c] = _bincount_blocks(seg, x[:, c] ** 2, nb, K * n_out).reshape(nb, K, n_out)
     elif cfg.detector == "cones":
-        # cones may overlap: a (paths × cones) membership matrix of the tallied paths, in
-        # blocks of paths, summed per order class in path order
-        sel = np.flatnonzero(np.any(x != 0.0, axis=1))
-        w64, xt, ot = ex.w[sel].astype(np.float64), x[sel], order[sel]
-        for lo in range(0, len(sel), 1 << 16):
-            blk = slice(lo, lo + (1 << 16))
-            inside = (w64[blk] @ det.cone_dir.T >= det.cone_cos[None, :]).astype(np.float64)
+        # cones may overlap: a (paths × cones) membership matrix of each block's tallied paths
+        w64 = w.astype(np.float64)
+        for j, lo in enumerate(range(0, P, TALLY_BLOCK)):
+            blk = slice(lo, lo + TALLY_BLOCK)
+            sel = np.flatnonzero(np.any(x[blk] != 0.0, axis=1))
+            if not len(sel):
+                continue
+            xt, ot = x[blk][sel], order[blk][sel]
+            inside = (w64[blk][sel] @ det.cone_dir.T >= det.cone_cos[None, :]).astype(np.float64)
             for o in range(K):
-                m = ot[blk] == o
+                m = ot == o
                 if m.any():
-                    xo = xt[blk][m]
-                    s1[o] += inside[m].T @ xo
-                    s2[o] += inside[m].T @ (xo * xo)
-    down = (ex.w[:, 2] < 0)[:, None]
-    xs = np.stack([np.where(down, 0.0, x), np.where(down, x, 0.0)])
-    side = np.stack([xs.sum(axis=1), (xs * xs).sum(axis=1)])
+                    s1[j, o] = inside[m].T @ xt[m]
+                    s2[j, o] = inside[m].T @ (xt[m] * xt[m])
+    down = (w[:, 2] < 0).astype(np.int64)
+    side = np.zeros((nb, 2, 2, C))
+    for c in range(C):
+        side[:, 0, :, c] = _bincount_blocks(down, x[:, c], nb, 2)
+        side[:, 1, :, c] = _bincount_blocks(down, x[:, c] ** 2, nb, 2)
     return s1, s2, side
+
+
+def _fold(total: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """total + blocks[0] + blocks[1] + ..., added one block after the other (``np.cumsum`` is a
+    left fold): the same float64 result however the blocks are split into launches."""
+    return np.cumsum(np.concatenate([total[None], blocks]), axis=0)[-1]
 
 
 #: Lanes of one launch (each traces about launch / LANES paths in turn).
@@ -913,6 +968,8 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     ex_w = [dr.zeros(mi.Float, n) for _ in range(3)]
     ex_x = [dr.zeros(mi.Float, n) for _ in range(3)]
     ex_order = dr.zeros(mi.Int32, n)
+    bins = stack.cfg.detector == "bins"
+    ex_seg = dr.zeros(mi.UInt32, n) if bins else None
     capped_paths = dr.zeros(mi.Bool, n)
     fresh = _fresh(1, wi)
 
@@ -928,6 +985,9 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
             dr.scatter(ex_w[c], s["w"][c], path, done)
             dr.scatter(ex_x[c], s["weight"][c], path, done)
         dr.scatter(ex_order, s["bounces"], path, done)
+        if bins:
+            seg = _order_class(s["bounces"]) * n_out + _device_bin(stack.cfg, s["w"])
+            dr.scatter(ex_seg, seg, path, done)
         dr.scatter(capped_paths, True, path, ended & s["capped"])
         # the lane's next path
         nxt = path + lanes_v
@@ -943,12 +1003,13 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
 
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
-    dr.eval(ex_w, ex_x, ex_order, capped_paths, st["steps"], acc)
+    dr.eval(ex_w, ex_x, ex_order, ex_seg, capped_paths, st["steps"], acc)
     capped = np.array(capped_paths, dtype=bool)
     events = int(np.array(st["steps"], dtype=np.int64).sum())
     ex = Exits(np.stack([np.array(v, dtype=np.float32) for v in ex_w], axis=1),
                np.stack([np.array(v, dtype=np.float32) for v in ex_x], axis=1),
-               np.array(ex_order, dtype=np.int64))
+               np.array(ex_order, dtype=np.int64),
+               np.array(ex_seg, dtype=np.int64) if bins else None)
     a = None
     if points:
         a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
@@ -1017,27 +1078,26 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
         sp = _split_first(stack, wi, n, first, words) if split is not None else None
         truncated += int(capped.sum())
         events += ev
-        for lo in range(0, n, TALLY_BLOCK):
-            blk = slice(lo, lo + TALLY_BLOCK)
-            bx = Exits(ex.w[blk], ex.x[blk, :C], ex.order[blk])
-            t1, t2, t_side = tally_exits(cfg, det, bx, n_out)
-            side += t_side
-            if points:
-                a = acc[blk, ..., :C].astype(np.float64)
-                s1 += a.sum(axis=0)
-                s2[:K] += (a * a).sum(axis=0)
-                tot = a.sum(axis=1)
-                s2[K] += (tot * tot).sum(axis=0)
-            else:
-                s1 += t1
-                s2[:K] += t2
-                s2[K] += t2.sum(axis=0)  # each path exits in one order class
-            if sp is not None:
-                q1, q2, q_side = tally_exits(cfg, det, Exits(sp.w[blk], sp.x[blk, :C],
-                                                             sp.order[blk]), n_out)
-                split[0] += q1[0]
-                split[1] += q2[0]
-                split[2] += q_side
+        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out)
+        side = _fold(side, t_side)
+        if points:
+            nb = t1.shape[0]
+            a = np.zeros((nb * TALLY_BLOCK,) + acc.shape[1:-1] + (C,))
+            a[:n] = acc[..., :C]
+            a = a.reshape((nb, TALLY_BLOCK) + a.shape[1:])
+            s1 = _fold(s1, a.sum(axis=1))
+            tot = a.sum(axis=2)
+            s2 = _fold(s2, np.concatenate([(a * a).sum(axis=1),
+                                           (tot * tot).sum(axis=1)[:, None]], axis=1))
+        else:
+            s1 = _fold(s1, t1)
+            # each path exits in one order class: its total's square is its order's
+            s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
+        if sp is not None:
+            q1, q2, q_side = tally_exits(cfg, det, sp._replace(x=sp.x[:, :C]), n_out)
+            split[0] = _fold(split[0], q1[:, 0])
+            split[1] = _fold(split[1], q2[:, 0])
+            split[2] = _fold(split[2], q_side)
         if on_launch is not None:
             on_launch(n)
     return Tallies(s1, s2, side, None if split is None else tuple(split), truncated, events)
