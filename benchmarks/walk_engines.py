@@ -1,5 +1,5 @@
 """Walk engines (issue 15, item 3): the random walk of ``numpy_walk.simulate_numpy`` compiled by
-other array compilers, timed against NumPy and fitlab's JAX walk, and set against this CPU's
+other array compilers, timed against NumPy and fitlab's Dr.Jit walk, and set against this CPU's
 arithmetic peak.
 
 Engines, each the same walk as ``simulate_numpy`` (free flights sampled by σs with
@@ -9,8 +9,16 @@ roulette after 3 events with survival q = clip(weight, 0.05, 1), at most 512 eve
 hemisphere bins on both sides):
 
 * ``numpy``: ``numpy_walk.simulate_numpy`` itself (float64, alive paths compacted per event);
-* ``fitlab``: ``fitlab.simulate.simulate`` on ``bench_simulate.throughput_scene()`` (JAX,
-  float32 lanes, one ``lax.while_loop`` with path regeneration);
+* ``fitlab``: ``fitlab.simulate.simulate(..., device="cpu")`` on
+  ``bench_simulate.throughput_scene()``: fitlab's plain walk (fitlab/simulate/walk.py: Dr.Jit's
+  LLVM backend through Mitsuba 3's ``llvm_ad_rgb`` variant and its BSDF and phase-function
+  plugins, float32 paths, one symbolic ``dr.while_loop`` per walk configuration with path
+  regeneration on ``walk.LANES`` lanes, exits tallied into the bins on the host in float64);
+* ``fitlab_nee``: the full-feature kernel, the same scene and walk with point estimates (next-
+  event estimation toward the 41 directions of ``bench_simulate.arc_scene("point")``, every
+  connection's BSDF, phase and transmittance evaluations) instead of bins; it has no bins to
+  check against NumPy here (``bench_simulate.py`` [4] checks it against
+  ``numpy_walk.simulate_numpy_points``);
 * ``numba64`` / ``numba32``: :func:`simulate_numba`, ``@njit(parallel=True,
   fastmath=False)``: ``prange`` over chunks of paths, each path traced to its end in scalar
   code, float64 / float32 path state (tallies float64), per-chunk tallies summed at the end;
@@ -36,10 +44,13 @@ The limit: the floating-point work of one event is counted from the Numba kernel
 (:func:`kernel_cost`: the operations of each helper, along its longest branch, weighted by
 :data:`WEIGHTS`), combined with the event mix the kernel measures (flights, phase samples,
 interface samples, roulette draws, random numbers per event), and set against the peak of this
-CPU (cores × clock × 8 float32 lanes × 2 FMA pipes).
+CPU (cores × clock × 8 float32 lanes × 2 FMA pipes); it needs numba. fitlab's two rows are set
+against the limit of benchmarks/README.md, :data:`LIMIT_NS` = 7.7 ns of CPU per event (319
+float32 slots per event at the 2-core reference machine's peak): target <= 3x for the plain walk,
+the full-feature kernel's figure printed beside it.
 
 Usage: python benchmarks/walk_engines.py [--paths 524288] [--seed 0] [--repeat 3]
-       [--engines numpy,fitlab,numba64,numba32,drjit]
+       [--engines numpy,fitlab,fitlab_nee,numba64,numba32,drjit]
 Exit status 0 when every engine run agrees with NumPy, 1 when one does not.
 """
 
@@ -59,6 +70,19 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+
+try:  # fitlab's choice of libLLVM, made before drjit is imported (below, and by mitsuba)
+    from fitlab.simulate import engine as _fitlab_engine
+
+    _fitlab_engine.select_libllvm()
+except Exception:  # noqa: BLE001 - no usable libLLVM: the Dr.Jit engines report it
+    pass
+
+#: The CPU cost limit of one event of this walk (benchmarks/README.md, "Engines": 319 float32
+#: slots per event at 2 cores x 2.6 GHz x 8 lanes x 2 FMA pipes), ns of CPU per event.
+LIMIT_NS = 7.7
+#: fitlab's plain walk must come within this factor of LIMIT_NS.
+LIMIT_FACTOR = 3.0
 
 
 def _load(name):
@@ -961,7 +985,8 @@ def limit_analysis(counts, results):
     for name, r in results.items():
         ns = r["ns_event"]
         executed, frac_exec = "", ""
-        info = r["out"][3] if isinstance(r["out"], tuple) else {}
+        info = r["out"][3] if isinstance(r["out"], tuple) and not name.startswith("fitlab") \
+            else {}
         if "packet_iterations" in info:
             # every lane of a packet runs every branch until the packet's last path ends
             ex = exec_lane * info["packet_iterations"] * info["width"] / info["events"]
@@ -993,13 +1018,14 @@ def run_engine(name, n, seed, repeat=1):
     args = (REGIONS, BOUNDARIES, WI, n, T_BINS, P_BINS)
     if name == "numpy":
         fn, kw, first = simulate_numpy, {}, None
-    elif name == "fitlab":
+    elif name in ("fitlab", "fitlab_nee"):
         from fitlab.simulate import simulate
 
-        scene = _load("bench_simulate").throughput_scene()
+        bs = _load("bench_simulate")
+        scene = bs.throughput_scene() if name == "fitlab" else bs.arc_scene("point")
 
         def fn(*_, seed):
-            return simulate(scene, n, seed=seed)
+            return simulate(scene, n, seed=seed, device="cpu")
 
         kw = {}
     elif name.startswith("numba"):
@@ -1017,7 +1043,7 @@ def run_engine(name, n, seed, repeat=1):
         if best is None or cpu < best[2]:
             best = (out, wall, cpu)
     out, wall, cpu = best
-    events = int(out.events) if name == "fitlab" else out[3]["events"]
+    events = int(out.events) if name.startswith("fitlab") else out[3]["events"]
     return {"wall": wall, "cpu": cpu, "compile": 0.0 if first is None else max(first - wall, 0.0),
             "out": out, "events": events}
 
@@ -1042,7 +1068,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--paths", type=int, default=1 << 19)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--engines", default="numpy,fitlab,numba64,numba32,drjit")
+    ap.add_argument("--engines", default="numpy,fitlab,fitlab_nee,numba64,numba32,drjit")
     ap.add_argument("--repeat", type=int, default=3,
                     help="warm runs per engine; the one with the least CPU time is reported")
     args = ap.parse_args(argv)
@@ -1054,7 +1080,8 @@ def main(argv=None):
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs at "
           f"{ghz:.3f} GHz, python {platform.python_version()}, numpy {np.__version__}, "
           f"numba {getattr(numba, '__version__', '-')} ({NUMBA_ERROR or 'ok'}), "
-          f"drjit {getattr(dr, '__version__', '-')} ({DRJIT_ERROR or 'ok'})", flush=True)
+          f"drjit {getattr(dr, '__version__', '-')} ({DRJIT_ERROR or 'ok'}), load average "
+          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     print(f"scene: HG slab (g 0.5, σa 0.2, σs 0.8, thickness 1, n 1.5) between GGX 0.2 / 0.3, "
           f"light at {THETA_I:g}°, {n} paths, both sides, {T_BINS} × {P_BINS} bins, "
           f"all orders, roulette after {RR_START} events, at most {MAX_EVENTS} events",
@@ -1069,7 +1096,7 @@ def main(argv=None):
             print(f"{name}: skipped, drjit is not importable ({DRJIT_ERROR})")
             continue
         r = run_engine(name, n, args.seed, args.repeat)
-        if name == "numpy":
+        if name in ("numpy", "fitlab_nee"):
             agree = None
         elif name == "fitlab":
             agree = agreement(_fitlab_as_sums(r["out"], n), results["numpy"]["out"], n, n)
@@ -1095,12 +1122,27 @@ def main(argv=None):
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name, r in results.items():
         a = r["agree"]
-        agree_s = "(reference)" if a is None else (
+        agree_s = "(reference)" if name == "numpy" else "n/a (point estimates)" if a is None else (
             f"{'yes' if a['ok'] else 'NO'} (z {a['z'][0]:+.1f}/{a['z'][1]:+.1f}, "
             f"p {a['p']:.2f})")
         print(f"| {name} | {r['compile']:.2f} | {r['wall']:.3f} | {r['cpu']:.3f} | "
               f"{n / r['wall']:,.0f} | {r['events'] / n:.3f} | {r['ns_event']:.1f} | "
               f"{base['wall'] / r['wall']:.1f}x | {base['cpu'] / r['cpu']:.1f}x | {agree_s} |")
+    fl_rows = [(k, d) for k, d in (("fitlab", "plain walk (bins)"),
+                                   ("fitlab_nee", "full-feature kernel (NEE toward 41 arc "
+                                                  "directions)")) if k in results]
+    if fl_rows:
+        print(f"\nfitlab's CPU per event (process_time over events, summed over cores) against "
+              f"the limit of benchmarks/README.md, {LIMIT_NS:g} ns (target for the plain walk: "
+              f"<= {LIMIT_FACTOR:g}x = {LIMIT_FACTOR * LIMIT_NS:.1f} ns):")
+        for k, desc in fl_rows:
+            r = results[k]
+            ratio = r["ns_event"] / LIMIT_NS
+            verdict = (("PASS" if ratio <= LIMIT_FACTOR else "MISS") if k == "fitlab"
+                       else "(beside it, no target)")
+            print(f"  {k:<11} {desc:<56} {r['ns_event']:7.1f} ns/event  {ratio:5.2f}x the "
+                  f"limit  {verdict}  ({r['events'] / n:.3f} events/path, {r['cpu']:.3f} CPU-s, "
+                  f"{r['wall']:.3f} s wall)")
     if numba is not None:
         counts = simulate_numba(REGIONS, BOUNDARIES, WI, n, T_BINS, P_BINS, seed=args.seed,
                                 dtype=np.float32)[3]
@@ -1111,6 +1153,7 @@ def main(argv=None):
             + " per event")
     else:
         print("\n(the limit analysis counts the Numba kernel's operations: it needs numba)")
+    print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print("agreement:", "OK" if ok_all else "FAILED")
     return 0 if ok_all else 1
 

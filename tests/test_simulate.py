@@ -25,6 +25,8 @@ INVALID = {
     "scene_two_interfaces.toml": "stack[1]: two interfaces in a row",
     "scene_index_jump_without_interface.toml": "stack[0].index: 1.5 differs from the index above",
     "scene_negative_thickness.toml": "stack[1].thickness: -1 is out of range",
+    "scene_coefficient_past_float32.toml": "stack[1].sigma_a: 1e+35 is out of range: it must "
+                                           "be >= 0 and <= 1e+30",
     "scene_unknown_key.toml": "stack[0].alhpa: unknown key. did you mean 'alpha'?",
     "scene_bad_hg_g.toml": "stack[0].g: 1.2 is out of range: it must be > -1 and < 1",
     "scene_two_channels.toml": "stack[0].sigma_a: has 2 values",

@@ -355,6 +355,10 @@ def _phase(ctx, table, field):
     return Phase(ptype, g, rough, orient)
 
 
+#: Largest thickness or coefficient a scene may give: the walk runs in float32 (max 3.4e38), and
+#: their product, an optical depth, must stay finite.
+MAX_LENGTH = 1e30
+
 _ROUGHNESS_KEYS = ("distribution", "alpha", "kappa", "alpha_x", "alpha_y", "masking")
 _INTERFACE_KEYS = ("type",) + _ROUGHNESS_KEYS
 _MEDIUM_KEYS = ("type", "index", "thickness", "sigma_a", "sigma_s", "phase", "g", "roughness",
@@ -365,10 +369,12 @@ def _medium(ctx, table, field):
     _check_keys(ctx, table, field, _MEDIUM_KEYS)
     index = _number(ctx, table, field, "index", lo=0.0, lo_open=True, hint="give the refractive "
                     "index of the medium, e.g. 1.5")
-    thick = _number(ctx, table, field, "thickness", lo=0.0,
+    thick = _number(ctx, table, field, "thickness", lo=0.0, hi=MAX_LENGTH,
                     hint="give the thickness (>= 0) in the length unit of 1/sigma")
-    sa = _per_channel(ctx, table, field, "sigma_a", default=(0.0,))
-    ss = _per_channel(ctx, table, field, "sigma_s", default=(0.0,))
+    coeff = ("a coefficient in 1/length, at most 1e30 (the walk runs in float32); one value "
+             "or R, G, B")
+    sa = _per_channel(ctx, table, field, "sigma_a", default=(0.0,), hi=MAX_LENGTH, hint=coeff)
+    ss = _per_channel(ctx, table, field, "sigma_s", default=(0.0,), hi=MAX_LENGTH, hint=coeff)
     phase = _phase(ctx, table, field)
     if thick == 0 and (max(sa) > 0 or max(ss) > 0):
         ctx.fail(f"{field}.thickness", "is 0 but the medium absorbs or scatters",

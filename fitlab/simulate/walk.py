@@ -410,7 +410,8 @@ def _device_floats(a):
     import drjit as dr
     import mitsuba as mi
 
-    v = mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())
+    with np.errstate(over="ignore"):  # an optical depth past float32's range: inf, exp(-inf) = 0
+        v = mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())
     dr.make_opaque(v)
     return v
 
