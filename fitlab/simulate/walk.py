@@ -878,13 +878,6 @@ def bin_index(cfg: WalkConfig, w: np.ndarray) -> np.ndarray:
     return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
 
 
-def _bincount_blocks(key, weights, nb, size):
-    """Per block of :data:`TALLY_BLOCK` paths, the sums of ``weights`` by ``key`` (nb, size):
-    one ``np.bincount`` (sequential in path order) over the block-offset keys."""
-    block = np.arange(len(key)) // TALLY_BLOCK
-    return np.bincount(block * size + key, weights, nb * size).reshape(nb, size)
-
-
 def _device_bin(cfg: WalkConfig, w):
     """:func:`bin_index` in the kernel (float32)."""
     import drjit as dr
@@ -908,21 +901,22 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
     K = len(ORDER_CLASSES)
     P = len(ex.x)
     nb = -(-P // TALLY_BLOCK)
-    ok = np.all(np.isfinite(ex.w), axis=1) & np.all(np.isfinite(ex.x), axis=1)
-    x = np.where(ok[:, None], ex.x, 0.0).astype(np.float64)
-    w = np.where(ok[:, None], ex.w, np.float32([0.0, 0.0, 1.0]))
+    x = ex.x.astype(np.float64)  # finite: the kernel writes only finite exits
+    x2 = x * x
     order = np.minimum(ex.order, K - 1)
+    block = (np.arange(P) // TALLY_BLOCK)
     s1 = np.zeros((nb, K, n_out, C))
     s2 = np.zeros((nb, K, n_out, C))
     if cfg.detector == "bins":
-        seg = ex.seg if ex.seg is not None else order * n_out + bin_index(cfg, w)
-        seg = np.where(ok, seg, 0)
+        seg = ex.seg if ex.seg is not None else order * n_out + bin_index(cfg, ex.w)
+        key = block * (K * n_out) + seg
         for c in range(C):
-            s1[..., c] = _bincount_blocks(seg, x[:, c], nb, K * n_out).reshape(nb, K, n_out)
-            s2[..., c] = _bincount_blocks(seg, x[:, c] ** 2, nb, K * n_out).reshape(nb, K, n_out)
+            s1[..., c] = np.bincount(key, x[:, c], nb * K * n_out).reshape(nb, K, n_out)
+            s2[..., c] = np.bincount(key, x2[:, c], nb * K * n_out).reshape(nb, K, n_out)
+        down = (seg % n_out) >= n_out // 2
     elif cfg.detector == "cones":
         # cones may overlap: a (paths × cones) membership matrix of each block's tallied paths
-        w64 = w.astype(np.float64)
+        w64 = ex.w.astype(np.float64)
         for j, lo in enumerate(range(0, P, TALLY_BLOCK)):
             blk = slice(lo, lo + TALLY_BLOCK)
             sel = np.flatnonzero(np.any(x[blk] != 0.0, axis=1))
@@ -935,11 +929,13 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
                 if m.any():
                     s1[j, o] = inside[m].T @ xt[m]
                     s2[j, o] = inside[m].T @ (xt[m] * xt[m])
-    down = (w[:, 2] < 0).astype(np.int64)
+    if cfg.detector != "bins":
+        down = ex.w[:, 2] < 0
+    key = block * 2 + down
     side = np.zeros((nb, 2, 2, C))
     for c in range(C):
-        side[:, 0, :, c] = _bincount_blocks(down, x[:, c], nb, 2)
-        side[:, 1, :, c] = _bincount_blocks(down, x[:, c] ** 2, nb, 2)
+        side[:, 0, :, c] = np.bincount(key, x[:, c], nb * 2).reshape(nb, 2)
+        side[:, 1, :, c] = np.bincount(key, x2[:, c], nb * 2).reshape(nb, 2)
     return s1, s2, side
 
 
@@ -981,7 +977,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         walk.step(s, acc, s["path"])
         ended = ~s["alive"]
         path = s["path"]
-        done = ended & s["exited"]
+        done = ended & s["exited"] & dr.all(dr.isfinite(s["weight"])) & dr.all(dr.isfinite(s["w"]))
         for c in range(3):
             dr.scatter(ex_w[c], s["w"][c], path, done)
             dr.scatter(ex_x[c], s["weight"][c], path, done)
@@ -1041,10 +1037,11 @@ def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
     u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
     wo, f, _, diffuse = stack.boundary_sample(mi.Int32(0), wi_v, u1, u2,
                                               mi.UInt32(FORCE_REFLECT), mi.Bool(True), False)
-    keep = wo.z > 0
+    keep = (wo.z > 0) & dr.all(dr.isfinite(f)) & dr.all(dr.isfinite(wo))
     if not cfg.delta:
         keep = keep & diffuse
     x = dr.select(keep, f, 0.0)
+    wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
     dr.eval(wo, x)
     return Exits(np.array(wo, dtype=np.float32).T.reshape(n, 3),
                  np.array(x, dtype=np.float32).T.reshape(n, 3), np.zeros(n, dtype=np.int64))
