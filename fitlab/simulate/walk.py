@@ -766,7 +766,8 @@ class _Walk:
         slot = ((path * len(ORDER_CLASSES) + _order_class(order)) * self.n_rows
                 + rows.first + r) * 3
         for c in range(3):
-            dr.scatter_add(acc, value[c], slot + c, ok)
+            # every path owns its slots: a plain read-modify-write, no atomics
+            dr.scatter_add(acc, value[c], slot + c, ok, mode=dr.ReduceMode.NoConflicts)
 
 
 def _tea_seeds(path, words):
