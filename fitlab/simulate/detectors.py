@@ -119,18 +119,27 @@ def cone_half_angle_deg(acceptance_sr: float) -> float:
     return float(np.degrees(np.arccos(cone_half_angle_cos(acceptance_sr))))
 
 
+def _orthonormal_basis(n: np.ndarray):
+    """Two unit vectors (s, t) with (s, t, n) right-handed orthonormal, for unit n (R, 3);
+    branchless (Duff et al. 2017, "Building an Orthonormal Basis, Revisited")."""
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    s = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
+    t = np.stack([b, sign + y * y * a, -y], axis=-1)
+    return s, t
+
+
 def cone_cos_solid_angle(d: np.ndarray, acceptance_sr: float, n_psi: int = 32,
                          n_phi: int = 128) -> np.ndarray:
     """∫ |cos θ| dω over the directions of each cone (d: (R, 3) unit axes) lying on the axis's
     side of the surface; midpoint rule in (cos ψ, φ) around the axis (dω = d(cos ψ) dφ)."""
-    from fitlab.phase import orthonormal_basis
-    import jax.numpy as jnp
-
     cg = cone_half_angle_cos(acceptance_sr)
     c = 1.0 - (np.arange(n_psi) + 0.5) / n_psi * (1.0 - cg)
     s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
     phi = (np.arange(n_phi) + 0.5) / n_phi * 2.0 * np.pi
-    e1, e2 = (np.asarray(v) for v in orthonormal_basis(jnp.asarray(d, dtype=jnp.float64)))
+    e1, e2 = _orthonormal_basis(np.asarray(d, dtype=np.float64))
     # ω_z for every (cone, ψ, φ)
     wz = (c[None, :, None] * d[:, None, None, 2]
           + s[None, :, None] * (np.cos(phi)[None, None, :] * e1[:, None, None, 2]
@@ -142,10 +151,13 @@ def cone_cos_solid_angle(d: np.ndarray, acceptance_sr: float, n_psi: int = 32,
 
 def inplane_rows(theta_o_signed, phi_i: float, acceptance_sr: float) -> tuple[Rows, np.ndarray]:
     """Goniometer arc positions in the plane of incidence: θo ≥ 0 at φo = φi + 180°, θo < 0 at
-    φo = φi; |θo| > 90° is the transmission side. Returns the rows and the cone axes (R, 3)."""
+    φo = φi; |θo| > 90° is the transmission side. Returns the rows and the cone axes (R, 3);
+    ``acceptance_sr`` 0: point rows (:func:`point_rows`), no cone."""
     t = np.asarray(theta_o_signed, dtype=float)
     theta = np.abs(t)
     phi = np.mod(np.where(t >= 0, phi_i + 180.0, phi_i), 360.0)
+    if acceptance_sr == 0:
+        return point_rows(theta, phi)
     d = direction(theta, phi)
     rows = Rows(theta, phi, np.arange(t.size), cone_cos_solid_angle(d, acceptance_sr))
     return rows, d

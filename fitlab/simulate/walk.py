@@ -916,20 +916,21 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
             s2[..., c] = np.bincount(key, x2[:, c], nb * K * n_out).reshape(nb, K, n_out)
         down = (seg % n_out) >= n_out // 2
     elif cfg.detector == "cones":
-        # cones may overlap: a (paths × cones) membership matrix of each block's tallied paths
-        w64 = ex.w.astype(np.float64)
-        for j, lo in enumerate(range(0, P, TALLY_BLOCK)):
-            blk = slice(lo, lo + TALLY_BLOCK)
-            sel = np.flatnonzero(np.any(x[blk] != 0.0, axis=1))
-            if not len(sel):
-                continue
-            xt, ot = x[blk][sel], order[blk][sel]
-            inside = (w64[blk][sel] @ det.cone_dir.T >= det.cone_cos[None, :]).astype(np.float64)
-            for o in range(K):
-                m = ot == o
-                if m.any():
-                    s1[j, o] = inside[m].T @ xt[m]
-                    s2[j, o] = inside[m].T @ (xt[m] * xt[m])
+        # cones may overlap: the (path, cone) pairs of the tallied paths, from their dot
+        # products in chunks, summed per block, order class and cone by one bincount each
+        sel = np.flatnonzero(np.any(x != 0.0, axis=1))
+        R = det.cone_dir.shape[0]
+        size = nb * K * R
+        step = 16 * TALLY_BLOCK  # whole blocks: each block is summed by one bincount
+        for lo in range(0, P, step):
+            idx = sel[np.searchsorted(sel, lo):np.searchsorted(sel, lo + step)]
+            p, r = np.nonzero(ex.w[idx].astype(np.float64) @ det.cone_dir.T
+                              >= det.cone_cos[None, :])
+            path = idx[p]
+            key = (block[path] * K + order[path]) * R + r
+            for c in range(C):
+                s1[..., c] += np.bincount(key, x[path, c], size).reshape(nb, K, R)
+                s2[..., c] += np.bincount(key, x2[path, c], size).reshape(nb, K, R)
     if cfg.detector != "bins":
         down = ex.w[:, 2] < 0
     key = block * 2 + down
