@@ -781,6 +781,7 @@ def _machine_lines():
             f"{platform.release()}, python {platform.python_version()}, numpy {np.__version__}",
             f"walk: drjit {drjit.__version__}, mitsuba {mitsuba.__version__} ({eng.variant}, "
             f"libLLVM {eng.libllvm} from {eng.libllvm_source}), loop mode {walk.LOOP_MODE}, "
+            f"boundary dispatch {getattr(walk, 'DISPATCH', '-')}, "
             f"{walk.LANES} lanes per launch, tally block {walk.TALLY_BLOCK} paths"]
 
 

@@ -1,5 +1,5 @@
-"""The random walk of fitlab/simulate/walk.py written again in vectorized NumPy: the peer of
-``bench_simulate.py``.
+"""The random-walk algorithm of fitlab's simulator (fitlab/simulate/walk.py, whose product walk
+is Dr.Jit) written again in vectorized NumPy: the peer of ``bench_simulate.py``.
 
 Same algorithm, event by event: free flights sampled by σs with Beer–Lambert weights for σa,
 Henyey–Greenstein / isotropic phase sampling, GGX interfaces sampled as in Walter section 5.3

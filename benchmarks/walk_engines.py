@@ -46,8 +46,8 @@ The limit: the floating-point work of one event is counted from the Numba kernel
 interface samples, roulette draws, random numbers per event), and set against the peak of this
 CPU (cores × clock × 8 float32 lanes × 2 FMA pipes); it needs numba. fitlab's two rows are set
 against the limit of benchmarks/README.md, :data:`LIMIT_NS` = 7.7 ns of CPU per event (319
-float32 slots per event at the 2-core reference machine's peak): target <= 3x for the plain walk,
-the full-feature kernel's figure printed beside it.
+float32 slots per event at one core's peak, 2.6 GHz × 8 lanes × 2 FMA pipes, on the reference
+machine): target <= 3x for the plain walk, the full-feature kernel's figure printed beside it.
 
 Usage: python benchmarks/walk_engines.py [--paths 524288] [--seed 0] [--repeat 3]
        [--engines numpy,fitlab,fitlab_nee,numba64,numba32,drjit]
@@ -78,8 +78,8 @@ try:  # fitlab's choice of libLLVM, made before drjit is imported (below, and by
 except Exception:  # noqa: BLE001 - no usable libLLVM: the Dr.Jit engines report it
     pass
 
-#: The CPU cost limit of one event of this walk (benchmarks/README.md, "Engines": 319 float32
-#: slots per event at 2 cores x 2.6 GHz x 8 lanes x 2 FMA pipes), ns of CPU per event.
+#: The CPU cost limit of one event of this walk, ns of CPU per event (benchmarks/README.md,
+#: "Engines": 319 float32 slots per event / (2.6 GHz x 8 lanes x 2 FMA pipes) per core).
 LIMIT_NS = 7.7
 #: fitlab's plain walk must come within this factor of LIMIT_NS.
 LIMIT_FACTOR = 3.0
