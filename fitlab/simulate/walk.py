@@ -470,7 +470,10 @@ class _Walk:
         proj = S.projected_area(region, w, in_medium) if needs_proj else None
         scatter = mi.Bool(False)
         dist = d_boundary
-        factor = mi.Spectrum(1.0)
+        # the flight's optical depth, one exp at the end (one channel: scalar, broadcast)
+        one = cfg.channels == 1
+        tau = mi.Float(0.0) if one else mi.Spectrum(0.0)
+        attenuates = False
         u_flight = rng.next_float32()
         if cfg.volume:
             sig_s = S.region_f(S.sigma_s, region) * proj
@@ -483,15 +486,16 @@ class _Walk:
             if cfg.volume_limit >= 0:
                 # after the allowed events σs only attenuates (the unscattered part of the light)
                 lost = in_medium & ~can
-                factor = factor * dr.exp(-dr.select(lost, sig_s * dist, 0.0))
-        if cfg.absorption:
-            sig_a = S.region_c(S.sigma_a, region) * proj
-            factor = factor * dr.exp(-dr.select(in_medium, sig_a * dist, 0.0))
-        if cfg.extinction_only:
-            sig = S.region_c(S.sigma_s_c, region) * proj
-            factor = factor * dr.exp(-dr.select(in_medium, sig * dist, 0.0))
+                tau = tau + dr.select(lost, sig_s * dist, 0.0)
+                attenuates = True
+        for on, table in ((cfg.absorption, S.sigma_a), (cfg.extinction_only, S.sigma_s_c)):
+            if on:
+                sig = S.region_f(table, mi.UInt32(region) * 3) if one else S.region_c(table, region)
+                tau = tau + dr.select(in_medium, sig * proj * dist, 0.0)
+                attenuates = True
         z = dr.select(in_medium, z - dist * w.z, z)
-        weight = weight * factor
+        if attenuates:
+            weight = weight * dr.exp(-tau)
         alive = alive & ~(in_medium & horizontal & ~scatter)  # a horizontal flight never ends
 
         hit = alive & ~scatter
