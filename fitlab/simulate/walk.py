@@ -134,6 +134,8 @@ class Exits(NamedTuple):
     x: np.ndarray
     order: np.ndarray
     seg: np.ndarray | None = None
+    #: cones: per path, up to ConeIndex width cone indices + 1 (0: none), from the kernel
+    cones: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -898,7 +900,92 @@ def _device_bin(cfg: WalkConfig, w):
     return (side * cfg.theta_bins + tb) * cfg.phi_bins + pb
 
 
-def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
+class ConeIndex:
+    """Candidate cones per cell of a (cos θ, φ) grid on the sphere: a cone is a candidate of a
+    cell when its axis lies within its half angle plus the cell's angular radius of the cell's
+    centre, so an exit direction's cones are among its cell's candidates (tested exactly
+    afterwards). Turns the (paths × cones) dot products of a cone tally into (paths × a few)."""
+
+    Z, PHI = 90, 180
+
+    def __init__(self, det: Detector):
+        axes = np.asarray(det.cone_dir, dtype=np.float64)
+        gamma = np.arccos(np.clip(det.cone_cos, -1.0, 1.0))
+        zc = np.linspace(-1.0, 1.0, self.Z + 1)
+        pc = np.linspace(-np.pi, np.pi, self.PHI + 1)
+        # cell corners and centres as unit vectors
+        zz, pp = np.meshgrid(zc, pc, indexing="ij")
+        corners = self._unit(zz, pp)  # (Z+1, PHI+1, 3)
+        zm, pm = np.meshgrid(0.5 * (zc[1:] + zc[:-1]), 0.5 * (pc[1:] + pc[:-1]), indexing="ij")
+        centre = self._unit(zm, pm)  # (Z, PHI, 3)
+        radius = np.zeros((self.Z, self.PHI))
+        for dz in (0, 1):
+            for dp in (0, 1):
+                c = corners[dz:dz + self.Z, dp:dp + self.PHI]
+                radius = np.maximum(radius, np.arccos(np.clip(np.sum(c * centre, -1), -1, 1)))
+        # the farthest point of a small cell from its centre is a corner or near one (a
+        # bulging edge): a quarter more covers it
+        radius = 1.25 * radius
+        ang = np.arccos(np.clip(centre.reshape(-1, 3) @ axes.T, -1.0, 1.0))  # (cells, R)
+        cand = ang <= gamma[None, :] + radius.reshape(-1)[:, None] + 1e-6
+        width = max(1, int(cand.sum(1).max()))
+        table = np.full((cand.shape[0], width), -1, dtype=np.int64)
+        for cell in np.flatnonzero(cand.any(1)):
+            idx = np.flatnonzero(cand[cell])
+            table[cell, :len(idx)] = idx
+        self.table, self.axes, self.cos = table, axes, np.asarray(det.cone_cos, np.float64)
+
+    #: Largest candidate count tested in the kernel (wider tables are tested on the host).
+    DEVICE_WIDTH = 16
+
+    def device_members(self, w):
+        """In the kernel: the cones containing w, as ``width`` UInt32 (cone index + 1, 0: none),
+        from the cell of w and its candidates (gathered from the tables as kernel inputs)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        if not hasattr(self, "_dev"):
+            self._dev = (mi.UInt32(np.ascontiguousarray(self.table + 1, np.uint32).ravel()),
+                         mi.Float(np.ascontiguousarray(self.axes, np.float32).ravel()),
+                         mi.Float(np.ascontiguousarray(self.cos, np.float32)))
+            for v in self._dev:
+                dr.make_opaque(v)
+        table, axes, cos = self._dev
+        width = self.table.shape[1]
+        iz = mi.UInt32(dr.clip(mi.Int32((w.z + 1.0) * (0.5 * self.Z)), 0, self.Z - 1))
+        ip = mi.UInt32(dr.clip(mi.Int32((dr.atan2(w.y, w.x) + dr.pi) * (self.PHI / (2 * dr.pi))),
+                               0, self.PHI - 1))
+        cell = iz * self.PHI + ip
+        out = []
+        for k in range(width):
+            c1 = dr.gather(mi.UInt32, table, cell * width + k)
+            c = dr.maximum(mi.Int32(c1) - 1, 0)
+            a = [dr.gather(mi.Float, axes, mi.UInt32(c) * 3 + j) for j in range(3)]
+            inside = (c1 > 0) & (w.x * a[0] + w.y * a[1] + w.z * a[2]
+                                 >= dr.gather(mi.Float, cos, mi.UInt32(c)))
+            out.append(dr.select(inside, c1, 0))
+        return out
+
+    @staticmethod
+    def _unit(z, phi):
+        r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+    def pairs(self, w: np.ndarray):
+        """(path, cone) index pairs of the directions w (P, 3) inside each cone, by path."""
+        w = w.astype(np.float64)
+        iz = np.clip(((w[:, 2] + 1.0) * 0.5 * self.Z).astype(np.int64), 0, self.Z - 1)
+        ip = np.clip(((np.arctan2(w[:, 1], w[:, 0]) + np.pi) / (2 * np.pi) * self.PHI)
+                     .astype(np.int64), 0, self.PHI - 1)
+        cand = self.table[iz * self.PHI + ip]  # (P, width)
+        dots = np.einsum("pj,pkj->pk", w, self.axes[np.maximum(cand, 0)])
+        inside = (cand >= 0) & (dots >= self.cos[np.maximum(cand, 0)])
+        p, k = np.nonzero(inside)
+        return p, cand[p, k]
+
+
+def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
+                cones: ConeIndex | None = None):
     """Float64 sums and sums of squares of the exits' weights per block of
     :data:`TALLY_BLOCK` paths, order class and bin or cone, (nb, 4, n_out, C) each, and per exit
     side (nb, 2 moments, 2 sides, C), each block summed in path order."""
@@ -928,8 +1015,14 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int):
         step = 16 * TALLY_BLOCK  # whole blocks: each block is summed by one bincount
         for lo in range(0, P, step):
             idx = sel[np.searchsorted(sel, lo):np.searchsorted(sel, lo + step)]
-            p, r = np.nonzero(ex.w[idx].astype(np.float64) @ det.cone_dir.T
-                              >= det.cone_cos[None, :])
+            if ex.cones is not None:
+                p, k = np.nonzero(ex.cones[idx])
+                r = ex.cones[idx][p, k] - 1
+            elif cones is not None:
+                p, r = cones.pairs(ex.w[idx])
+            else:
+                p, r = np.nonzero(ex.w[idx].astype(np.float64) @ det.cone_dir.T
+                                  >= det.cone_cos[None, :])
             path = idx[p]
             key = (block[path] * K + order[path]) * R + r
             for c in range(C):
@@ -955,7 +1048,8 @@ def _fold(total: np.ndarray, blocks: np.ndarray) -> np.ndarray:
 LANES = 1 << 15
 
 
-def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int):
+def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int,
+            cones: ConeIndex | None = None):
     """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
     the point sums (n, 4, n_out, 3) or None, the capped mask (n,) and the events traced."""
     import drjit as dr
@@ -973,6 +1067,8 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     ex_order = dr.zeros(mi.Int32, n)
     bins = stack.cfg.detector == "bins"
     ex_seg = dr.zeros(mi.UInt32, n) if bins else None
+    on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
+    ex_cones = [dr.zeros(mi.UInt32, n) for _ in range(cones.table.shape[1])] if on_device else []
     capped_paths = dr.zeros(mi.Bool, n)
     fresh = _fresh(1, wi)
 
@@ -991,6 +1087,9 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         if bins:
             seg = _order_class(s["bounces"]) * n_out + _device_bin(stack.cfg, s["w"])
             dr.scatter(ex_seg, seg, path, done)
+        if on_device:
+            for arr, member in zip(ex_cones, cones.device_members(s["w"])):
+                dr.scatter(arr, member, path, done)
         dr.scatter(capped_paths, True, path, ended & s["capped"])
         # the lane's next path
         nxt = path + lanes_v
@@ -1006,13 +1105,16 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
 
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
-    dr.eval(ex_w, ex_x, ex_order, ex_seg, capped_paths, st["steps"], acc)
-    capped = np.array(capped_paths, dtype=bool)
-    events = int(np.array(st["steps"], dtype=np.int64).sum())
-    ex = Exits(np.stack([np.array(v, dtype=np.float32) for v in ex_w], axis=1),
-               np.stack([np.array(v, dtype=np.float32) for v in ex_x], axis=1),
-               np.array(ex_order, dtype=np.int64),
-               np.array(ex_seg, dtype=np.int64) if bins else None)
+    dr.eval(ex_w, ex_x, ex_order, ex_seg, ex_cones, capped_paths, st["steps"], acc)
+    capped = np.array(capped_paths).astype(bool)
+    events = int(np.array(st["steps"]).astype(np.int64).sum())
+    # np.array(v) takes Dr.Jit's buffer as it is (its own dtype): convert in NumPy after
+    ex = Exits(np.stack([np.array(v) for v in ex_w], axis=1),
+               np.stack([np.array(v) for v in ex_x], axis=1),
+               np.array(ex_order).astype(np.int64),
+               np.array(ex_seg).astype(np.int64) if bins else None,
+               np.stack([np.array(v) for v in ex_cones], axis=1).astype(np.int64)
+               if on_device else None)
     a = None
     if points:
         a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
@@ -1067,6 +1169,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     points = cfg.detector == "points"
     sides = point_sides(cfg, stack.arr, det.cone_dir, n_up) if points else None
     walk = _Walk(stack, sides, n_out if points else 0)
+    cones = ConeIndex(det) if cfg.detector == "cones" else None
     if points:
         launch = min(launch, POINT_LAUNCH_BYTES // (K * n_out * 3 * 4))
     launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
@@ -1078,11 +1181,11 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     truncated = events = 0
     for first in range(0, n_paths, launch):
         n = min(launch, n_paths - first)
-        ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out)
+        ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones)
         sp = _split_first(stack, wi, n, first, words) if split is not None else None
         truncated += int(capped.sum())
         events += ev
-        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out)
+        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out, cones)
         side = _fold(side, t_side)
         if points:
             nb = t1.shape[0]
@@ -1098,7 +1201,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
             # each path exits in one order class: its total's square is its order's
             s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
         if sp is not None:
-            q1, q2, q_side = tally_exits(cfg, det, sp._replace(x=sp.x[:, :C]), n_out)
+            q1, q2, q_side = tally_exits(cfg, det, sp._replace(x=sp.x[:, :C]), n_out, cones)
             split[0] = _fold(split[0], q1[:, 0])
             split[1] = _fold(split[1], q2[:, 0])
             split[2] = _fold(split[2], q_side)
