@@ -254,3 +254,32 @@ def test_simulator_and_jax_models_agree(name, params, options, theta_o, tol):
     assert np.count_nonzero(f) >= len(f) - 1 and np.all((v > 0) == (f > 0)), \
         np.c_[res.theta_o, f, v, s]
     assert np.all(np.abs(f - v) <= 4 * s + tol * f), np.c_[res.theta_o, f, v, s]
+
+
+def test_forced_branches_weigh_as_mitsubas_one_lobe_contexts(mi):
+    """A forced reflection or refraction of a rough dielectric (one unforced Mitsuba sample,
+    its lobe choice forced through sample1, weighted by F or 1 − F) equals Mitsuba's own
+    sampling with only that lobe enabled (BSDFContext type_mask), direction and weight."""
+    import mitsuba
+
+    from fitlab.simulate import components as comp
+    from fitlab.simulate.protocol import FORCE_REFLECT, FORCE_REFRACT
+
+    bd = comp.make_boundary(comp.BoundarySpec("dielectric", "ggx"),
+                            comp.BoundaryValues(alpha=0.3, alpha_y=0.3, eta=1.5), True)
+    n = 2000
+    wi = np.concatenate([_directions(n, True), _directions(n, False)])
+    u = RNG.random((len(wi), 3)).astype(np.float32)
+    si = comp._local_si(_vec(mi, wi))
+    for code, flags in ((FORCE_REFLECT, mitsuba.BSDFFlags.Reflection),
+                        (FORCE_REFRACT, mitsuba.BSDFFlags.Transmission)):
+        wo, w, _ = bd.sample(_vec(mi, wi), mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]),
+                             mi.UInt32(code), mi.Bool(True))
+        ctx = mitsuba.BSDFContext(mitsuba.TransportMode.Importance, flags)
+        bs, w_ref = bd.bsdf.sample(ctx, si, mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]),
+                                   True)
+        w, w_ref = np.array(w)[0], np.array(w_ref)[0]
+        ok = np.isfinite(w_ref) & (w_ref > 1e-4)
+        assert ok.sum() > n // 2
+        np.testing.assert_allclose(w[ok], w_ref[ok], rtol=2e-4, atol=1e-6)
+        np.testing.assert_allclose(np.array(wo).T[ok], np.array(bs.wo).T[ok], atol=2e-5)

@@ -108,38 +108,48 @@ def _local_si(wi):
 class MitsubaBoundary:
     """A Mitsuba BSDF behind the protocol (importance transport, local frame +z up).
 
-    ``forceable``: the walk may force a branch here (three sampling contexts: by Fresnel,
-    reflection only, transmission only; Mitsuba weights a forced lobe by F or 1 − F)."""
+    ``eta`` (a rough dielectric's n_below/n_above, a kernel input): the walk may force a branch
+    here. One unforced Mitsuba ``sample`` serves every lane: its lobe choice (reflect when
+    ``sample1`` ≤ F) is forced by passing ``sample1`` = 0 (reflect) or 1 (refract; under total
+    internal reflection F = 1 and the forced refraction's weight 1 − F is 0), and the weight
+    times F or 1 − F at the sampled microfacet (Walter eq. 22 from ``mi.fresnel``) is the
+    forced branch's, as Mitsuba's own ``type_mask`` contexts weight it; its density stays the
+    unforced one."""
 
-    def __init__(self, bsdf, nonspecular: bool, forceable: bool):
+    def __init__(self, bsdf, nonspecular: bool, eta=None):
         import mitsuba as mi
 
         self.bsdf = _opaque(bsdf)
         self.nonspecular = nonspecular
-        self.forceable = forceable
+        self.eta = eta
         self.ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        self.ctx_r = mi.BSDFContext(mi.TransportMode.Importance, mi.BSDFFlags.Reflection)
-        self.ctx_t = mi.BSDFContext(mi.TransportMode.Importance, mi.BSDFFlags.Transmission)
 
     def sample(self, wi, sample1, sample2, force, active, need_pdf=False):
         import drjit as dr
         import mitsuba as mi
 
         si = _local_si(wi)
+        if self.eta is not None:
+            sample1 = dr.select(force == FORCE_REFLECT, 0.0,
+                                dr.select(force == FORCE_REFRACT, 1.0, sample1))
         bs, weight = self.bsdf.sample(self.ctx, si, sample1, sample2, active)
-        wo, pdf = bs.wo, bs.pdf
-        if self.forceable:
-            for code, ctx in ((FORCE_REFLECT, self.ctx_r), (FORCE_REFRACT, self.ctx_t)):
-                sel = active & (force == code)
-                bs_f, w_f = self.bsdf.sample(ctx, si, sample1, sample2, sel)
-                wo = dr.select(sel, bs_f.wo, wo)
-                weight = dr.select(sel, w_f, weight)
-            if need_pdf and self.nonspecular:
-                pdf = dr.select(force == FORCE_CHOOSE, pdf, self.bsdf.pdf(self.ctx, si, wo, active))
+        wo, pdf = dr.normalize(bs.wo), bs.pdf
+        weight = mi.Spectrum(weight)
+        if self.eta is not None:
+            reflected = wo.z * wi.z > 0
+            eta_local = dr.select(wi.z > 0, self.eta, 1.0 / self.eta)
+            h = dr.normalize(dr.select(reflected, wi + wo, wi + wo * eta_local))
+            h = dr.mulsign(h, h.z)
+            F = mi.fresnel(dr.dot(wi, h), self.eta)[0]
+            factor = dr.select(force == FORCE_CHOOSE, 1.0,
+                               dr.select(force == FORCE_REFLECT,
+                                         dr.select(reflected, F, 0.0),
+                                         dr.select(reflected, 0.0, 1.0 - F)))
+            weight = weight * factor
         ok = active & (pdf > 0) & dr.all(dr.isfinite(weight))
-        weight = dr.select(ok, mi.Spectrum(weight), 0.0)
+        weight = dr.select(ok, weight, 0.0)
         pdf = dr.select(ok & self.nonspecular, pdf, 0.0)
-        return dr.normalize(wo), weight, pdf
+        return wo, weight, pdf
 
     def eval(self, wi, wo, active):
         return f_from_mitsuba(self.bsdf.eval(self.ctx, _local_si(wi), wo, active), wo)
@@ -194,7 +204,9 @@ def _dielectric(spec: BoundarySpec, v: BoundaryValues, forceable: bool):
              "int_ior": float(v.eta), "ext_ior": 1.0, "sample_visible": True}
         d.update({"alpha_u": v.alpha, "alpha_v": v.alpha_y} if spec.anisotropic
                  else {"alpha": v.alpha})
-        return MitsubaBoundary(mi.load_dict(d), True, forceable)
+        bsdf = mi.load_dict(d)
+        return MitsubaBoundary(bsdf, True, mi.traverse(_opaque(bsdf))["eta"] if forceable
+                               else None)
     from fitlab.simulate.own_bsdfs import OwnRoughDielectric
 
     return OwnRoughDielectric(spec.distribution, _f(v.alpha),
@@ -206,13 +218,13 @@ def _conductor(spec: BoundarySpec, v: BoundaryValues, forceable: bool):
 
     nk = {"eta": _rgb(v.n), "k": _rgb(v.k)}
     if spec.distribution == "smooth":
-        return MitsubaBoundary(mi.load_dict({"type": "conductor", **nk}), False, False)
+        return MitsubaBoundary(mi.load_dict({"type": "conductor", **nk}), False)
     if spec.distribution in MITSUBA_DISTRIBUTIONS:
         d = {"type": "roughconductor", "distribution": MITSUBA_DISTRIBUTIONS[spec.distribution],
              "sample_visible": True, **nk}
         d.update({"alpha_u": v.alpha, "alpha_v": v.alpha_y} if spec.anisotropic
                  else {"alpha": v.alpha})
-        return MitsubaBoundary(mi.load_dict(d), True, False)
+        return MitsubaBoundary(mi.load_dict(d), True)
     from fitlab.simulate.own_bsdfs import OwnRoughConductor
 
     return OwnRoughConductor(spec.distribution, _f(v.alpha),
@@ -224,7 +236,7 @@ def _lambertian(spec: BoundarySpec, v: BoundaryValues, forceable: bool):
     import mitsuba as mi
 
     return MitsubaBoundary(mi.load_dict({"type": "diffuse", "reflectance": _rgb(v.albedo)}),
-                           True, False)
+                           True)
 
 
 def _f(x):
