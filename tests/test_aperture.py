@@ -340,7 +340,7 @@ CASES = [
     ("beckmann", 0.25, 1.6, {"type": "hemisphere", "sides": ["transmission"], "theta_bins": 12,
                              "phi_bins": 24}, [0, 60]),
 ]
-SEEDS = 5  # per case: 30 datasets
+SEEDS = 10  # per case: 60 datasets
 SAMPLES = 30_000  # paths per incidence
 MIN_PATHS = 50  # rows kept: the truth predicts at least this many paths into them
 
@@ -399,11 +399,14 @@ def _simulated_fit(case, seed, *, point=False):
 
 @pytest.mark.slow
 def test_coverage_over_simulated_datasets():
-    """Over 30 simulated datasets (6 cases × 5 seeds: GGX and Beckmann, α 0.08–0.4, η 1.33–1.7,
-    bins 5°×10° to 10°×20°, cones of 2.3°–7.3°, every dataset its own seed) the fit's 95%
-    interval α̂ ± 1.96 σ_α covers the truth in at least 90% (27) of them, the median χ²/dof
-    lies in [0.8, 1.25] and the mean z within ±0.6 (3.3 standard errors of a mean of 30);
-    fitted at the bin centres instead, the same data miss the truth by many standard errors."""
+    """Over 60 simulated datasets (6 cases × 10 seeds: GGX and Beckmann, α 0.08–0.4, η
+    1.33–1.7, bins 5°×10° to 10°×20°, cones of 2.3°–7.3°, every dataset its own seed) the fit's
+    95% interval α̂ ± 1.96 σ_α covers the truth in at least 51 of them (a binomial test: a
+    true 95% coverage gives fewer with probability 0.0007; 30 datasets with "at least 27" failed
+    a true 95% with probability 0.06, as the Dr.Jit walk's first 30 did: 24, then 28, 30 and 29
+    with other seeds), the median χ²/dof lies in [0.8, 1.25] and the mean z within ±0.45 (3.5
+    standard errors of a mean of 60); fitted at the bin centres instead, the same data miss the
+    truth by many standard errors."""
     results = []
     for k, case in enumerate(CASES):
         for s in range(SEEDS):
@@ -416,9 +419,9 @@ def test_coverage_over_simulated_datasets():
     covered = int(np.sum(np.abs(z) <= 1.96))
     print(f"coverage {covered}/{len(z)}, median chi2/dof {np.median(chi2):.3f}, "
           f"mean z {z.mean():+.3f}, std z {z.std(ddof=1):.3f}")
-    assert covered >= 0.9 * len(z)
+    assert covered >= 51
     assert 0.8 <= np.median(chi2) <= 1.25
-    assert abs(z.mean()) <= 0.6
+    assert abs(z.mean()) <= 0.45
     # the control: the bins' data fitted by the model at the bin centres
     z_point, chi2_point, _ = _simulated_fit(CASES[0], 0, point=True)
     print(f"control, case 0 at the bin centres: z = {z_point:+.2f}, chi2/dof = {chi2_point:.3f}")
