@@ -1131,10 +1131,12 @@ def _tea_rng_fields(path, words):
     return rng.state, rng.inc
 
 
-def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
+def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
+                 cones: ConeIndex | None = None) -> Exits:
     """Splitting at the first interface: the reflected branch of each path's first crossing of
     the top boundary (forced reflection, weight F times the sample weight), sampled with its own
-    random numbers: its exits, tallied as bounce order 0."""
+    random numbers: its exits, tallied as bounce order 0 (bin or cones found on the device, as
+    the walk's own exits)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -1150,9 +1152,15 @@ def _split_first(stack: Stack, wi, n: int, first: int, words) -> Exits:
         keep = keep & diffuse
     x = dr.select(keep, f, 0.0)
     wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
-    dr.eval(wo, x)
-    return Exits(np.array(wo, dtype=np.float32).T.reshape(n, 3),
-                 np.array(x, dtype=np.float32).T.reshape(n, 3), np.zeros(n, dtype=np.int64))
+    seg = _device_bin(cfg, wo) if cfg.detector == "bins" else None
+    members = cones.device_members(wo) if (
+        cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH) else []
+    dr.eval(wo, x, seg, members)
+    return Exits(np.stack([np.array(c) for c in wo], axis=1),
+                 np.stack([np.array(c) for c in x], axis=1), np.zeros(n, dtype=np.int64),
+                 np.array(seg).astype(np.int64) if seg is not None else None,
+                 np.stack([np.array(m) for m in members], axis=1).astype(np.int64)
+                 if members else None)
 
 
 def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,
@@ -1182,7 +1190,8 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     for first in range(0, n_paths, launch):
         n = min(launch, n_paths - first)
         ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones)
-        sp = _split_first(stack, wi, n, first, words) if split is not None else None
+        sp = (_split_first(stack, wi, n, first, words, n_out, cones) if split is not None
+              else None)
         truncated += int(capped.sum())
         events += ev
         t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out, cones)
