@@ -984,6 +984,22 @@ class ConeIndex:
         return p, cand[p, k]
 
 
+def _cone_pairs(det: Detector, w, x, cones: ConeIndex | None):
+    """(path, cone) pairs of the tallied exits on the host, in path order, in chunks."""
+    sel = np.flatnonzero(np.any(x != 0.0, axis=1))
+    ps, rs = [], []
+    for lo in range(0, len(sel), 1 << 16):
+        idx = sel[lo:lo + (1 << 16)]
+        if cones is not None:
+            p, r = cones.pairs(w[idx])
+        else:
+            p, r = np.nonzero(w[idx].astype(np.float64) @ det.cone_dir.T
+                              >= det.cone_cos[None, :])
+        ps.append(idx[p])
+        rs.append(r)
+    return (np.concatenate(ps), np.concatenate(rs)) if ps else (np.zeros(0, int),) * 2
+
+
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
                 cones: ConeIndex | None = None):
     """Float64 sums and sums of squares of the exits' weights per block of
@@ -1007,27 +1023,20 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
             s2[..., c] = np.bincount(key, x2[:, c], nb * K * n_out).reshape(nb, K, n_out)
         down = (seg % n_out) >= n_out // 2
     elif cfg.detector == "cones":
-        # cones may overlap: the (path, cone) pairs of the tallied paths, from their dot
-        # products in chunks, summed per block, order class and cone by one bincount each
-        sel = np.flatnonzero(np.any(x != 0.0, axis=1))
+        # cones may overlap: the (path, cone) pairs of the tallied paths, summed per block,
+        # order class and cone by one bincount (pairs in path order: each block's sums are
+        # the same however the launches are cut)
         R = det.cone_dir.shape[0]
         size = nb * K * R
-        step = 16 * TALLY_BLOCK  # whole blocks: each block is summed by one bincount
-        for lo in range(0, P, step):
-            idx = sel[np.searchsorted(sel, lo):np.searchsorted(sel, lo + step)]
-            if ex.cones is not None:
-                p, k = np.nonzero(ex.cones[idx])
-                r = ex.cones[idx][p, k] - 1
-            elif cones is not None:
-                p, r = cones.pairs(ex.w[idx])
-            else:
-                p, r = np.nonzero(ex.w[idx].astype(np.float64) @ det.cone_dir.T
-                                  >= det.cone_cos[None, :])
-            path = idx[p]
-            key = (block[path] * K + order[path]) * R + r
-            for c in range(C):
-                s1[..., c] += np.bincount(key, x[path, c], size).reshape(nb, K, R)
-                s2[..., c] += np.bincount(key, x2[path, c], size).reshape(nb, K, R)
+        if ex.cones is not None:  # found in the kernel
+            p, k = np.nonzero(ex.cones)
+            r = ex.cones[p, k] - 1
+        else:
+            p, r = _cone_pairs(det, ex.w, x, cones)
+        key = (block[p] * K + order[p]) * R + r
+        for c in range(C):
+            s1[..., c] = np.bincount(key, x[p, c], size).reshape(nb, K, R)
+            s2[..., c] = np.bincount(key, x2[p, c], size).reshape(nb, K, R)
     if cfg.detector != "bins":
         down = ex.w[:, 2] < 0
     key = block * 2 + down
