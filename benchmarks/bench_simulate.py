@@ -88,6 +88,8 @@ from fitlab.simulate import detectors, walk  # noqa: E402
 from fitlab.simulate.detectors import hemisphere_rows  # noqa: E402
 from fitlab.simulate.simulator import _incidence_rows  # noqa: E402
 from numpy_walk import simulate_numpy_points  # noqa: E402
+# the NumPy walk with its events counted: walk_engines.py's proxy of numpy (one definition)
+from walk_engines import _NumpyProxy  # noqa: E402
 
 T, P, THETA_I = 9, 12, 30.0
 SCENES = os.path.join(HERE, "..", "data_formats", "examples", "scenes")
@@ -166,39 +168,6 @@ def fl_run(scene, n, seed):
 def _fl_events(res):
     return res.events / (res.samples * max(len(res.incidences), 1))
 
-
-class _CountingRng:
-    """np.random.Generator whose ``random((n, 8))`` calls (one per event of the n paths alive)
-    are summed: the NumPy walk's events."""
-
-    def __init__(self, rng):
-        self._rng, self.events = rng, 0
-
-    def random(self, size):
-        self.events += size[0]
-        return self._rng.random(size)
-
-
-class _NumpyProxy:
-    """numpy for a private copy of numpy_walk whose ``np.random.default_rng`` counts events."""
-
-    def __init__(self):
-        self.last = None
-        proxy = self
-
-        class _Random:
-            def __getattr__(self, name):
-                return getattr(np.random, name)
-
-            @staticmethod
-            def default_rng(seed=None):
-                proxy.last = _CountingRng(np.random.default_rng(seed))
-                return proxy.last
-
-        self.random = _Random()
-
-    def __getattr__(self, name):
-        return getattr(np, name)
 
 
 _COUNTED = {}
