@@ -114,8 +114,21 @@ def run_chunks(task, chunks, out_dir, *, workers: int = 2, scheduler: str | None
             client.close()
             if cluster is not None:
                 cluster.close()
+    remove_orphan_temporaries(out)
+    remove_orphan_temporaries(out / "chunks")
     return {"chunks": len(chunks), "done_before": len(chunks) - len(todo),
             "done_now": len(todo), "records": [read_marker(out, cid) for cid in ids]}
 
 
-__all__ = ["client_for", "digest", "marker_path", "read_marker", "run_chunks", "write_marker"]
+def remove_orphan_temporaries(folder: Path) -> None:
+    """Remove the atomic writer's temporary files (``.NAME.RANDOM.tmp``,
+    fitlab.io.atomic.temporary_beside) whose file NAME exists in ``folder``: left by a worker
+    killed while writing, whose chunk ran again elsewhere and wrote NAME whole."""
+    for tmp in Path(folder).glob(".*.tmp"):
+        name = tmp.name[1:].rsplit(".", 2)[0]
+        if name and (tmp.parent / name).exists():
+            tmp.unlink(missing_ok=True)
+
+
+__all__ = ["client_for", "digest", "marker_path", "read_marker", "remove_orphan_temporaries",
+           "run_chunks", "write_marker"]

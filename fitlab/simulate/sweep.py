@@ -340,15 +340,6 @@ def index_csv(sweep: Sweep) -> str:
     return buf.getvalue()
 
 
-def _remove_orphan_temporaries(out: Path, sweep: Sweep) -> None:
-    """Remove the temporary files of point files whose writer was killed mid-write (a worker
-    lost while writing; its chunk ran again elsewhere and wrote the point whole). Only the
-    atomic writer's own names (fitlab.io.atomic.temporary_beside) of this sweep's points."""
-    for i in range(len(sweep.points)):
-        for tmp in out.glob(f".{sweep.file_name(i)}.*.tmp"):
-            tmp.unlink(missing_ok=True)
-
-
 def run_sweep(sweep: Sweep | str | Path, out_dir, *, workers: int = 2,
               scheduler: str | None = None, points_per_chunk: int | None = None,
               progress: bool = True, retries: int = 3) -> dict:
@@ -380,7 +371,6 @@ def run_sweep(sweep: Sweep | str | Path, out_dir, *, workers: int = 2,
         chunks.append((_chunk_id(sweep, idx), (shipped, idx, records)))
     run = run_chunks(_simulate_chunk, chunks, out, workers=workers, scheduler=scheduler,
                      progress=progress, retries=retries, desc="sweep")
-    _remove_orphan_temporaries(out, sweep)
     atomic_write_text(out / "index.csv", index_csv(sweep))
     index = {"format": "fitlab-sweep-index", "name": sweep.name, **records,
              "samples": sweep.samples, "seed": sweep.seed, "keys": list(sweep.keys),
