@@ -39,7 +39,6 @@ reflection); tallied in four classes 0, 1, 2, ≥3.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -377,9 +376,6 @@ class _Rows:
     """One side's requested directions on the device (gathered by row index in the loop)."""
 
     def __init__(self, ps: PointSide, first: int):
-        import drjit as dr
-        import mitsuba as mi
-
         F = _device_floats
         self.n = ps.d.shape[0]
         self.first = first
@@ -762,7 +758,6 @@ class _Walk:
     def _add(self, acc, path, rows, r, value, order, active):
         """acc[path, class(order), rows.first + r, :] += value (each lane its own slots)."""
         import drjit as dr
-        import mitsuba as mi
 
         cfg = self.cfg
         ok = active
