@@ -40,19 +40,12 @@ def xla_default_flags(flags: str) -> str:
                     if not any(f.startswith(f"--{k}=") for k in TEST_XLA_FLAGS))
 
 
-def user_environment(cache: bool = False) -> dict:
+def user_environment() -> dict:
     """This process's environment as a user's shell has it: XLA's default settings. A test that
     compares a command's output with committed bytes (made by that command under the defaults)
     runs it in a child process with this environment: compiled at other settings, a value's
     last digit can differ."""
-    env = dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
-    # a user's first run has no compiled kernels on disk: not the test session's shared cache
-    # (a whole-suite run reproduced the compare example's bytes but for one last digit when
-    # its command loaded the session's kernels; alone it matched)
-    if not cache:  # ``cache``: keep the session's cache (a whole test session in a child)
-        env.pop("FITLAB_CACHE_DIR", None)
-        env["FITLAB_NO_CACHE"] = "1"
-    return env
+    return dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
 
 
 import jax  # noqa: E402  (after XLA_FLAGS)

@@ -34,7 +34,7 @@ def test_contract_holds_under_xla_default_settings():
     # this worker waits for the child session: it gives back its compiled code first, so the
     # two sessions' memory does not add up (the suite's 3 GB budget)
     _release_compiled_code()
-    env = {**user_environment(cache=True), XLA_DEFAULTS_ENV: "1"}
+    env = {**user_environment(), XLA_DEFAULTS_ENV: "1"}
     cmd = [sys.executable, "-m", "pytest", *MODULES, "-m", "not slow", "-n", "0", "-q",
            "-p", "no:cacheprovider", "-o", "addopts="]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500)
