@@ -18,11 +18,11 @@ import numpy as np
 from fitlab.simulate import components, detectors, engine
 from fitlab.simulate.effects import EffectPlan, derive_effects
 from fitlab.simulate.scene import Scene
-from fitlab.simulate.walk import ORDER_CLASSES, Detector, Stack, WalkArrays, WalkConfig, \
-    run, seed_words
+from fitlab.simulate.walk import LAUNCH_PATHS, ORDER_CLASSES, Detector, Stack, WalkArrays, \
+    WalkConfig, run, seed_words
 
 #: Paths per launch of the compiled walk (per-path exit slots: ~32 bytes a path).
-BATCH_SIZE = 1 << 20
+BATCH_SIZE = LAUNCH_PATHS
 #: Events per path after which a path still alive is dropped (reported as truncated).
 MAX_EVENTS = 512
 #: Where the walk runs: a GPU when one is usable (else the CPU), the CPU, or a GPU.
