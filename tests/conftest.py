@@ -48,6 +48,49 @@ def user_environment() -> dict:
     return dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
 
 
+def _same_values(got, want, rtol, where):
+    """Two parsed JSON values or CSV cells: equal, numbers within rtol (recursive)."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and sorted(got) == sorted(want), where
+        for k in want:
+            _same_values(got[k], want[k], rtol, f"{where}.{k}")
+    elif isinstance(want, list):
+        assert isinstance(got, list) and len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want)):
+            _same_values(g, w, rtol, f"{where}[{i}]")
+    elif isinstance(want, (int, float)) and not isinstance(want, bool):
+        assert isinstance(got, (int, float)) and not isinstance(got, bool), (where, got, want)
+        assert got == want or abs(got - want) <= rtol * max(abs(got), abs(want)), \
+            (where, got, want)
+    else:
+        assert got == want, (where, got, want)
+
+
+def _csv_cell(text):
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def assert_same_csv(got_text: str, want_text: str, rtol: float = 1e-9, where: str = "csv"):
+    """Same header, same text cells, numbers within rtol: what a committed example promises on
+    another machine (its bytes are promised for one machine and one set of run conditions: the
+    last binary digits of a float can follow memory alignment in BLAS or the CPU's vector
+    width in XLA)."""
+    import csv
+    import io
+
+    got = [[_csv_cell(c) for c in row] for row in csv.reader(io.StringIO(got_text))]
+    want = [[_csv_cell(c) for c in row] for row in csv.reader(io.StringIO(want_text))]
+    _same_values(got, want, rtol, where)
+
+
+def assert_same_json(got, want, rtol: float = 1e-9, where: str = "json"):
+    """Parsed JSON records equal, numbers within rtol (see assert_same_csv)."""
+    _same_values(got, want, rtol, where)
+
+
 import jax  # noqa: E402  (after XLA_FLAGS)
 import pytest  # noqa: E402
 

@@ -522,14 +522,23 @@ def information_criteria(loglik, reff):
     return loo, waic
 
 
+WEIGHT_DECIMALS = 6
+
+
 def _compare_ic(elpds: dict, ic: str) -> dict:
-    """{label: {rank, elpd_diff, dse, weight}} from ArviZ's compare (stacking weights)."""
+    """{label: {rank, elpd_diff, dse, weight}} from ArviZ's compare (stacking weights).
+
+    The weights come from SciPy's SLSQP (tolerance 1e-6 on the log score) and are written to
+    WEIGHT_DECIMALS places: their last binary digits follow BLAS's rounding, which depends on
+    how the process's memory happens to be aligned, and would make the record differ between two
+    runs of the same command."""
     az = _arviz()
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore")
         table = az.compare(elpds, ic=ic, method="stacking")
     return {str(label): {"rank": int(row["rank"]) + 1, "elpd_diff": float(row["elpd_diff"]),
-                         "dse": float(row["dse"]), "weight": float(row["weight"])}
+                         "dse": float(row["dse"]),
+                         "weight": round(float(row["weight"]), WEIGHT_DECIMALS)}
             for label, row in table.iterrows()}
 
 
