@@ -115,6 +115,51 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
+# The suite's compilations, counted per test process and summed in the summary line
+# "XLA: ... compilations" (pytest-xdist hands each worker's counts to the controller): most of
+# the suite's time is XLA compiling, so this is the figure that changes with it.
+_COMPILES = {"backend_compiles": 0, "backend_seconds": 0.0, "traces": 0, "cache_hits": 0}
+
+
+def _count_duration(event, seconds, **_):
+    if event == "/jax/core/compile/backend_compile_duration":
+        _COMPILES["backend_compiles"] += 1
+        _COMPILES["backend_seconds"] += seconds
+    elif event == "/jax/core/compile/jaxpr_trace_duration":
+        _COMPILES["traces"] += 1
+
+
+def _count_event(event, **_):
+    if event == "/jax/compilation_cache/cache_hits":
+        _COMPILES["cache_hits"] += 1
+
+
+jax.monitoring.register_event_duration_secs_listener(_count_duration)
+jax.monitoring.register_event_listener(_count_event)
+_WORKER_COMPILES = []
+
+
+def pytest_sessionfinish(session):
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:  # a pytest-xdist worker: report to the controller
+        workeroutput["fitlab_compiles"] = dict(_COMPILES)
+
+
+def pytest_testnodedown(node, error):
+    counts = getattr(node, "workeroutput", {}).get("fitlab_compiles")
+    if counts:
+        _WORKER_COMPILES.append(counts)
+
+
+def pytest_terminal_summary(terminalreporter):
+    parts = _WORKER_COMPILES or [_COMPILES]
+    total = {k: sum(p[k] for p in parts) for k in _COMPILES}
+    terminalreporter.write_line(
+        f"XLA: {total['backend_compiles']} compilations ({total['backend_seconds']:.0f} s), "
+        f"{total['cache_hits']} loaded from the session cache, {total['traces']} traces, "
+        f"in {len(parts)} process(es)")
+
+
 def pytest_unconfigure(config):
     if _OWN_SESSION_CACHE is not None:
         shutil.rmtree(_OWN_SESSION_CACHE, ignore_errors=True)
