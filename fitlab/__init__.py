@@ -9,8 +9,6 @@ immutable :class:`FitResult`), :func:`fit_many` (many datasets at once, batched)
 ``data_formats/CONVENTIONS.md``.
 """
 
-__version__ = "0.1.0"
-
 import jax as _jax
 
 # fitlab fits in float64; float32 inputs still evaluate in float32 (see data_formats/CONVENTIONS.md).
@@ -21,6 +19,7 @@ _jax.config.update("jax_enable_x64", True)
 # if fitlab is imported before JAX's CPU backend starts.
 _jax.config.update("jax_cpu_enable_async_dispatch", False)
 
+from fitlab.version import __version__  # noqa: E402
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
 from fitlab.models import MODELS, get_model, register_model  # noqa: E402
 from fitlab.fitting.api import fit, read  # noqa: E402

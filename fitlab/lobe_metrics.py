@@ -26,11 +26,11 @@ def directions(theta_deg, phi_deg) -> np.ndarray:
 def model_evaluator(model: str, channels: dict, options: dict, dtype=np.float64):
     """The evaluator of registry ``model`` with ``channels`` = {channel: params}, in ``dtype``
     (float32 directions give a float32 evaluation, fitlab.eval_bsdf)."""
-    import fitlab
+    from fitlab.api import eval_bsdf
 
     def evaluate(wi, wo):
         wi, wo = np.asarray(wi, dtype), np.asarray(wo, dtype)
-        return np.stack([np.asarray(fitlab.eval_bsdf(model, p, wi, wo, options), np.float64)
+        return np.stack([np.asarray(eval_bsdf(model, p, wi, wo, options), np.float64)
                          for p in channels.values()], axis=-1)
     return evaluate
 
@@ -106,14 +106,14 @@ def albedo_sampled(model: str, channels: dict, options: dict, theta_deg: float,
                    n: int = 100_000, seed: int = 7, side: int = 1) -> np.ndarray:
     """Directional albedo per channel at incidence θ by the model's own importance sampler
     (mean of the sample weights): reflected (``side`` 1) or transmitted (-1)."""
-    import fitlab
+    from fitlab.api import sample_bsdf
 
     rng = np.random.default_rng(seed)
     u = rng.random((n, 3))
     wi = np.broadcast_to(directions(theta_deg, 0.0), (n, 3))
     out = []
     for p in channels.values():
-        wo, w, _ = fitlab.sample_bsdf(model, p, wi, u, options)
+        wo, w, _ = sample_bsdf(model, p, wi, u, options)
         out.append(float(np.mean(np.where(side * np.asarray(wo)[:, 2] > 0, np.asarray(w),
                                           0.0))))
     return np.array(out)

@@ -64,7 +64,7 @@ def _mitsuba():
 def material_of_properties(values: dict):
     """The :class:`fitlab.export.material.Material` named by plugin properties (a plain dict:
     ``fit`` [+ ``channel``], or ``model`` + parameters + ``option__NAME``)."""
-    import fitlab
+    from fitlab.fitting.result import load_fit
     from fitlab.export.material import (RGB, ExportError, material_from_fit,
                                         material_from_model)
 
@@ -73,7 +73,7 @@ def material_of_properties(values: dict):
         if extra:
             raise ExportError(f"fitlab plugin: with 'fit' give only 'channel', not "
                               f"{', '.join(extra)}")
-        return material_from_fit(fitlab.load_fit(values["fit"]), values.get("channel"))
+        return material_from_fit(load_fit(values["fit"]), values.get("channel"))
     if "model" not in values:
         raise ExportError("fitlab plugin: give 'fit' (a parameter file) or 'model' (a registry "
                           "model) with its parameters")
@@ -394,11 +394,11 @@ def conversion_error(material, bsdf: dict) -> dict:
     """How far Mitsuba's render of ``bsdf`` is from fitlab's f·cos θi of ``material`` on the
     goniometer at :func:`check_geometries`: relative RMS and largest relative difference (over
     the pairs where fitlab's value is above 1e-6 of its largest), per channel combined."""
-    import fitlab
+    from fitlab.api import eval_bsdf
 
     wi, wo = check_geometries()
     rendered = goniometer(bsdf, wi, wo)
-    cols = [np.asarray(fitlab.eval_bsdf(material.model, p, wi, wo, material.options))
+    cols = [np.asarray(eval_bsdf(material.model, p, wi, wo, material.options))
             * wi[:, 2] for p in material.channels.values()]
     expected = np.stack(cols * 3 if len(cols) == 1 else cols, axis=-1)
     keep = expected > 1e-6 * expected.max()

@@ -125,15 +125,15 @@ def fit_lobe(model_name: str, channel_params: dict, *, samples=SAMPLES, seed=0,
     """Simulate the stack and fit its multiple-scattering lobe. Returns (the
     :class:`fitlab.FitResult` of ``spongecake(LAYERS,multiple=only)``, the measurement fitted).
     ``measurement``: a multiple-scattering part already made (skips the simulation)."""
-    import fitlab
+    from fitlab.fitting.api import fit as fit_data
 
     if measurement is None:
         measurement, _ = multiple_scattering_part(
             model_name, channel_params, samples=samples, seed=seed, theta_i=theta_i,
             theta_bins=theta_bins, phi_bins=phi_bins, progress=progress)
-    fit = fitlab.fit(measurement, lobe_model_name(model_name),
-                     fix=held_parameters(model_name, channel_params), seed=seed, starts=starts,
-                     bootstrap=0, progress=progress)
+    fit = fit_data(measurement, lobe_model_name(model_name),
+                   fix=held_parameters(model_name, channel_params), seed=seed,
+                   starts=starts, bootstrap=0, progress=progress)
     return fit, measurement
 
 

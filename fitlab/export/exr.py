@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-import fitlab
+from fitlab.version import __version__
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.validate import check_allocation, quote
 from fitlab.io.atomic import temporary_beside
@@ -55,7 +55,7 @@ def header_attributes(table: Table, path=None) -> dict:
         "accuracy": json.dumps(table.accuracy, allow_nan=False),
         "texel_convention": TEXEL_CONVENTION,
         "conventions": json.dumps(CONVENTIONS),
-        "version": fitlab.__version__,
+        "version": __version__,
         "notes": json.dumps(list(table.notes)),
     }
     for k, a in enumerate(table.axes):  # readable copies for exrheader & co.

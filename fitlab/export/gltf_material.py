@@ -31,6 +31,7 @@ import numpy as np
 from fitlab.export.material import ExportError, Material
 from fitlab.lobe_metrics import (ERROR_FLOOR, albedo_sampled, directions, image_errors,
                                  lobe_image, model_evaluator, relative_errors)
+from fitlab.version import __version__
 
 #: Incidences (θi, degrees, φi = 0) and the outgoing grid of the conversion fit.
 THETA_I = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 80.0)
@@ -79,9 +80,9 @@ def conversion_pairs(isotropic: bool = False, transmission: bool = False
 
 
 def _values(material: Material, wi, wo) -> dict:
-    import fitlab
+    from fitlab.api import eval_bsdf
 
-    return {c: np.asarray(fitlab.eval_bsdf(material.model, p, wi, wo, material.options))
+    return {c: np.asarray(eval_bsdf(material.model, p, wi, wo, material.options))
             for c, p in material.channels.items()}
 
 
@@ -108,16 +109,16 @@ def _measurement(values: dict, wi, wo):
 
 
 def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool):
-    import fitlab
+    from fitlab.fitting.api import fit
     from fitlab.models import get_model
 
     keep = wo[:, 2] != 0
     m = _measurement({c: v[keep] for c, v in values.items()}, wi[keep], wo[keep])
     names = get_model(model).parameter_names
     shared = [n for n in names if n != "base_color" and n != "specular_color"]
-    result = fitlab.fit(m, model, fix={"specular_color": 1.0}, loss="log", starts=4,
-                        seed=seed, bootstrap=0, share=shared if len(values) > 1 else (),
-                        progress=progress)
+    result = fit(m, model, fix={"specular_color": 1.0}, loss="log", starts=4,
+                 seed=seed, bootstrap=0, share=shared if len(values) > 1 else (),
+                 progress=progress)
     return result
 
 
@@ -257,7 +258,6 @@ def _offers(params: dict, name: str) -> bool:
 
 def gltf_document(material: Material, model: str, params: dict, conversion: dict) -> dict:
     """The glTF 2.0 document: the fitted material on a preview sphere."""
-    import fitlab
 
     base = _rgb_values(params, "base_color")
     mat = {"name": f"fitlab {material.model}",
@@ -301,7 +301,7 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
         data += blob
     data += b"\0" * (-len(data) % 4)
     doc = {
-        "asset": {"version": "2.0", "generator": f"fitlab {fitlab.__version__}"},
+        "asset": {"version": "2.0", "generator": f"fitlab {__version__}"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "preview sphere"}],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import fitlab
+from fitlab.models import get_model
 from fitlab import lut
 from fitlab.errors import FitlabError
 
@@ -86,7 +86,7 @@ def from_fit(path, channel=None):
 
     rec = read_fit(path)
     params = fit_parameters(rec, source=path, channel=channel, scale=False)
-    return fitlab.get_model(rec["model"]["name"]).name, dict(rec["model"].get("options") or {}), \
+    return get_model(rec["model"]["name"]).name, dict(rec["model"].get("options") or {}), \
         params
 
 

@@ -107,11 +107,11 @@ def material_from_fit(result, channel: str | None = None) -> Material:
 def material_from_model(model: str, channels: dict, options: dict | None = None) -> Material:
     """The material of registry ``model`` with ``channels`` = {channel: params} (checked) and
     ``options`` (defaults filled in)."""
-    import fitlab
+    from fitlab.models import get_model
     from fitlab.api import check_params, resolve_options
 
     try:
-        m = fitlab.get_model(model)
+        m = get_model(model)
         opts = resolve_options(m, options)
         for params in channels.values():
             check_params(m, params)

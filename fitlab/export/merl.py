@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import fitlab
+from fitlab.models import get_model
 from fitlab.api import eval_bsdf, resolve_options
 from fitlab.errors import FitlabError
 from fitlab.export.paramfile import read_fit
@@ -51,7 +51,7 @@ def write_merl(path, model: str, params, options: dict | None = None) -> dict:
     """Tabulate a registry model as a MERL .binary file (atomically). A MERL file holds a BRDF:
     a model that does not reflect is refused, the transmission of one that also transmits is
     left out (noted). Returns a summary (channels, bins with a value, f range, notes)."""
-    m = fitlab.get_model(model)
+    m = get_model(model)
     if not m.capabilities.reflection:
         raise FitlabError(f"model {m.name!r} does not reflect ({m.lobes}); a MERL file holds a "
                           "BRDF (reflection only): choose a reflecting model or write Zemax BTDF")

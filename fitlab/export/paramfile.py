@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-import fitlab
+import fitlab.api
+from fitlab.models import get_model
+from fitlab.version import __version__
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.fitting.space import SCALE
 from fitlab.io.atomic import atomic_open
@@ -32,7 +34,7 @@ def software_versions() -> dict:
         try:
             out[pkg] = _md.version(pkg)
         except _md.PackageNotFoundError:
-            out[pkg] = fitlab.__version__ if pkg == "fitlab" else None
+            out[pkg] = __version__ if pkg == "fitlab" else None
     return out
 
 
@@ -246,7 +248,7 @@ def read_fit(path) -> dict:
                              hint="refit with this fitlab version or upgrade fitlab")
     check_fit_record(path, data)
     try:
-        model = fitlab.get_model(data["model"]["name"])
+        model = get_model(data["model"]["name"])
     except (ValueError, KeyError, TypeError):
         raise InputFileError(path, "names a model this fitlab does not know",
                              column="model.name", hint="run `fitlab models`") from None

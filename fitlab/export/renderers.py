@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 from fitlab.export.material import ExportError, Material
+from fitlab.version import __version__
 
 
 class Exported(NamedTuple):
@@ -42,9 +43,8 @@ def _json_text(value) -> str:
 
 
 def _comment(material: Material) -> str:
-    import fitlab
 
-    return (f"fitlab {fitlab.__version__} export of {material.model} from {material.source} "
+    return (f"fitlab {__version__} export of {material.model} from {material.source} "
             f"(channels {','.join(material.channels)}); conventions: data_formats/"
             "mitsuba_export.md")
 
@@ -138,9 +138,9 @@ def material_of(fit=None, *, model: str | None = None, params: dict | None = Non
             raise ExportError("a fit brings its own parameters and options; to change them, "
                               "export the model (--model NAME --param ...)")
         if not hasattr(fit, "record"):
-            import fitlab
+            from fitlab.fitting.result import load_fit
 
-            fit = fitlab.load_fit(fit)
+            fit = load_fit(fit)
         return material_from_fit(fit, channel)
     params = dict(params or {})
     channels = params if params and all(isinstance(v, dict) for v in params.values()) \

@@ -71,7 +71,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning).
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
-    import fitlab
+    from fitlab.models import get_model
     from fitlab.api import resolve_options
     from fitlab.export.paramfile import build_record, chains_payload, run_timings
     from fitlab.fitting.driver import fit_measurement
@@ -81,7 +81,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
 
     m = one_dataset(read(measurement) if not hasattr(measurement, "value") else measurement)
     try:
-        mdl = fitlab.get_model(model) if isinstance(model, str) else model
+        mdl = get_model(model) if isinstance(model, str) else model
         options = resolve_options(mdl, options or {})
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models`)") from None

@@ -174,7 +174,7 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
     """Every candidate checked before anything is fitted (model names, options, parameters and
     their values); ``fix``, ``options`` and ``free`` apply to each candidate that has that
     parameter or option (a candidate's own settings win), and each must apply to one at least."""
-    import fitlab
+    from fitlab.models import get_model
     from fitlab.api import check_params, resolve_options
     from fitlab.fitting.api import parameter_values
 
@@ -199,7 +199,7 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
     for c in cands:
         where = f"--model {c.model!r}"
         try:
-            mdl = fitlab.get_model(c.model)
+            mdl = get_model(c.model)
         except ValueError as exc:
             raise FitlabError(f"{where}: {exc} (see `fitlab models`)") from None
         names = mdl.parameter_names
@@ -578,10 +578,10 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     candidate's own settings win). loss, subset, channels, mcmc_steps, walkers, starts, seed:
     as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
     likelihood). progress: a bar with the time left on stderr."""
-    import fitlab
+    from fitlab.fitting.api import fit, read
     from fitlab.fitting.subset import subset_mask
 
-    m = fitlab.read(measurement) if not hasattr(measurement, "value") else measurement
+    m = read(measurement) if not hasattr(measurement, "value") else measurement
     cands = resolve_candidates(models, fix, options, free)
     if not cv and not mcmc:
         raise FitlabError("nothing to rank by: keep cross-validation (cv=True, drop --no-cv) "
@@ -634,14 +634,14 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             if bar is not None:
                 bar.set_postfix_str(f"{cand.label}: fit" + (" + MCMC" if mcmc else ""))
             try:
-                res = fitlab.fit(m, cand.model, fix=cand.fix, free=cand.free, start=cand.start,
-                                 options=cand.options, loss=loss, subset=rows_fit,
-                                 channels=[m.channel_names[c] for c in chan_ids], mcmc=mcmc,
-                                 mcmc_steps=mcmc_steps, walkers=walkers, starts=starts,
-                                 seed=seed, progress=False,
-                                 # the fits' block bootstrap does not enter the ranking (the
-                                 # cross-validation is its misfit-aware measure): left out
-                                 bootstrap=0)
+                res = fit(m, cand.model, fix=cand.fix, free=cand.free, start=cand.start,
+                          options=cand.options, loss=loss, subset=rows_fit,
+                          channels=[m.channel_names[c] for c in chan_ids], mcmc=mcmc,
+                          mcmc_steps=mcmc_steps, walkers=walkers, starts=starts,
+                          seed=seed, progress=False,
+                          # the fits' block bootstrap does not enter the ranking (the
+                          # cross-validation is its misfit-aware measure): left out
+                          bootstrap=0)
             except FitlabError as exc:
                 raise FitlabError(f"--model {cand.label!r}: {exc}") from None
             res = res.with_record({**thaw(res.record),

@@ -263,7 +263,7 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
     also the posterior of every dataset by NUTS (blackjax; ``chains`` chains × ``mcmc_steps``
     adaptation and draws), vmapped over the datasets of a chunk as well (emcee, the single
     fit's reference sampler, is not batched: use fitlab.fit per file)."""
-    import fitlab
+    from fitlab.models import get_model
     from fitlab.fitting.api import parameter_values, read
 
     t0 = time.perf_counter()
@@ -279,7 +279,7 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
     try:
-        mdl = fitlab.get_model(model) if isinstance(model, str) else model
+        mdl = get_model(model) if isinstance(model, str) else model
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models`)") from None
     fix = parameter_values(mdl, fix, "fix")

@@ -6,8 +6,8 @@ Spec: data_formats/values_csv.md."""
 from __future__ import annotations
 
 import io
+from fitlab.version import __version__
 
-import fitlab
 
 
 def format_values_csv(pairs, values, *, model, params, options, source, dtype) -> str:
@@ -20,7 +20,7 @@ def format_values_csv(pairs, values, *, model, params, options, source, dtype) -
     out.write("# options: " + (", ".join(f"{k}={v}" for k, v in options.items()) or "none") + "\n")
     out.write(f"# directions: {source}\n")
     out.write(f"# precision: {dtype}\n")
-    out.write(f"# fitlab_version: {fitlab.__version__}\n")
+    out.write(f"# fitlab_version: {__version__}\n")
     out.write("# conventions: data_formats/CONVENTIONS.md\n")
     out.write("theta_i,phi_i,theta_o,phi_o,value\n")
     for row in zip(pairs.theta_i, pairs.phi_i, pairs.theta_o, pairs.phi_o, values):

@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-import fitlab
+from fitlab.version import __version__
 from fitlab.numerics import ALPHA_MIN
 
 #: Schema of the table description (written to EXR headers).
@@ -124,7 +124,7 @@ class Table(NamedTuple):
             "channels": list(self.channels), "dtype": self.dtype, "quantity": self.quantity,
             "axes": [a._asdict() for a in self.axes], "model": self.model, "params": self.params,
             "accuracy": self.accuracy, "source_fit": self.source_fit, "notes": list(self.notes),
-            "texel_convention": TEXEL_CONVENTION, "fitlab_version": fitlab.__version__,
+            "texel_convention": TEXEL_CONVENTION, "fitlab_version": __version__,
         }
 
 

@@ -13,7 +13,9 @@ from typing import Callable, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-import fitlab
+import fitlab.api
+from fitlab.api import eval_bsdf
+from fitlab.models import get_model
 from fitlab.fresnel import (
     CONDUCTOR_FRESNEL_METHODS, CONDUCTOR_PRESETS, fresnel_dielectric_Walter2007,
 )
@@ -298,12 +300,12 @@ def _eval_in_chunks(name, p, wi, wo, opts):
     compiled shape serves a whole bake)."""
     n = len(wi)
     if n <= MODEL_CHUNK:
-        return np.asarray(fitlab.eval_bsdf(name, p, wi, wo, opts))
+        return np.asarray(eval_bsdf(name, p, wi, wo, opts))
     pad = -n % MODEL_CHUNK
     wi = np.concatenate([wi, np.repeat(wi[:1], pad, axis=0)])
     wo = np.concatenate([wo, np.repeat(wo[:1], pad, axis=0)])
-    out = [np.asarray(fitlab.eval_bsdf(name, p, wi[i:i + MODEL_CHUNK], wo[i:i + MODEL_CHUNK],
-                                       opts)) for i in range(0, len(wi), MODEL_CHUNK)]
+    out = [np.asarray(eval_bsdf(name, p, wi[i:i + MODEL_CHUNK], wo[i:i + MODEL_CHUNK],
+                                opts)) for i in range(0, len(wi), MODEL_CHUNK)]
     return np.concatenate(out)[:n]
 
 
@@ -312,7 +314,7 @@ def spec_model(model_name, params, options=None, size=(256, 256),
     """``params``: {channel: {parameter: value}} of a registry model (every parameter given).
     Two sizes: the (cos θh, cos θd) table at φd = 90°; three: with a φd axis over [0°, 90°]
     (reciprocal model) or [0°, 180°] (otherwise)."""
-    model = fitlab.get_model(model_name)
+    model = get_model(model_name)
     if not model.capabilities.isotropic:
         raise ValueError(f"model {model.name!r} is anisotropic: a (cos θh, cos θd) table "
                          "holds isotropic BRDFs only (it has no azimuth of the half vector, with "
@@ -435,7 +437,7 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
     from fitlab.lut.lobe import ORDERS, lobe_moments, vmf_lobe_error
     from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO, exit_concentration
 
-    model = fitlab.get_model(model_name)
+    model = get_model(model_name)
     rough = _thin_layer_roughness(model)
     opts = dict(fitlab.api.resolve_options(model, options))
     choices = {o.name: o.choices for o in model.options}

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-import fitlab
 from fitlab.errors import FitlabError
 from fitlab.fitting.driver import REL_ERR_FLOOR, relative_errors
 from fitlab.io.atomic import atomic_open
@@ -21,6 +20,7 @@ from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_ht
 from fitlab.report.inputs import (BAND_SAMPLES, data_prediction, load_inputs, model_f,
                                   prediction, predictive_band)
 from fitlab.report.style import render
+from fitlab.version import __version__
 
 #: At most this many incidence directions get an in-plane scan figure per channel.
 MAX_SCANS = 24
@@ -117,7 +117,7 @@ def _header(inp, out_dir):
     body += "<h3>Data provenance</h3>\n" + table_html([], prov)
     body += "<h3>Conventions</h3>\n" + table_html([], conv)
     body += "<h3>Software (of the fit)</h3>\n" + table_html(["package", "version"], soft)
-    body += paragraph(f"Report made by fitlab {fitlab.__version__}. MCMC chain: {chain}.")
+    body += paragraph(f"Report made by fitlab {__version__}. MCMC chain: {chain}.")
     for note in rec.get("notes", []):
         body += note_html(f"fit note: {note}")
     return body

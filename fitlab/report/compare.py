@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-import fitlab
 from fitlab.errors import FitlabError
 from fitlab.io.atomic import atomic_open
 from fitlab.report.html import (FigureEntry, document, figure_html, note_html, paragraph,
                                 table_html, warning_html)
 from fitlab.report.style import new_figure, render, styled
+from fitlab.version import __version__
 
 #: Colours of the candidates, in the candidates' order (matplotlib's tab10).
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
@@ -290,7 +290,7 @@ def _settings(rec, out_dir):
     soft = sorted((k, v) for k, v in rec["software"].items())
     return (table_html([], rows) + "<h3>Software</h3>\n" + table_html(["package", "version"],
                                                                       soft)
-            + paragraph(f"Page made by fitlab {fitlab.__version__}."))
+            + paragraph(f"Page made by fitlab {__version__}."))
 
 
 def build_compare_report(result, out_dir, *, progress: bool = False) -> dict:

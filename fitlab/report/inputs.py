@@ -12,7 +12,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-import fitlab
+import fitlab.api
+from fitlab.api import eval_bsdf
+from fitlab.models import get_model
 from fitlab.errors import InputFileError
 from fitlab.io.validate import quote
 from fitlab.fitting.space import SCALE, FitSpace, FreeParameter, StaticSpace
@@ -117,7 +119,7 @@ def _space_of(fit: dict, record: dict) -> FitSpace:
         free.append(FreeParameter(name, float(p["bounds"][0]), float(p["bounds"][1]),
                                   p.get("transform") == "log", p.get("unit", "")))
     fixed = {k: v["value"] for k, v in fit["parameters"].items() if v["fixed"]}
-    static = StaticSpace(fitlab.get_model(record["model"]["name"]),
+    static = StaticSpace(get_model(record["model"]["name"]),
                          tuple(sorted(record["model"]["options"].items())),
                          tuple(f.name for f in free), tuple(f.log for f in free),
                          tuple(sorted(fixed)), SCALE in fit["parameters"])
@@ -225,7 +227,7 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
     say = progress or (lambda msg: None)
     fit_path = Path(fit_path)
     record = read_fit(fit_path)
-    model = fitlab.get_model(record["model"]["name"])
+    model = get_model(record["model"]["name"])
     try:
         options = fitlab.api.resolve_options(model, record["model"].get("options"))
     except ValueError as exc:
@@ -315,8 +317,8 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
 
 def model_f(inputs: ReportInputs, params: dict, wi, wo) -> np.ndarray:
     """The fitted model's f (1/sr, no cosine) at direction pairs, via fitlab.api."""
-    return np.asarray(fitlab.eval_bsdf(inputs.model.name, params, np.asarray(wi, float),
-                                       np.asarray(wo, float), inputs.options))
+    return np.asarray(eval_bsdf(inputs.model.name, params, np.asarray(wi, float),
+                                np.asarray(wo, float), inputs.options))
 
 
 def prediction(inputs: ReportInputs, ch: ChannelInputs, wi, wo) -> np.ndarray:

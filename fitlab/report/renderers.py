@@ -43,11 +43,11 @@ def _preview_figure(image: np.ndarray, title: str):
 
 def renderers_section(rep, fit_path) -> str:
     """HTML of the hand-off section (figures added to ``rep``)."""
-    import fitlab
+    from fitlab.fitting.result import load_fit
     from fitlab.export.material import ExportError
     from fitlab.export.renderers import EXPORTERS, material_of
 
-    result = fitlab.load_fit(fit_path)
+    result = load_fit(fit_path)
     try:
         material = material_of(result)
     except ExportError as exc:

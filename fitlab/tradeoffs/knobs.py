@@ -446,7 +446,7 @@ def mcmc_length(ctx: Context) -> list[Variant]:
     """emcee chains of N steps on the fit's data: the 68 % interval width of each parameter
     against the longest chain's, and the width's Monte Carlo error estimated from the chain's
     effective sample size (≈ 1.07 / sqrt(ESS) relative, a Gaussian posterior's quantiles)."""
-    import fitlab
+    from fitlab.fitting.api import fit as fit_data
 
     if ctx.fit is None or ctx.data is None:
         raise NotApplicable("needs a fit with its data file (FIT.json whose data is found, or "
@@ -458,8 +458,8 @@ def mcmc_length(ctx: Context) -> list[Variant]:
     steps = MCMC_STEPS_QUICK if ctx.quick else MCMC_STEPS
 
     def run(s):
-        return fitlab.fit(ctx.data, fit.model, fix=fixed or None, options=dict(fit.options),
-                          loss=fit.loss, subset=subset, channels=chans, share=fit.shared,
+        return fit_data(ctx.data, fit.model, fix=fixed or None, options=dict(fit.options),
+                        loss=fit.loss, subset=subset, channels=chans, share=fit.shared,
                           mcmc=True, mcmc_steps=s, seed=ctx.seed, bootstrap=0)
     ctx.progress("MCMC length: a first short fit compiles the kernels (not timed)")
     run(100)

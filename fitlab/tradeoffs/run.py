@@ -190,7 +190,8 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
     parameters; ``data``: a file or Measurement whose directions the errors are measured on). ``knobs``: names to measure (default
     all); ``quick``: fewer sizes, samples and steps. With ``out`` the report is written there
     (``index.html``, ``tradeoffs.json``, figures; fitlab.report.tradeoffs)."""
-    import fitlab
+    from fitlab.fitting.api import read
+    from fitlab.fitting.result import load_fit
     from fitlab.errors import FitlabError
     from fitlab.export.renderers import material_of
 
@@ -210,12 +211,12 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
     if fit is not None:
         if not hasattr(fit, "record"):
             fit_path = Path(fit)
-            fit = fitlab.load_fit(fit)
+            fit = load_fit(fit)
         material = material_of(fit)
         measurement = _data_of(fit, fit_path, data)
     else:
         if data is not None:
-            measurement = data if hasattr(data, "value") else fitlab.read(data)
+            measurement = data if hasattr(data, "value") else read(data)
         material = material_of(model=model, params=params, options=options)
     names = [k.name for k in KNOBS]
     wanted = list(names) if knobs is None else list(knobs)
