@@ -1,33 +1,21 @@
 """Registry of the file formats fitlab reads: detection from content, reading to a
 Measurement, and a description for ``fitlab info``.
 
-Each reader module defines ``FORMAT = Format(...)``; ``READER_MODULES`` lists them in detection
-order (the most specific signatures first, fitlab's own CSV last).
+Each reader module defines ``FORMAT = Format(...)`` (fitlab.io.format); ``READER_MODULES``
+lists them in detection order (the most specific signatures first, fitlab's own CSV last).
 """
 
 from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Callable, NamedTuple
 
 from fitlab.errors import InputFileError
+from fitlab.io.format import Format
 from fitlab.io.files import read_bytes
 
 #: Bytes read from the start of a file for detection.
 HEAD_BYTES = 4096
-
-
-class Format(NamedTuple):
-    name: str
-    description: str
-    #: detect(head: bytes, path: Path) -> bool, from the first HEAD_BYTES bytes
-    detect: Callable
-    #: read(path, **options) -> Measurement
-    read: Callable
-    #: describe(path) -> dict of what the file holds (format, angles, channels, units, checks)
-    describe: Callable
-    spec: str  # the data_formats/ document
 
 
 READER_MODULES = (

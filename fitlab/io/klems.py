@@ -28,6 +28,7 @@ from xml.parsers import expat
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.format import Format
 from fitlab.io.validate import check_count, parse_number, quote
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
@@ -572,11 +573,5 @@ def _detect(head: bytes, path) -> bool:
     return re.search(r"<(\w+:)?WindowElement[\s>]", text) is not None
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("klems", "LBNL WINDOW / Radiance BSDF XML (Klems angle basis matrices)", _detect,
-                  read_klems, describe_klems, "data_formats/klems_xml.md")
-
-
-FORMAT = _format()
+FORMAT = Format("klems", "LBNL WINDOW / Radiance BSDF XML (Klems angle basis matrices)", _detect,
+                read_klems, describe_klems, "data_formats/klems_xml.md")

@@ -18,6 +18,7 @@ from fitlab.errors import InputFileError
 from fitlab.io.csvtable import read_table
 from fitlab.io.directions import check_angles, degrees_to_direction
 from fitlab.io.files import sha256_of
+from fitlab.io.format import Format
 
 DIRECTION_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
 QUANTITIES = ("bsdf", "bsdf_cos", "relative")
@@ -637,11 +638,5 @@ def aperture_summary(m: Measurement) -> dict:
     return out
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("csv", "fitlab measurement CSV", _detect, lambda p, **kw: read_measurement(p),
-                  describe_measurement, "data_formats/measurement_csv.md")
-
-
-FORMAT = _format()
+FORMAT = Format("csv", "fitlab measurement CSV", _detect, lambda p, **kw: read_measurement(p),
+                describe_measurement, "data_formats/measurement_csv.md")

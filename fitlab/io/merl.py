@@ -30,6 +30,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.format import Format
 from fitlab.io.measurement import Measurement, describe_loaded
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
@@ -322,11 +323,5 @@ def describe_merl(path) -> dict:
     return info
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("merl", "MERL BRDF database binary (90×90×180 RGB half/difference table)",
-                  _detect, read_merl, describe_merl, "data_formats/merl_binary.md")
-
-
-FORMAT = _format()
+FORMAT = Format("merl", "MERL BRDF database binary (90×90×180 RGB half/difference table)",
+                _detect, read_merl, describe_merl, "data_formats/merl_binary.md")

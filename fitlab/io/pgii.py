@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.io.format import Format
 from fitlab.io.validate import decode_text, quote
 from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction
@@ -342,11 +343,5 @@ def _detect(head: bytes, path) -> bool:
                for s in lines if s.startswith("#"))
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("pgii", "pab pgII goniophotometer text scan (one incident direction)", _detect,
-                  read_pgii, describe_pgii, "data_formats/pgii_text.md")
-
-
-FORMAT = _format()
+FORMAT = Format("pgii", "pab pgII goniophotometer text scan (one incident direction)", _detect,
+                read_pgii, describe_pgii, "data_formats/pgii_text.md")

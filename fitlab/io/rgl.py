@@ -51,6 +51,7 @@ import numpy as np
 from fitlab import colorimetry
 from fitlab.errors import InputFileError
 from fitlab.io.files import read_bytes, sha256_of
+from fitlab.io.format import Format
 from fitlab.io.validate import quote
 from fitlab.io.measurement import Measurement, describe_loaded
 
@@ -702,11 +703,5 @@ def describe_rgl(path) -> dict:
     return info
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("rgl", "RGL-EPFL material database tensor file (.bsdf, Dupuy & Jakob 2018)",
-                  _detect, read_rgl, describe_rgl, "data_formats/rgl_bsdf.md")
-
-
-FORMAT = _format()
+FORMAT = Format("rgl", "RGL-EPFL material database tensor file (.bsdf, Dupuy & Jakob 2018)",
+                _detect, read_rgl, describe_rgl, "data_formats/rgl_bsdf.md")

@@ -35,26 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fitlab.errors import InputFileError
+from fitlab.errors import QUOTE_CHARS, InputFileError, quote  # noqa: F401 (quote: io's name)
 
-# --------------------------------------------------------------------------------------------
-# Quoting
-# --------------------------------------------------------------------------------------------
-
-#: Characters of file content a message may show.
-QUOTE_CHARS = 40
-
-
-def quote(text, limit: int = QUOTE_CHARS) -> str:
-    """``repr`` of a short, one-line excerpt of ``text`` (bytes are shown as text with escapes)."""
-    if isinstance(text, (bytes, bytearray)):
-        text = bytes(text[: 4 * limit]).decode("utf-8", errors="backslashreplace")
-    if not isinstance(text, str):  # a number, list... from a parsed file: shown as Python shows it
-        shown = repr(text)
-        return shown if len(shown) <= limit else shown[:limit] + f"... ({len(shown)} characters)"
-    if len(text) > limit:
-        return repr(text[:limit]) + f"... ({len(text)} characters)"
-    return repr(text)
+# Quoting: fitlab.errors.quote (messages quote file content the same way everywhere)
 
 
 # --------------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.csvtable import text_lines
+from fitlab.io.format import Format
 from fitlab.io.validate import check_count, decode_text, parse_number, quote
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
@@ -673,14 +674,8 @@ def _detect(head: bytes, path) -> bool:
     return len(first & {k.lower() for k in HEADER_KEYWORDS + ("DataBegin",)}) >= 2
 
 
-def _format():
-    from fitlab.io.formats import Format
-
-    return Format("zemax", "Zemax / Radiant Imaging tabular BSDF (.bsdf)", _detect, read_zemax,
-                  describe_zemax, SPEC)
-
-
-FORMAT = _format()
+FORMAT = Format("zemax", "Zemax / Radiant Imaging tabular BSDF (.bsdf)", _detect, read_zemax,
+                describe_zemax, SPEC)
 
 
 # --------------------------------------------------------------------------------------------
