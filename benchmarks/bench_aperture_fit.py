@@ -60,7 +60,7 @@ def main(argv=None):
     warnings.simplefilter("ignore")
 
     import fitlab
-    from fitlab.fitting.driver import prepare_channel
+    from fitlab.fitting.channel import prepare_channel
     from fitlab.fitting.least_squares import fit_least_squares
 
     print(f"machine: {machine_line(machine())}; load average {load_average()}")

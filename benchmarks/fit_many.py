@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import fitlab
-    from fitlab.fitting.driver import resolve_fit
+    from fitlab.fitting.channel import resolve_fit
 
     ms, truth, p = datasets(args.n)
     print(machine_line(machine()))

@@ -16,7 +16,8 @@ import pytest
 from fitlab.export.paramfile import build_record
 from fitlab.fitting import least_squares as fls
 from fitlab.fitting import mcmc as fmcmc
-from fitlab.fitting.driver import FitWarning, fit_measurement
+from fitlab.fitting.channel import FitWarning
+from fitlab.fitting.driver import fit_measurement
 from fitlab.fitting.losses import LOSSES, Loss, has_absolute_noise, loss_weights, residuals
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -165,7 +166,7 @@ def test_mcmc_nan_log_probability_names_the_point(oren_nayar_data, nan_where_alb
     ch = res["channels"][0]
     space, ls = ch["space"], ch["ls"]
     assert space.names[0] == "albedo"
-    from fitlab.fitting.driver import prepare_channel
+    from fitlab.fitting.channel import prepare_channel
 
     data = prepare_channel(m, "oren_nayar", rows=np.ones(m.n, bool))["data"]
     threshold = float(ls.native[0])  # the walkers start around it: about half are past it

@@ -13,7 +13,7 @@ import pytest
 import fitlab
 from fitlab.cli import main
 from fitlab.errors import FitlabError
-from fitlab.fitting.driver import prepare_channel
+from fitlab.fitting.channel import prepare_channel
 from fitlab.fitting.least_squares import fit_least_squares
 
 from test_fit import synthetic

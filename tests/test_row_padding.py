@@ -8,7 +8,7 @@ import numpy as np
 
 import fitlab
 from fitlab.fitting import least_squares as lsq
-from fitlab.fitting.driver import prepare_channel
+from fitlab.fitting.channel import prepare_channel
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.measurement import Measurement
 

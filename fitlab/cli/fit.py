@@ -54,7 +54,7 @@ def add_parser(sub):
                    "(data_formats/fit_json.md, 'Joint fits')")
     p.add_argument("--mcmc", action="store_true",
                    help="sample the posterior (emcee unless --sampler)")
-    from fitlab.fitting.mcmc import SAMPLERS
+    from fitlab.fitting.samplers import SAMPLERS
 
     p.add_argument("--sampler", choices=list(SAMPLERS), default="emcee",
                    help="posterior sampler with --mcmc: "

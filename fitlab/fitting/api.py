@@ -66,7 +66,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     start: {parameter: value} for one more Levenberg–Marquardt start, at these values and the
     model's defaults elsewhere (a basin the global search may miss: ``{"kappa1": 3000}`` starts
     a thin layer with a sharp coat; every start is in ``result.record["fits"][c]["starts"]``);
-    sampler: the posterior sampler with ``mcmc`` (``fitlab.fitting.mcmc.SAMPLERS``: ``emcee``,
+    sampler: the posterior sampler with ``mcmc`` (``fitlab.fitting.samplers.SAMPLERS``: ``emcee``,
     the default and reference, or ``nuts``, blackjax's NUTS with ``walkers`` chains).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning).
@@ -94,7 +94,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     for name in free or ():
         if name not in mdl.parameter_names:
             raise FitlabError(f"free {name}: model {mdl.name!r} has no parameter {name!r}")
-    from fitlab.fitting.mcmc import SAMPLERS
+    from fitlab.fitting.samplers import SAMPLERS
 
     if sampler not in SAMPLERS:
         raise FitlabError(f"unknown sampler {sampler!r}; samplers: {', '.join(SAMPLERS)}")

@@ -69,7 +69,7 @@ def relative_errors(pred, value):
     """(model − data)/data of the rows above the floor, and which rows those are (the fit
     statistics' rule, fitlab.fitting.driver; imported when used, so that ``import fitlab``
     does not load the fitting engine)."""
-    from fitlab.fitting.driver import relative_errors as rel
+    from fitlab.fitting.channel import relative_errors as rel
 
     return rel(pred, value)
 
@@ -270,7 +270,7 @@ def incidences_of(m, rows) -> list[tuple[float, float]]:
 
 
 def _rel_err_floor() -> float:
-    from fitlab.fitting.driver import REL_ERR_FLOOR
+    from fitlab.fitting.channel import REL_ERR_FLOOR
 
     return REL_ERR_FLOOR
 
@@ -334,7 +334,7 @@ def _predict(space, native, m, in_chan, order=None):
 
 
 def _channel_problem(m, base, rows, order):
-    from fitlab.fitting.driver import channel_problem
+    from fitlab.fitting.channel import channel_problem
 
     extra = {} if order is None else {"aperture_order": order}
     return channel_problem(m, base["model"], base["options"], base["fixed"], base["loss"],
@@ -345,7 +345,7 @@ def _channel_problem(m, base, rows, order):
 def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     """(model, options, fixed, loss, start, space, data) of a fit of ``rows`` of a channel,
     exactly as fitlab.fit builds it (``order``: its aperture quadrature order, if any)."""
-    from fitlab.fitting.driver import resolve_fit
+    from fitlab.fitting.channel import resolve_fit
 
     mdl, options, fixed, _, loss, start = resolve_fit(m, cand.model.name, options=cand.options,
                                                       fixed=cand.fix, free=cand.free, loss=loss,
@@ -362,7 +362,7 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
     the measurement; ``order``: the fit's aperture quadrature order, if any). Returns one dict
     per incidence: theta_i, phi_i, rel (held-out relative errors of the counted rows),
     parameters (the fold's fit), warnings, error (a fold that could not be fitted)."""
-    from fitlab.fitting.driver import least_squares_warnings
+    from fitlab.fitting.channel import least_squares_warnings
     from fitlab.fitting.least_squares import fit_least_squares
 
     base = _problem(m, cand, loss, rows, channel, order)

@@ -39,6 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fitlab.fitting.channel import (channel_problem, fitted_rows, least_squares_warnings,
+                                    statistics)
 from fitlab.fitting.least_squares import FitData, fit_least_squares
 from fitlab.fitting.space import SCALE, FitSpace
 from fitlab.models import Model
@@ -204,14 +206,13 @@ def joint_record(joint: FitSpace, ls, mc, share, n_fit: int) -> dict:
 
 
 def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, *,
-              channel_problem, statistics, least_squares_warnings, mcmc=False,
-              mcmc_steps=3000, mcmc_walkers=None, seed=0, n_starts=8, quiet=False,
+              mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0, n_starts=8, quiet=False,
               sampler="emcee",
               lm_maxiter=None, aperture_order=None, bootstrap=None):
     """The channels ``chan_ids`` of Measurement ``m`` fitted as one problem with the parameters
     ``share`` shared. Returns the channel entries of ``driver.fit_measurement``'s result and
-    the ``joint`` entry. ``channel_problem``, ``statistics`` and ``least_squares_warnings`` are
-    the driver's (each channel's data, space and statistics as for an independent fit).
+    the ``joint`` entry. Each channel's data, space and statistics are made as for an independent
+    fit (fitlab.fitting.channel).
 
     Data with an aperture are fitted with the aperture quadrature (fitlab.fitting.aperture) of
     order ``aperture_order`` (None: its start order, not refined: the automatic doubling of
@@ -229,7 +230,6 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
         order, auto = _aperture.start_order(aperture_order)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
-    from fitlab.fitting.driver import fitted_rows  # driver imports this module
 
     names, spaces, datas, starts, masks = [], [], [], [], []
     for c in chan_ids:
@@ -261,7 +261,7 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
                            seed=seed, progress=not quiet, **kw)
     t_ls = time.perf_counter() - t0
     if ls.solver["stopped"] == "non_finite":
-        from fitlab.fitting.driver import non_finite_fit
+        from fitlab.fitting.channel import non_finite_fit
 
         raise non_finite_fit(f"{m.path}: channels {', '.join(names)} (joint fit)", len(ls.starts))
     log("  least squares: " + ", ".join(f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in
@@ -269,7 +269,7 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
         + f"  ({t_ls:.2f} s)")
     chain = None
     if mcmc:
-        from fitlab.fitting.mcmc import sample_posterior
+        from fitlab.fitting.samplers import sample_posterior
 
         log(f"  MCMC: {mcmc_steps} steps over the joint posterior")
         chain = sample_posterior(sampler, joint, data, loss, ls, seed=seed, nsteps=mcmc_steps,

@@ -120,7 +120,7 @@ class ManyResult(NamedTuple):
         """(measurement index, parameter-file record) per measurement: the ``fitlab-fit``
         schema of a single fit, with the least-squares part of each channel."""
         from fitlab.export.paramfile import build_record
-        from fitlab.fitting.driver import least_squares_warnings, statistics
+        from fitlab.fitting.channel import least_squares_warnings, statistics
         from fitlab.models import get_model
 
         model = get_model(self.model)
@@ -187,7 +187,7 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
 
 def _problems(measurements, model, *, fix, free, options, loss, subset):
     """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
-    from fitlab.fitting.driver import channel_problem, fitted_rows, resolve_fit
+    from fitlab.fitting.channel import channel_problem, fitted_rows, resolve_fit
     from fitlab.fitting.subset import subset_mask
 
     problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}

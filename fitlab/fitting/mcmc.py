@@ -189,37 +189,3 @@ def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps
     return MCMCResult(samples_native, chain, sampler.get_log_prob(), names, nwalkers, nsteps,
                       burn, thin, tau, acceptance, ess, trustworthy, warnings,
                       time.perf_counter() - t0)
-
-
-#: The posterior samplers: name → (description, run(space, data, loss, ls, *, seed, nsteps,
-#: walkers, progress) -> MCMCResult). ``walkers``: emcee's walkers, NUTS's chains.
-SAMPLERS = {
-    "emcee": ("affine-invariant ensemble sampler (emcee), the default and the reference",
-              lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: run_mcmc(
-                  space, data, loss, ls, seed=seed, nsteps=nsteps, nwalkers=walkers,
-                  progress=progress)),
-    "nuts": ("No-U-Turn sampler (blackjax), adapted and drawn in one compiled call, chains "
-             "vmapped; diagnostics by ArviZ (fitlab/fitting/nuts.py)",
-             lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _nuts(
-                 space, data, loss, ls, seed=seed, nsteps=nsteps, nchains=walkers or 4,
-                 progress=progress)),
-}
-
-
-def _nuts(*args, **kwargs):
-    try:
-        import blackjax  # noqa: F401
-    except ImportError:
-        raise FitlabError("the nuts sampler needs blackjax: pip install 'fitlab[samplers]'") \
-            from None
-    from fitlab.fitting.nuts import run_nuts
-
-    return run_nuts(*args, **kwargs)
-
-
-def sample_posterior(sampler: str, space, data, loss, ls, *, seed, nsteps, walkers, progress):
-    """The posterior of one fit by the sampler named ``sampler`` (:data:`SAMPLERS`)."""
-    if sampler not in SAMPLERS:
-        raise FitlabError(f"unknown sampler {sampler!r}; samplers: {', '.join(SAMPLERS)}")
-    return SAMPLERS[sampler][1](space, data, loss, ls, seed=seed, nsteps=nsteps,
-                                walkers=walkers, progress=progress)

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab.fitting.mcmc import MCMCResult, log_posterior_fn
+from fitlab.fitting.mcmc import MCMCResult, log_posterior_fn, unit_stderr
 from fitlab.fitting.least_squares import pad_rows, problem_of
 from fitlab.fitting.exchange import canonical, order_keys
 from fitlab.fitting.losses import has_absolute_noise
@@ -135,8 +135,6 @@ def _inverse_mass(space: FitSpace, ls, nuisance: bool) -> np.ndarray:
     (which sent early trajectories of a layered posterior to the tree-depth limit). Where the
     covariance is unusable, or exchangeable lobes are relabelled into canonical order, the
     diagonal of :func:`unit_stderr`'s variances is used."""
-    from fitlab.fitting.mcmc import unit_stderr
-
     native = np.asarray(ls.native, float)
     u_raw = space.to_unit(native)
     u = np.clip(canonical(space, u_raw[None])[0], 1e-6, 1 - 1e-6)
