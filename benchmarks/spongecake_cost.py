@@ -3,7 +3,7 @@ multiple-scattering option leaves against an independent full simulation, the ti
 model evaluation per direction pair, and the simulator's time to the same error.
 
 Options: single scattering alone (``spongecake(...)``) and single scattering + the lobe fitted
-per material (``multiple=lobe``, ``fitlab.spongecake_lobe.fit_lobe`` on its own simulation:
+per material (``multiple=lobe``, ``fitlab.learn.lobe.fit_lobe`` on its own simulation:
 20,000 paths, seed 7), and for one or two flake layers the lobe the shipped networks predict
 (``multiple=learned``; none for the plant leaf's hg layer).
 
@@ -31,7 +31,7 @@ from layered_validation import _machine, compare, eval_time_us
 from fitlab.models import get_model
 from fitlab.models.presets import preset_params
 from fitlab.simulate import scene_from_dict, simulate
-from fitlab.spongecake_lobe import (THETA_I, fit_lobe, lobe_model_name, lobe_parameters,
+from fitlab.learn.lobe import (THETA_I, fit_lobe, lobe_model_name, lobe_parameters,
                                     stack_scene)
 
 jax.config.update("jax_enable_x64", True)

@@ -6,7 +6,7 @@ of non-absorbing stacks (γ = 1, f0 = 1: every photon leaves), for
 * the simulator's single scattering (``volume_scattering = "single"``), the same quantity
   traced independently,
 * the model with its multiple-scattering lobe (§5, ``multiple=lobe``) fitted to this stack by
-  ``fitlab.spongecake_lobe.fit_lobe`` (the simulator's multiple-scattering part on a 6 × 12
+  ``fitlab.learn.lobe.fit_lobe`` (the simulator's multiple-scattering part on a 6 × 12
   grid per side at 5 incidences, 20,000 paths each, its own seed), plus the delta,
 * the model with the lobe the shipped networks predict (``multiple=learned``; one or two flake
   layers), plus the delta,
@@ -30,7 +30,7 @@ from fitlab.models import get_model
 from fitlab.models.spongecake import Layer, delta_transmittance, simulator_stack
 from fitlab.simulate import simulate
 from fitlab.simulate.scene import scene_from_dict
-from fitlab.spongecake_lobe import fit_lobe, lobe_model_name, lobe_parameters, stack_call
+from fitlab.learn.lobe import fit_lobe, lobe_model_name, lobe_parameters, stack_call
 
 jax.config.update("jax_enable_x64", True)
 

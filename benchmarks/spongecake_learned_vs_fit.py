@@ -1,5 +1,5 @@
 """SpongeCake's multiple-scattering lobe two ways on the same held-out stacks (issue 16, item 3):
-(a) fitted per material (``fitlab.spongecake_lobe.fit_lobe``: global search + Levenberg–Marquardt
+(a) fitted per material (``fitlab.learn.lobe.fit_lobe``: global search + Levenberg–Marquardt
 on the stack's own simulated multiple-scattering part) and (b) predicted by the shipped network
 (``spongecake(K[,K2],multiple=learned)``, fitlab/models/data/spongecake_ms_1layer.npz or
 spongecake_ms_2layer.npz, by the dataset's number of layers), which never saw these stacks.
@@ -24,10 +24,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fitlab import spongecake_learned as sl
+from fitlab.learn import network as sl
+from fitlab.models import spongecake_network as net
 from fitlab.io.measurement import Measurement
 from fitlab.io.directions import direction_to_degrees
-from fitlab.spongecake_lobe import fit_lobe
+from fitlab.learn.lobe import fit_lobe
 
 jax.config.update("jax_enable_x64", True)
 
@@ -54,7 +55,7 @@ def main(argv=None):
     d = sl.load_dataset(paths)
     held = np.flatnonzero(sl.held_out(d["index"]))[: a.stacks]
     layers = d["alpha"].shape[1]
-    w = sl.load_weights(layers)
+    w = net.load_weights(layers)
     np.asarray(sl.predict(w, d, held))  # compiled once
     t0 = time.perf_counter()
     f_net = np.asarray(sl.predict(w, d, held))

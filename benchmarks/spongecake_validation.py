@@ -11,7 +11,7 @@
 * the same single scattering against the simulator's full result (every order): what is left
   without a multiple-scattering term,
 * single scattering + the multiple-scattering lobe fitted to this stack (``multiple=lobe``,
-  :func:`fitlab.spongecake_lobe.fit_lobe` on the stack alone, from a simulation with its own
+  :func:`fitlab.learn.lobe.fit_lobe` on the stack alone, from a simulation with its own
   seed; over a substrate the stack's lobe sits above it) against the full result,
 * single scattering + the lobe the shipped network predicts (``multiple=learned``: one or two
   flake layers, no substrate) against the full result,
@@ -34,7 +34,7 @@ import numpy as np
 
 from fitlab.models import get_model
 from fitlab.simulate import scene_from_dict, simulate
-from fitlab.spongecake_lobe import fit_lobe, lobe_parameters, stack_scene
+from fitlab.learn.lobe import fit_lobe, lobe_parameters, stack_scene
 
 jax.config.update("jax_enable_x64", True)
 

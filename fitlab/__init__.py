@@ -1,10 +1,11 @@
 """fitlab: BSDF measurement fitting and tabulation in JAX.
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
-immutable :class:`FitResult`), :func:`fit_many` (many datasets at once, batched), :func:`load_fit` (a parameter file and its chain), :func:`compare`
-(candidate models ranked by held-out error → a :class:`CompareResult`), and
-:func:`export_material` (a fit for Mitsuba 3 or glTF 2.0), :func:`eval_bsdf`,
-:func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
+immutable :class:`FitResult`), :func:`fit_many` (many datasets at once, batched),
+:func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
+held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
+glTF 2.0), :func:`write_report` (the HTML report of a fit or of a comparison), and
+:func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in
 ``data_formats/CONVENTIONS.md``.
 """
@@ -28,7 +29,9 @@ from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E4
 from fitlab.export.renderers import export_material  # noqa: E402
 from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
 from fitlab.tradeoffs import Tradeoffs, tradeoffs  # noqa: E402
+from fitlab.report.api import write_report  # noqa: E402
 
 __all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
            "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
-           "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs"]
+           "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs",
+           "write_report"]

@@ -451,6 +451,6 @@ def test_report_compares_rows_with_the_aperture_averaged_model(tmp_path):
     (ch,) = inp.channels
     m = fitlab.read(path)
     np.testing.assert_allclose(data_prediction(inp, ch), r.predict_measurement(m), rtol=1e-12)
-    summary = r.report(tmp_path / "report")
+    summary = fitlab.write_report(r, tmp_path / "report")
     html = Path(summary["index"]).read_text()
     assert "16 rows average over their aperture" in html

@@ -82,7 +82,7 @@ def test_mcmc_samples_and_report(tmp_path, monkeypatch):
                    mcmc_steps=300, walkers=8, seed=3)
     s = r.samples()
     assert s.shape[1] == 2 and np.isfinite(s).all() and set(r.posterior()) == {"alpha", "scale"}
-    summary = r.report(tmp_path / "rep")
+    summary = fitlab.write_report(r, tmp_path / "rep")
     assert Path(summary["index"]).is_file() and (tmp_path / "rep" / "fit.json").is_file()
     back = fitlab.load_fit(tmp_path / "rep" / "fit.json")
     assert np.array_equal(back.samples(), s)

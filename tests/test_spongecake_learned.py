@@ -13,43 +13,44 @@ import numpy as np
 import pytest
 
 import fitlab  # noqa: F401  (x64)
-from fitlab import spongecake_learned as sl
 from fitlab.cli import main
 from fitlab.errors import InputFileError
+from fitlab.learn import network as sl
 from fitlab.models import get_model
+from fitlab.models import spongecake_network as net
 
 
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_plain_jax_network_equals_equinox(layers):
     """mlp_apply (what the model evaluates, without equinox) gives the equinox MLP's outputs."""
     eqx = pytest.importorskip("equinox")
-    n_in, n_out = sl.n_inputs(layers), sl.n_outputs(layers)
-    m = eqx.nn.MLP(n_in, n_out, sl.WIDTH, sl.DEPTH, activation=jax.nn.relu,
+    n_in, n_out = net.n_inputs(layers), net.n_outputs(layers)
+    m = eqx.nn.MLP(n_in, n_out, net.WIDTH, net.DEPTH, activation=jax.nn.relu,
                    key=jax.random.PRNGKey(3))
     x = jax.random.normal(jax.random.PRNGKey(4), (50, n_in))
     mean, scale = np.full(n_in, 0.3), np.full(n_in, 2.0)
     w = {k: jnp.asarray(v) for k, v in sl.to_weights(m, mean, scale).items()}
-    np.testing.assert_allclose(np.asarray(sl.mlp_apply(w, x)),
+    np.testing.assert_allclose(np.asarray(net.mlp_apply(w, x)),
                                np.asarray(jax.vmap(m)((x - mean) / scale)), rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_outputs_map_into_the_lobe_bounds(layers):
-    y = jnp.asarray(np.random.default_rng(0).normal(0, 30, (2000, sl.n_outputs(layers))))
-    lobe = sl.lobe_from_outputs(y, layers)
+    y = jnp.asarray(np.random.default_rng(0).normal(0, 30, (2000, net.n_outputs(layers))))
+    lobe = net.lobe_from_outputs(y, layers)
     model = get_model(f"spongecake({','.join(['surface'] * layers)},multiple=only)")
     bounds = {p.name: (p.lower, p.upper) for p in model.parameters}
     held = {"theta_p", "phi_p"}
     assert set(lobe) == {p.name for p in model.parameters
                          if not p.name.rstrip("0123456789") in held}
-    assert len(sl.input_names(layers)) == sl.n_inputs(layers)
-    assert len(sl.output_names(layers)) == sl.n_outputs(layers)
+    assert len(net.input_names(layers)) == net.n_inputs(layers)
+    assert len(net.output_names(layers)) == net.n_outputs(layers)
     for k, v in lobe.items():
         v = np.asarray(v)
         assert np.all(np.isfinite(v)) and np.all(v >= bounds[k][0]) and np.all(v <= bounds[k][1]), k
 
 
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_training_stacks_are_deterministic_and_in_range(layers):
     a = [sl.stack_parameters(i, 0, layers) for i in range(200)]
     assert a == [sl.stack_parameters(i, 0, layers) for i in range(200)]
@@ -114,22 +115,22 @@ def test_two_layer_stacks_read_per_layer_and_do_not_mix(tmp_path):
         sl.load_dataset(paths + one)
 
 
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_predict_evaluates_each_stack_with_its_own_kinds(layers):
     """A network whose output is a constant (zero weights, a known bias) gives each stack the
     lobe of ``spongecake(ITS KINDS,multiple=only)`` at the constant's parameters."""
     rng = np.random.default_rng(7)
-    n_in, n_out = sl.n_inputs(layers), sl.n_outputs(layers)
+    n_in, n_out = net.n_inputs(layers), net.n_outputs(layers)
     bias = rng.normal(0, 1, n_out)
     w = {"x_mean": np.zeros(n_in), "x_scale": np.ones(n_in)}
-    for i in range(sl.DEPTH + 1):
-        shape = (n_out if i == sl.DEPTH else sl.WIDTH, n_in if i == 0 else sl.WIDTH)
+    for i in range(net.DEPTH + 1):
+        shape = (n_out if i == net.DEPTH else net.WIDTH, n_in if i == 0 else net.WIDTH)
         w[f"W{i}"], w[f"b{i}"] = np.zeros(shape), np.zeros(shape[0])
-    w[f"b{sl.DEPTH}"] = bias
+    w[f"b{net.DEPTH}"] = bias
     w = {k: jnp.asarray(v) for k, v in w.items()}
     data = _synthetic(n=8, rows=20, layers=layers)
     f = np.asarray(sl.predict(w, data, np.arange(8)))
-    lobe = {k: float(v) for k, v in sl.lobe_from_outputs(jnp.asarray(bias), layers).items()}
+    lobe = {k: float(v) for k, v in net.lobe_from_outputs(jnp.asarray(bias), layers).items()}
     for s_ in range(8):
         kinds = tuple("fiber" if x > 0.5 else "surface" for x in data["kind_is_fiber"][s_])
         m = get_model(f"spongecake({','.join(kinds)},multiple=only)")
@@ -176,7 +177,7 @@ def _synthetic(n=60, rows=96, seed=0, layers=1):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_training_learns_a_known_mapping(layers):
     """On stacks made by a known mapping, training lowers the loss from its start by far and the
     held-out stacks follow."""
@@ -189,16 +190,16 @@ def test_training_learns_a_known_mapping(layers):
     assert report["held_out_loss"] < 0.3 and report["train_loss"] < 0.3, report
 
 
-@pytest.mark.parametrize("layers", sl.LAYERS)
+@pytest.mark.parametrize("layers", net.LAYERS)
 def test_shipped_weights_match_their_provenance(layers):
-    prov = sl.provenance(layers)
-    assert hashlib.sha256(sl.WEIGHTS[layers].read_bytes()).hexdigest() == prov["weights_sha256"]
+    prov = net.provenance(layers)
+    assert hashlib.sha256(net.WEIGHTS[layers].read_bytes()).hexdigest() == prov["weights_sha256"]
     assert prov["dataset"]["stacks"] >= 1000 and prov["errors"]["held_out_stacks"] > 0
     assert prov["dataset"]["layers"] == layers
-    assert prov["network"]["inputs"] == sl.input_names(layers)
-    w = sl.load_weights(layers)
-    assert w["W0"].shape == (sl.WIDTH, sl.n_inputs(layers))
-    assert w[f"W{sl.DEPTH}"].shape == (sl.n_outputs(layers), sl.WIDTH)
+    assert prov["network"]["inputs"] == net.input_names(layers)
+    w = net.load_weights(layers)
+    assert w["W0"].shape == (net.WIDTH, net.n_inputs(layers))
+    assert w[f"W{net.DEPTH}"].shape == (net.n_outputs(layers), net.WIDTH)
 
 
 @pytest.mark.parametrize("kinds", ["fiber", "surface,fiber", "fiber_z,surface"])

@@ -1,5 +1,5 @@
 """SpongeCake's multiple-scattering lobe (§5): the model's multiple=lobe|only forms, the lobe fit
-of fitlab.spongecake_lobe and `fitlab multiple-lobe`."""
+of fitlab.learn.lobe and `fitlab multiple-lobe`."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import fitlab  # noqa: F401  (x64)
 from fitlab.cli import main
 from fitlab.io.directions import degrees_to_direction
 from fitlab.models import get_model
-from fitlab.spongecake_lobe import (fit_lobe, held_parameters, lobe_model_name, lobe_parameters,
+from fitlab.learn.lobe import (fit_lobe, held_parameters, lobe_model_name, lobe_parameters,
                                     stack_call)
 
 STACK = {"alpha1": 0.3, "albedo1": 0.9, "f0_1": 1.0, "tau1": 2.0}
@@ -180,7 +180,7 @@ def test_cli_fits_the_simulated_multiple_scattering_of_a_thick_bright_layer(tmp_
     # the simulator's albedo of this stack (every order, no delta): 1 − absorbed; measured by
     # the furnace benchmark's method at a small scale
     from fitlab.simulate import scene_from_dict, simulate
-    from fitlab.spongecake_lobe import stack_scene
+    from fitlab.learn.lobe import stack_scene
     d = stack_scene(("surface_z",), {"Y": stack}, theta_i=(40.0,), theta_bins=3, phi_bins=4)
     d["detector"].pop("estimator")
     res = simulate(scene_from_dict(d), 100_000, seed=3)

@@ -114,7 +114,9 @@ def run(args):
     if args.out:
         result = result.save(args.out, fits=not args.no_fits)
         if not args.no_report:
-            result.report(args.out)
+            from fitlab.report.api import write_report
+
+            write_report(result, args.out)
     if not args.quiet:
         print(result.summary(), end="", file=sys.stderr)
         if args.out:

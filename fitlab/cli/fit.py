@@ -391,8 +391,10 @@ def run(args):
             print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
                   file=sys.stderr)
         if args.report:
-            summary = result.report(args.report, data=args.data, chain=args.chain,
-                                    progress=not args.quiet)
+            from fitlab.report.api import write_report
+
+            summary = write_report(result, args.report, data=args.data, chain=args.chain,
+                                   progress=not args.quiet)
             if not args.quiet:
                 print(f"wrote the report {summary['index']}", file=sys.stderr)
     else:

@@ -1,5 +1,5 @@
 """fitlab learn-lobe: SpongeCake's parameter-mapping network (§5), dataset and training in one
-resumable command (fitlab.spongecake_learned)."""
+resumable command (fitlab.learn.network)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from fitlab.errors import FitlabError
 
 
 def add_parser(sub):
-    from fitlab.spongecake_learned import GRID, LAYERS, SAMPLES, THETA_I
+    from fitlab.learn.network import GRID, LAYERS, SAMPLES, THETA_I
 
     p = sub.add_parser(
         "learn-lobe", help="train SpongeCake's multiple-scattering network on simulated stacks",
@@ -61,7 +61,7 @@ def run(args):
     except ImportError:
         raise FitlabError("training needs equinox and optax: pip install 'fitlab[learn]'") \
             from None
-    from fitlab.spongecake_learned import learn
+    from fitlab.learn.network import learn
 
     t0 = {}
 

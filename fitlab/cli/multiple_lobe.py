@@ -1,5 +1,5 @@
 """fitlab multiple-lobe: a SpongeCake stack's multiple-scattering lobe (§5), fitted per material
-to the simulator (fitlab.spongecake_lobe)."""
+to the simulator (fitlab.learn.lobe)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from fitlab.errors import FitlabError
 
 def add_parser(sub):
     from fitlab.models.presets import PRESETS
-    from fitlab.spongecake_lobe import PHI_BINS, SAMPLES, THETA_BINS, THETA_I
+    from fitlab.learn.lobe import PHI_BINS, SAMPLES, THETA_BINS, THETA_I
 
     sponge = [n for n, p in PRESETS.items() if p.model.startswith("spongecake(")]
     p = sub.add_parser(
@@ -98,7 +98,7 @@ def _numbers(text, what):
 
 
 def run(args):
-    from fitlab import spongecake_lobe as sl
+    from fitlab.learn import lobe as sl
     from fitlab.io.atomic import atomic_write_text
     from fitlab.io.measurement import format_measurement_csv
 

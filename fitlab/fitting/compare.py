@@ -1205,16 +1205,6 @@ class CompareResult:
         atomic_write_text(out / TABLE_JSON, result.to_json())
         return result
 
-    def report(self, out_dir, *, progress: bool = False) -> dict:
-        """Write the report page ``index.html`` (and its figures) into ``out_dir``; saves the
-        tables there first if this result was not saved there. Returns a summary (``index``)."""
-        from fitlab.report.compare import build_compare_report
-
-        res = self
-        if res.path is None or Path(res.path).resolve() != Path(out_dir).resolve():
-            res = res.save(out_dir)
-        return build_compare_report(res, out_dir, progress=progress)
-
     def __repr__(self):
         return (f"CompareResult({', '.join(self.labels)}; winner "
                 + ", ".join(f"{ch}: {self.winner(ch)}" for ch in self.channels) + ")")

@@ -293,26 +293,6 @@ class FitResult:
         return FitResult.from_record(read_fit(path), dict(self.chains), path, self.measurement,
                                      dict(self.seconds))
 
-    def report(self, out_dir, *, data=None, chain=None, renderers: bool = False,
-               progress: bool = False) -> dict:
-        """Write the HTML report of this fit into ``out_dir`` (as ``fitlab report``); a fit not
-        yet saved is saved there first as ``fit.json`` (and ``chain.npz``). Returns the report's
-        summary (``index``: the page). ``renderers``: with the hand-off section (fitlab report
-        --renderers)."""
-        from fitlab.report import build_report
-
-        res = self
-        out_dir = Path(out_dir)
-        if res.path is None:
-            out_dir.mkdir(parents=True, exist_ok=True)
-            res = res.save(out_dir / "fit.json", chain=(out_dir / "chain.npz") if self.chains else None)
-        if data is None and res.measurement is not None:
-            data = res.measurement.path
-        if chain is None and res.chains and res.record.get("chain"):
-            chain = Path(res.path).parent / res.record["chain"]["path"]
-        return build_report(res.path, out_dir, data_path=data, chain_path=chain,
-                            renderers=renderers, progress=progress)
-
     def __repr__(self):
         parts = []
         for ch, params in self.parameters.items():

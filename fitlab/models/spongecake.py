@@ -457,9 +457,9 @@ def with_multiple_scattering(scene_of):
 
 def _with_learned(kinds, substrate, base, delta) -> Model:
     """``base`` with the multiple-scattering lobe from the shipped parameter-mapping network
-    (fitlab.spongecake_learned): one or two flake layers, no substrate (what it was trained
+    (fitlab/models/spongecake_network.py): one or two flake layers, no substrate (what it was trained
     on; the paper trains one network per number of layers, its Figs. 5 and 6)."""
-    from fitlab import spongecake_learned as sl
+    from fitlab.models import spongecake_network as sl
     from fitlab.models import spongecake_multiple as ms
 
     if len(kinds) not in sl.LAYERS or "hg" in kinds or substrate is not None:

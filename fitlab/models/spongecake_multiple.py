@@ -13,7 +13,7 @@ a thick layer), so
 ``multiple=lobe`` is that sum; ``multiple=only`` is the approximation alone, f_ss(p') terms and
 Lambertian lobes without the exact single scattering: the model a simulation's
 multiple-scattering component (all orders minus the first) is fitted with
-(:mod:`fitlab.spongecake_lobe`). Its parameters carry the same names, so a fitted lobe plugs
+(:mod:`fitlab.learn.lobe`). Its parameters carry the same names, so a fitted lobe plugs
 into ``multiple=lobe``. Layer i's modified parameters are its own names with ``_ms``
 (``alpha1_ms``, ``albedo1_ms``, ``f0_1_ms``, ``tau1_ms``, ``g1_ms``); the axes are the layer's
 (unmodified in the paper). With a substrate the lobe is the stack's alone (the substrate's
@@ -183,7 +183,7 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
 
 def with_learned(lobe: Model, base: Model, name: str, lobe_of, provenance: str) -> Model:
     """``lobe`` (the ``multiple=lobe`` model) with its lobe parameters computed from the layer's
-    own by ``lobe_of(params)`` (the parameter-mapping network, fitlab.spongecake_learned): the
+    own by ``lobe_of(params)`` (the parameter-mapping network, fitlab.learn.network): the
     parameters are the single-scattering model's (``base``)."""
 
     def full(params):

@@ -122,9 +122,10 @@ def page(res, figure: FigureEntry) -> str:
                         f"{res.machine['cpu']} ({res.machine['cores']} cores, JAX "
                         f"{res.machine['jax']} on {res.machine['device']}); the run took "
                         f"{res.seconds:.0f} s" + (" (--quick)" if res.quick else "") + "."))
+    thresholds = res.as_dict()["thresholds"]  # what the record says each use case accepts
     rec = table_html(["use case", "recommendation", "accepts"],
                      [[k, v, ", ".join(f"{a} {'≥' if a == 'ssim' else '≤'} {b:g}"
-                                       for a, b in _thresholds(k).items())]
+                                       for a, b in thresholds[k].items())]
                       for k, v in res.recommendations.items()])
     table = table_html(["group", "knob", "setting", "f rel. RMS", "f rel. max", "albedo err.",
                         "PSNR dB", "SSIM", "time s", "time per", "cost", "reference"],
@@ -144,12 +145,6 @@ def page(res, figure: FigureEntry) -> str:
     ]
     return document(f"Accuracy against cost: {m['model']}", sections,
                     files=[f"{figure.name}.png", f"{figure.name}.svg", "tradeoffs.json"])
-
-
-def _thresholds(use: str) -> dict:
-    from fitlab.tradeoffs.run import THRESHOLDS
-
-    return THRESHOLDS[use]
 
 
 def write_report(res, out) -> None:
