@@ -138,13 +138,10 @@ def _preset(args):
     """(model name, parameters, options) of --preset NAME --channel C, or the model argument."""
     if not getattr(args, "preset", None):
         return args.model, {}, {}
-    from fitlab.models.presets import get_preset, preset_params
+    from fitlab.models.presets import check_preset_model, preset_params
 
     try:
-        preset = get_preset(args.preset)
-        if args.model and fitlab.get_model(args.model).name != fitlab.get_model(preset.model).name:
-            raise FitlabError(f"--preset {args.preset} is a {preset.model} preset, not "
-                              f"{args.model}; leave out the model name")
+        preset = check_preset_model(args.preset, args.model)
         if not args.channel:
             raise FitlabError(f"--preset {args.preset} needs --channel R, G or B (its values "
                               "differ per channel; `fitlab models` lists them)")

@@ -8,7 +8,7 @@ import json
 import fitlab
 from fitlab.cli.common import add_json, get_model
 from fitlab.io.conventions import conventions_text
-from fitlab.models.presets import CHANNELS, PRESETS
+from fitlab.models.presets import CHANNELS, presets_of
 
 
 def add_parser(sub):
@@ -42,8 +42,6 @@ def _capabilities_text(c) -> str:
     return ", ".join(words)
 
 
-def _presets_of(model):
-    return [p for p in PRESETS.values() if fitlab.get_model(p.model).name == model.name]
 
 
 def run(args):
@@ -72,7 +70,7 @@ def run(args):
         for o in m.options:
             print(f"  --option {o.name}={'|'.join(o.choices)}   {o.description} "
                   f"(default {o.default})")
-        for pr in _presets_of(m):
+        for pr in presets_of(m):
             values = ", ".join(f"{k}={'/'.join(f'{x:g}' for x in v) if isinstance(v, tuple) else f'{v:g}'}"
                                for k, v in pr.params.items())
             print(f"  --preset {pr.name} --channel {'|'.join(CHANNELS)}   {values} "

@@ -56,13 +56,14 @@ def add_parser(sub):
 
 def _stack(args):
     """(model name, {channel: parameters}) from --preset / the model argument and --param."""
-    from fitlab.models.presets import rgb_preset
+    from fitlab.models.presets import check_preset_model, rgb_preset
 
     if args.preset:
+        try:
+            check_preset_model(args.preset, args.model)
+        except ValueError as exc:
+            raise FitlabError(str(exc)) from None
         name, _, base = rgb_preset(args.preset)
-        if args.model and get_model(args.model).name != get_model(name).name:
-            raise FitlabError(f"--preset {args.preset} is a {name} preset, not {args.model}; "
-                              "leave out the model name")
     elif args.model:
         name, base = args.model, {}
     else:

@@ -169,13 +169,10 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
 def _model_preset(name, model, options, params):
     """(model, options, {R, G, B: parameters}) of a layered preset (fitlab/models/presets.py);
     --param values override the preset's (one value: every channel)."""
-    from fitlab.models import get_model
-    from fitlab.models.presets import rgb_preset
+    from fitlab.models.presets import check_preset_model, rgb_preset
 
+    check_preset_model(name, model)
     p_model, p_options, p_params = rgb_preset(name)
-    if model and get_model(model).name != get_model(p_model).name:
-        raise ValueError(f"--preset {name} is a {p_model} preset, not {model}; leave out "
-                         "--model")
     given = params.get("Y", {})
     return p_model, {**p_options, **options}, {
         c: {**v, **given, **params.get(c, {})} for c, v in p_params.items()}

@@ -105,6 +105,25 @@ def get_preset(name: str) -> Preset:
         raise ValueError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}") from None
 
 
+def check_preset_model(name: str, model: str | None) -> Preset:
+    """Preset ``name``, checked to be a preset of ``model`` when one is given (the same model
+    however its name is written: ValueError saying to leave the model out otherwise)."""
+    from fitlab.models import get_model
+
+    preset = get_preset(name)
+    if model and get_model(model).name != get_model(preset.model).name:
+        raise ValueError(f"--preset {name} is a {preset.model} preset, not {model}; leave out "
+                         "the model name")
+    return preset
+
+
+def presets_of(model) -> list[Preset]:
+    """The presets of a registry model (a :class:`~fitlab.models.base.Model`)."""
+    from fitlab.models import get_model
+
+    return [p for p in PRESETS.values() if get_model(p.model).name == model.name]
+
+
 def preset_params(name: str, channel: str) -> dict:
     """The parameters of preset ``name`` for colour channel R, G or B."""
     if channel not in CHANNELS:
