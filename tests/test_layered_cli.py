@@ -69,6 +69,19 @@ def test_presets_are_valid_parameter_sets():
             fitlab.api.check_params(fitlab.get_model(preset.model), preset_params(name, ch))
 
 
+def test_a_preset_is_checked_against_the_model_however_written():
+    from fitlab.models import get_model
+    from fitlab.models.presets import check_preset_model, presets_of
+
+    assert check_preset_model("fabric", None).model == "spongecake(fiber,surface_z)"
+    # the same model in other words: spaces, defaults written out
+    assert check_preset_model("fabric", "spongecake( fiber , surface_z )").name == "fabric"
+    with pytest.raises(ValueError, match="is a weidlich_wilkie.* preset, not spongecake"):
+        check_preset_model("copper_patina", "spongecake(fiber,surface_z)")
+    assert {p.name for p in presets_of(get_model("weidlich_wilkie(rough_conductor)"))} == {
+        "metallic_car_paint", "copper_patina"}
+
+
 @pytest.mark.slow
 def test_fit_coated_model_recovers_synthetic_parameters(tmp_path, capsys):
     """Synthetic coated(lambertian,specular=lobe) data; the fit (coat index fixed) recovers
