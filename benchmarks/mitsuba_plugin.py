@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     import mitsuba as mi
 
     mi.set_variant(args.variant)
-    import fitlab.mitsuba as fm
+    from fitlab.export import mitsuba_plugin as fm
     from fitlab.export.material import material_from_model
     from fitlab.export.mitsuba import native_bsdf, plugin_bsdf, preview_scene
 

@@ -1,13 +1,13 @@
 """Proof by rendering: fitlab's Mitsuba 3 exports (native plugins and fitlab's own plugin)
 rendered by Mitsuba (``llvm_ad_rgb``) in a virtual goniometer and a white furnace.
 
-* Goniometer (fitlab.mitsuba.goniometer_scene): a plane with the exported BSDF, a directional
+* Goniometer (fitlab.export.mitsuba_plugin.goniometer_scene): a plane with the exported BSDF, a directional
   emitter of irradiance 1 from wi, an orthographic sensor from wo, the ``direct`` integrator.
   Emitter sampling of a directional light is exact, so each pixel is f(wi, wo)·cos θi up to
   float32 rounding (the render has no noise here): the criterion is 2e-5 relative (a few float32
   ulps over the BSDF's arithmetic) for exact translations, and the measured difference for the
   two approximate ones (plastic and roughplastic use Mitsuba's fitted F_dr polynomial).
-* Furnace (fitlab.mitsuba.furnace_scene): the plugin under a constant environment of radiance
+* Furnace (fitlab.export.mitsuba_plugin.furnace_scene): the plugin under a constant environment of radiance
   1, one bounce; the mean pixel value equals fitlab's albedo (mean sample weight of fitlab's
   own sampler over 400,000 samples) within 4 standard errors of the render (its pixels are
   independent estimates) plus that of the reference.
@@ -40,7 +40,7 @@ def fm():
     except Exception as exc:  # noqa: BLE001 - Mitsuba reports a missing libLLVM this way
         skip_or_fail(f"Mitsuba's llvm_ad_rgb variant needs libLLVM (apt-get install "
                      f"libllvm19): {exc}")
-    import fitlab.mitsuba as fm
+    from fitlab.export import mitsuba_plugin as fm
 
     fm.register()
     return fm

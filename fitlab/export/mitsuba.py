@@ -1,6 +1,6 @@
 """Mitsuba 3 exports of a material (fitlab/export/material.py): the plugin dictionary a scene
 takes (``mi.load_dict``) and the scene XML (``mi.load_file``), with Mitsuba's native plugins
-where one evaluates the same f, else fitlab's own plugin (``fitlab.mitsuba.register()``).
+where one evaluates the same f, else fitlab's own plugin (``fitlab.export.mitsuba_plugin.register()``).
 
 The native translations (data_formats/mitsuba_export.md has the full table and conventions):
 
@@ -262,7 +262,7 @@ def plugin_property(name: str, channel: str | None = None, *, option: bool = Fal
 
 
 def plugin_bsdf(material: Material, fit: str | None = None) -> dict:
-    """The dictionary of fitlab's Mitsuba plugin (``fitlab.mitsuba.register()`` first): the fit
+    """The dictionary of fitlab's Mitsuba plugin (``fitlab.export.mitsuba_plugin.register()`` first): the fit
     file ``fit`` (a path as the scene should name it), or the model with its parameters and
     options written out (:func:`plugin_property`; RGB materials: ``R__alpha`` ...)."""
     if material.wavelengths_nm is not None:

@@ -90,7 +90,7 @@ EXPORTERS: dict[str, Exporter] = {
                  "refused for models Mitsuba has no plugin for",
                  (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_native)),
         Exporter("mitsuba-plugin", "Mitsuba 3 (fitlab plugin)",
-                 "fitlab's Mitsuba plugin (fitlab.mitsuba.register()) with the model and its "
+                 "fitlab's Mitsuba plugin (fitlab.export.mitsuba_plugin.register()) with the model and its "
                  "values written out: any registry model, rendered with fitlab's own code",
                  (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_plugin)),
         Exporter("gltf", "glTF 2.0",
@@ -161,7 +161,7 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
     atomically; the :class:`Exported` holds its text, the object (Mitsuba dict, glTF document)
     and the conversion figures. ``preview``: a Mitsuba scene around the material (a sphere,
     an environment and a sun). ``check``: render the Mitsuba export on a virtual goniometer
-    (fitlab.mitsuba, needs Mitsuba 3) and add its difference from fitlab to ``conversion``."""
+    (fitlab.export.mitsuba_plugin, needs Mitsuba 3) and add its difference from fitlab to ``conversion``."""
     from fitlab.io.atomic import atomic_write_text
 
     exporter, suffix = exporter_for(to, None if out is None else str(out))
@@ -173,7 +173,7 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
                                      if out is not None else Path(material.source).name)
     made = exporter.build(material, suffix, {"preview": preview, "progress": progress})
     if check and exporter.name.startswith("mitsuba"):
-        import fitlab.mitsuba as fm
+        from fitlab.export import mitsuba_plugin as fm
 
         fm.ensure_variant()
         made.conversion["goniometer"] = fm.conversion_error(material, made.value)

@@ -3,7 +3,7 @@ fit (fitlab.export.renderers), what it cost in accuracy, and a Mitsuba 3 render 
 on a sphere beside the fit.
 
 Conversion errors: a Mitsuba export is rendered on the virtual goniometer (120 direction pairs,
-fitlab.mitsuba.conversion_error) and compared with fitlab's f·cos θi; a glTF export reports the
+fitlab.export.mitsuba_plugin.conversion_error) and compared with fitlab's f·cos θi; a glTF export reports the
 error of its fit of glTF's BRDF to the material (fitlab.export.gltf). Refused exports show why.
 """
 
@@ -53,7 +53,7 @@ def renderers_section(rep, fit_path) -> str:
     except ExportError as exc:
         return paragraph(f"No renderer export: {str(exc)}")
     try:
-        import fitlab.mitsuba as fm
+        from fitlab.export import mitsuba_plugin as fm
 
         variant = fm.ensure_variant()
     except ImportError:

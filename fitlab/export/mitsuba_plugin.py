@@ -3,10 +3,10 @@ Mitsuba scene, evaluated, sampled and weighted by fitlab's own JAX code.
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
-    import fitlab.mitsuba
-    fitlab.mitsuba.register()
+    import fitlab.export.mitsuba_plugin
+    fitlab.export.mitsuba_plugin.register()
     scene = mi.load_dict({..., "bsdf": {"type": "fitlab", "fit": "fits/brown_vinyl.json"}})
-    image = fitlab.mitsuba.render(scene)
+    image = fitlab.export.mitsuba_plugin.render(scene)
 
 Properties of the plugin (``type: fitlab``): ``fit`` (a parameter file; ``channel`` picks one of
 its channels, else one channel renders grey and R, G, B render in colour), or ``model`` with the
@@ -50,7 +50,7 @@ def _mitsuba():
         import drjit as dr
         import mitsuba as mi
     except ImportError as exc:  # pragma: no cover - the extra is installed in tests
-        raise ImportError("fitlab.mitsuba needs Mitsuba 3: pip install 'fitlab[mitsuba]'") from exc
+        raise ImportError("fitlab.export.mitsuba_plugin needs Mitsuba 3: pip install 'fitlab[mitsuba]'") from exc
     if not mi.variant():
         raise RuntimeError("choose a Mitsuba variant first, e.g. mi.set_variant('llvm_ad_rgb')")
     return mi, dr
