@@ -83,14 +83,14 @@ class Problem:
     """Everything both sides need: fitlab's space, data and start; plain arrays for NumPy."""
 
     def __init__(self, subset: str | None = SUBSET):
-        from fitlab.fitting import driver
+        from fitlab.fitting import channel
         from fitlab.fitting.subset import subset_mask
         from fitlab.io.measurement import read_measurement
 
         m = read_measurement(WALTER_CSV)
         rows = (m.channel == 0) & (subset_mask(subset, m) if subset else True)
         self.subset = subset
-        prep = driver.prepare_channel(m, "rough_dielectric", rows=rows, channel=0)
+        prep = channel.prepare_channel(m, "rough_dielectric", rows=rows, channel=0)
         self.measurement, self.rows = m, rows
         self.space, self.data, self.loss = prep["space"], prep["data"], prep["loss"]
         self.start_native = np.asarray(prep["start_native"], dtype=float)

@@ -157,13 +157,13 @@ def main(argv=None) -> int:
                     f"{LAYERED_ROWS!r})".replace("%", "%%"))
     args = ap.parse_args(argv)
 
-    from fitlab.fitting import driver
+    from fitlab.fitting import channel
 
     print(machine_line(machine()))
     for build in {"walter": (walter,), "layered": (layered,),
                   "all": (walter, layered)}[args.posterior]:
         p = build(args)
-        prep = driver.prepare_channel(p["measurement"], p["model"], rows=p["rows"],
+        prep = channel.prepare_channel(p["measurement"], p["model"], rows=p["rows"],
                                       fixed=p["fixed"])
         describe(p, prep)
         ls = least_squares(p, prep)

@@ -20,11 +20,11 @@ WALTER = ROOT / "data_formats" / "examples" / "walter_rough_glass.csv"
 
 @pytest.fixture(scope="module")
 def problem():
-    from fitlab.fitting import driver
+    from fitlab.fitting import channel
     from fitlab.fitting.least_squares import fit_least_squares
 
     m = fitlab.read(WALTER)
-    prep = driver.prepare_channel(m, "rough_dielectric", rows=m.theta_i == 0)
+    prep = channel.prepare_channel(m, "rough_dielectric", rows=m.theta_i == 0)
     ls = fit_least_squares(prep["space"], prep["data"], prep["loss"],
                            start_native=prep["start_native"])
     return prep, ls

@@ -93,7 +93,7 @@ def test_nuts_is_calibrated():
 
 @pytest.mark.slow
 def test_emcee_is_calibrated():
-    from fitlab.fitting import driver
+    from fitlab.fitting import channel
     from fitlab.fitting.least_squares import fit_least_squares
     from fitlab.fitting.mcmc import run_mcmc
 
@@ -101,7 +101,7 @@ def test_emcee_is_calibrated():
     rng = np.random.default_rng(0)
     ranks = []
     for m, t in zip(ms[:64], truth[:64]):
-        prep = driver.prepare_channel(m, "oren_nayar", rows=np.ones(m.n, bool))
+        prep = channel.prepare_channel(m, "oren_nayar", rows=np.ones(m.n, bool))
         ls = fit_least_squares(prep["space"], prep["data"], prep["loss"], n_starts=2,
                                start_native=prep["start_native"])
         mc = run_mcmc(prep["space"], prep["data"], prep["loss"], ls, seed=1, nsteps=1500,
