@@ -12,20 +12,29 @@ import sys
 import tempfile
 
 #: XLA settings the tests compile with, set before JAX starts (and inherited by the `fitlab`
-#: processes tests start): the legacy CPU emitters and no LLVM optimization compile the suite's
-#: roughly 5,000 small kernels in about 40% less time (most of the suite's time is XLA
-#: compiling; its kernels run on tens to thousands of rows, where optimized code saves little).
-#: Neither setting relaxes IEEE semantics (no fast math either way). What users get, XLA's
-#: defaults, is tested too: tests/test_compiler_settings.py runs the registry contract and the
-#: sampling tests under them. FITLAB_TEST_XLA_DEFAULTS=1 runs a session under XLA's defaults;
-#: a setting already in XLA_FLAGS is left as it is.
-TEST_XLA_FLAGS = {"xla_cpu_use_fusion_emitters": "false", "xla_backend_optimization_level": "0"}
+#: processes tests start): the legacy CPU emitters (XLA_FLAGS) and JAX's
+#: ``jax_disable_most_optimizations`` (XLA's backend at -O0 without its expensive LLVM passes)
+#: compile the suite's thousands of small kernels in about 40% less time (most of the suite's
+#: time is XLA compiling; its kernels run on tens to thousands of rows, where optimized code
+#: saves little). Neither setting relaxes IEEE semantics (no fast math either way). A test whose
+#: time goes into running compiled code (an MCMC chain, a network's training: 5 to 15 times
+#: slower at -O0) is marked ``optimized``: it compiles at XLA's default optimization level
+#: (the fixture ``_optimization_of_marked_tests``). What users get, XLA's defaults, is tested
+#: too: tests/test_compiler_settings.py runs the registry contract and the sampling tests under
+#: them. FITLAB_TEST_XLA_DEFAULTS=1 runs a session under XLA's defaults; a setting already in
+#: XLA_FLAGS is left as it is.
+TEST_XLA_FLAGS = {"xla_cpu_use_fusion_emitters": "false"}
+#: JAX reads it when it starts (this process and the `fitlab` processes tests start); the
+#: ``optimized`` marker changes it per test through jax.config.
+NO_OPTIMIZATION_ENV = "JAX_DISABLE_MOST_OPTIMIZATIONS"
 XLA_DEFAULTS_ENV = "FITLAB_TEST_XLA_DEFAULTS"
-if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):
+FAST_COMPILE = os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0")
+if FAST_COMPILE:
     _flags = os.environ.get("XLA_FLAGS", "").split()
     _flags += [f"--{k}={v}" for k, v in TEST_XLA_FLAGS.items()
                if not any(f.startswith(f"--{k}=") for f in _flags)]
     os.environ["XLA_FLAGS"] = " ".join(_flags)
+    os.environ.setdefault(NO_OPTIMIZATION_ENV, "1")
 
 # Dr.Jit picks its libLLVM once, at `import drjit`: choose a usable one (LLVM >= 17, the
 # system's or the pip package's; fitlab/simulate/engine.py) before any test imports mitsuba.
@@ -45,7 +54,9 @@ def user_environment() -> dict:
     compares a command's output with committed bytes (made by that command under the defaults)
     runs it in a child process with this environment: compiled at other settings, a value's
     last digit can differ."""
-    return dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
+    env = dict(os.environ, XLA_FLAGS=xla_default_flags(os.environ.get("XLA_FLAGS", "")))
+    env.pop(NO_OPTIMIZATION_ENV, None)
+    return env
 
 
 def _same_values(got, want, rtol, where):
@@ -209,6 +220,30 @@ def _release_after_module(request):
     kernel any test had compiled (5.7 GB by the end of the quick tier)."""
     yield
     _release_compiled_code(request.module)
+
+
+_OPTIMIZED = {"now": not FAST_COMPILE}
+
+
+def _set_optimization(on: bool) -> None:
+    """Compile at XLA's default optimization level (on) or without most optimizations (off),
+    here and in the `fitlab` processes tests start; executables compiled the other way are
+    dropped first, so that none is reused."""
+    if _OPTIMIZED["now"] == on:
+        return
+    jax.clear_caches()
+    jax.config.update("jax_disable_most_optimizations", not on)
+    os.environ[NO_OPTIMIZATION_ENV] = "0" if on else "1"
+    _OPTIMIZED["now"] = on
+
+
+@pytest.fixture(autouse=True)
+def _optimization_of_marked_tests(request):
+    """A test marked ``optimized`` (its time goes into running compiled code) compiles at XLA's
+    default optimization level; the others without most optimizations (TEST_XLA_FLAGS)."""
+    if FAST_COMPILE:
+        _set_optimization(request.node.get_closest_marker("optimized") is not None)
+    yield
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from conftest import (TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, _release_compiled_code, user_environment,
-                      xla_default_flags)
+from conftest import (NO_OPTIMIZATION_ENV, TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, _release_compiled_code,
+                      user_environment, xla_default_flags)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -23,10 +23,29 @@ MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py", "tests/te
 
 
 def test_default_flags_strip_only_the_test_settings():
-    flags = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=0"
+    flags = "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false"
     assert xla_default_flags(flags) == "--xla_force_host_platform_device_count=2"
+    assert NO_OPTIMIZATION_ENV not in user_environment()
     if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):  # this session's own settings
         assert all(f"--{k}=" in os.environ["XLA_FLAGS"] for k in TEST_XLA_FLAGS)
+        assert os.environ[NO_OPTIMIZATION_ENV] in ("0", "1")  # 0 while a test is `optimized`
+
+
+@pytest.mark.optimized
+def test_a_marked_test_compiles_at_the_default_optimization_level():
+    import jax
+
+    if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):
+        assert jax.config.values["jax_disable_most_optimizations"] is False
+        assert os.environ[NO_OPTIMIZATION_ENV] == "0"
+
+
+def test_an_unmarked_test_compiles_without_most_optimizations():
+    import jax
+
+    if os.environ.get(XLA_DEFAULTS_ENV, "").strip() in ("", "0"):
+        assert jax.config.values["jax_disable_most_optimizations"] is True
+        assert os.environ[NO_OPTIMIZATION_ENV] == "1"
 
 
 @pytest.mark.slow
