@@ -239,6 +239,10 @@ def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
     for w in fit["warnings"]:
         assert f"warning: channel R: {w}\n" in err
     assert "non-finite cost" in err
+    from fitlab.fitting.status import channel_statuses
+
+    for status in channel_statuses(fit):  # what limits trust, with what to do about it
+        assert (f"status: channel R: {status.value}: {status.advice}\n" in err) != status.ok
 
 
 @pytest.mark.slow
@@ -311,3 +315,63 @@ def test_first_non_finite_names_the_field():
     assert first_non_finite({"a": [1.0, {"b": 2.0}], "c": "x"}) is None
     assert first_non_finite({"fits": [{"statistics": {"chi2": float("nan")}}]}) == \
         "fits[0].statistics.chi2"
+
+
+# --------------------------------------------------------------------------------------------
+# Status: one type for what limits trust in a fit (fitlab/fitting/status.py)
+# --------------------------------------------------------------------------------------------
+
+
+def test_status_members_are_the_strings_files_keep():
+    from fitlab.fitting.status import Status
+
+    assert json.dumps({"stopped": Status.MAX_ITERATIONS}) == '{"stopped": "max_iterations"}'
+    assert Status("non_finite") is Status.NON_FINITE and f"{Status.CONVERGED}" == "converged"
+    assert [s for s in Status if s.ok] == [Status.CONVERGED]
+    assert all(s.advice and s.advice != Status.CONVERGED.advice for s in Status if not s.ok)
+    assert fls.LM_STOPPED == ("converged", "max_iterations", "non_finite")
+
+
+@pytest.mark.parametrize("edit, expected", [
+    ({}, ("converged",)),
+    ({"solver": {"stopped": "max_iterations"}}, ("max_iterations",)),
+    ({"solver": {"stopped": "non_finite"}, "starts": [{"lm_stopped": "non_finite"}]},
+     ("non_finite",)),
+    ({"starts": [{"lm_stopped": "converged"}, {"lm_stopped": "non_finite"}]}, ("starts_lost",)),
+    ({"starts_disagree": {"message": "..."}}, ("starts_disagree",)),
+    ({"parameters": {"albedo": {"at_bound": True}}}, ("at_bound",)),
+    ({"mcmc": {"trustworthy": False}}, ("chain_untrusted",)),
+    ({"goodness": {"describes_data": False}}, ("misfit",)),
+    ({"bootstrap": {"requested": 100, "replicates": 1}}, ("bootstrap_failed",)),
+    ({"bootstrap": {"requested": 100, "replicates": 0, "skipped": "2 incidences"}},
+     ("converged",)),
+    ({"aperture": {"quadrature_error": {"within_tolerance": False}}}, ("aperture_inaccurate",)),
+    ({"solver": {"stopped": "max_iterations"}, "goodness": {"describes_data": False}},
+     ("max_iterations", "misfit")),
+])
+def test_channel_statuses_read_the_record(edit, expected):
+    from fitlab.fitting.status import channel_statuses
+
+    fit = {"solver": {"stopped": "converged"}, "starts": [{"lm_stopped": "converged"}],
+           "starts_disagree": None, "parameters": {"albedo": {"at_bound": False}},
+           "mcmc": None, **edit}
+    assert channel_statuses(fit) == expected
+
+
+def test_fit_statuses_and_throw(oren_nayar_data, tmp_path, monkeypatch):
+    """A fit stopped by its iteration limit says so in its statuses, raises with the advice
+    under throw=True, and reads back the same from its file; a clean fit is ok."""
+    import fitlab
+    from fitlab.errors import FitlabError
+    from fitlab.fitting.status import Status
+
+    m = oren_nayar_data
+    good = fitlab.fit(m, "oren_nayar", starts=2, bootstrap=0, throw=True)
+    assert good.ok and good.statuses() == (Status.CONVERGED,)
+    assert good.raise_for_status() is good
+    _no_global_search(monkeypatch, 0.05)
+    bad = fitlab.fit(m, "oren_nayar", starts=2, bootstrap=0, lm_maxiter=2)
+    assert not bad.ok and Status.MAX_ITERATIONS in bad.statuses()
+    assert fitlab.load_fit(bad.save(tmp_path / "f.json").path).statuses() == bad.statuses()
+    with pytest.raises(FitlabError, match="max_iterations.*--lm-maxiter"):
+        fitlab.fit(m, "oren_nayar", starts=2, bootstrap=0, lm_maxiter=2, throw=True)

@@ -10,6 +10,7 @@ from fitlab.cli.common import (add_channel, add_format, add_model, add_option, a
                                get_model, model_options)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
+from fitlab.fitting.status import Status, channel_statuses
 
 
 def add_parser(sub):
@@ -179,7 +180,7 @@ def _run_many(args):
     if args.table:
         atomic_write_text(args.table, result.table(args.table))
     if not args.quiet:
-        stopped = sum(f.lm_stopped != "converged" for f in result.fits)
+        stopped = sum(f.lm_stopped != Status.CONVERGED for f in result.fits)
         print(f"fitted {len(result.fits)} datasets of {len(args.data)} files in {result.seconds:.2f} s "
               f"({len(result.fits) / result.seconds:.1f} fits/s, {result.groups} structure"
               f"{'s' if result.groups > 1 else ''})"
@@ -287,6 +288,10 @@ def _print_summary(record):
             print(line, file=sys.stderr)
         for w in fit.get("warnings", []):
             print(f"warning: channel {fit['channel']}: {w}", file=sys.stderr)
+        for status in channel_statuses(fit):
+            if not status.ok:
+                print(f"status: channel {fit['channel']}: {status.value}: {status.advice}",
+                      file=sys.stderr)
 
 
 def _p(p):

@@ -41,7 +41,8 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         mcmc_steps: int = 3000, walkers: int | None = None, starts: int = 8, seed: int = 0,
         walter_diagnostics: bool = False, progress: bool = False,
         aperture_order: int | None = None, bootstrap: int | None = None,
-        lm_maxiter: int | None = None, start: dict | None = None, sampler: str = "emcee"):
+        lm_maxiter: int | None = None, start: dict | None = None, sampler: str = "emcee",
+        throw: bool = False):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, or a Model) to ``measurement`` (a
     Measurement or a path) and return an immutable :class:`FitResult`.
@@ -69,7 +70,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     sampler: the posterior sampler with ``mcmc`` (``fitlab.fitting.samplers.SAMPLERS``: ``emcee``,
     the default and reference, or ``nuts``, blackjax's NUTS with ``walkers`` chains).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
-    warning).
+    warning). What limits trust in the fit is ``result.statuses(channel)`` (a
+    :class:`fitlab.fitting.status.Status` each, with its advice); throw: raise a
+    :class:`fitlab.errors.FitlabError` naming them instead of returning a fit that is not ``ok``.
     Raises :class:`fitlab.errors.FitlabError` with a message saying what to do."""
     from fitlab.models import get_model
     from fitlab.api import resolve_options
@@ -165,7 +168,10 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
         add_empirical_D(record, result, m)
     chains = chains_payload(result) if mcmc else {}
     seconds = {k: v for k, v in run_timings(result, 0.0, 0.0).items() if k not in ("read", "total")}
-    return FitResult.from_record(record, chains, None, m, seconds)
+    out = FitResult.from_record(record, chains, None, m, seconds)
+    if throw:
+        out.raise_for_status()
+    return out
 
 
 def parameter_values(model, values, what: str) -> dict:

@@ -14,6 +14,7 @@ from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData
 from fitlab.fitting.losses import loss_weights
 from fitlab.fitting.space import SCALE, make_space, model_values
+from fitlab.fitting.status import Status
 from fitlab.models import get_model
 
 #: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
@@ -30,18 +31,18 @@ def least_squares_warnings(ls) -> list[str]:
     """Sentences for what went wrong in the least-squares stage of one channel."""
     out = []
     sol = ls.solver
-    if sol["stopped"] == "max_iterations":
+    if sol["stopped"] == Status.MAX_ITERATIONS:
         out.append(f"Levenberg-Marquardt stopped at its iteration limit ({sol['max_iterations']} "
                    "iterations) before its stopping rule was met: the optimum may not be "
                    "reached; check the parameters, or refit with more iterations "
                    "(--lm-maxiter, or lm_maxiter in Python) or a better start")
-    elif sol["stopped"] == "non_finite":
+    elif sol["stopped"] == Status.NON_FINITE:
         out.append("Levenberg-Marquardt ended with a non-finite cost (NaN or inf) from every "
                    "start: the model or the loss is not finite for these data; check the data "
                    "(zero or negative values with the log loss, zero sigma) and the fixed "
                    "parameters")
-    lost = sum(st["lm_stopped"] == "non_finite" for st in ls.starts)
-    if lost and sol["stopped"] != "non_finite":
+    lost = sum(st["lm_stopped"] == Status.NON_FINITE for st in ls.starts)
+    if lost and sol["stopped"] != Status.NON_FINITE:
         out.append(f"{lost} of {len(ls.starts)} Levenberg-Marquardt starts ended at NaN or inf "
                    "(e.g. where the model is exactly 0 at every measured direction, so the cost "
                    "is flat) and were left out; the fit comes from the others")

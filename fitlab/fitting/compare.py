@@ -63,6 +63,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.result import _freeze, thaw
+from fitlab.fitting.status import Status
 
 
 def relative_errors(pred, value):
@@ -379,7 +380,7 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
             data = _masked(base["data"], data_k, kept[rows])
             ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
                                    n_starts=starts, seed=seed)
-            if ls.solver["stopped"] == "non_finite":
+            if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
             fold["rel"], _ = relative_errors(pred, m.value[held])

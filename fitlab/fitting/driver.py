@@ -22,6 +22,7 @@ import numpy as np
 from fitlab.fitting.channel import (FitWarning, channel_problem, fitted_rows, least_squares_warnings,
                                     log_line, non_finite_fit, resolve_fit, statistics)
 from fitlab.fitting.least_squares import LM_MAXITER, fit_least_squares
+from fitlab.fitting.status import Status
 
 
 def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
@@ -80,7 +81,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
                                seed=seed, lm_maxiter=lm_maxiter, progress=not quiet)
         t_ls = time.perf_counter() - t0
-        if ls.solver["stopped"] == "non_finite":
+        if ls.solver["stopped"] == Status.NON_FINITE:
             raise non_finite_fit(f"{m.path}: channel {name}", len(ls.starts))
         channel_warnings = least_squares_warnings(ls)
         log_line(quiet, "  least squares: " + ", ".join(

@@ -43,6 +43,7 @@ from fitlab.fitting.channel import (channel_problem, fitted_rows, least_squares_
                                     statistics)
 from fitlab.fitting.least_squares import FitData, fit_least_squares
 from fitlab.fitting.space import SCALE, FitSpace
+from fitlab.fitting.status import Status
 from fitlab.models import Model
 
 
@@ -260,7 +261,7 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
     ls = fit_least_squares(joint, data, loss, start_native=start_native, n_starts=n_starts,
                            seed=seed, progress=not quiet, **kw)
     t_ls = time.perf_counter() - t0
-    if ls.solver["stopped"] == "non_finite":
+    if ls.solver["stopped"] == Status.NON_FINITE:
         from fitlab.fitting.channel import non_finite_fit
 
         raise non_finite_fit(f"{m.path}: channels {', '.join(names)} (joint fit)", len(ls.starts))

@@ -27,6 +27,7 @@ import numpy as np
 from fitlab.fitting.exchange import canonical_runs
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
+from fitlab.fitting.status import Status
 
 #: jaxopt Levenberg–Marquardt settings: step limit, Madsen–Nielsen tolerances on the step and
 #: the gradient, and the initial damping relative to the largest diagonal element of JᵀJ.
@@ -75,17 +76,18 @@ class LeastSquaresResult(NamedTuple):
 
 #: Why a Levenberg–Marquardt run ended: its stopping rule was met, it ran out of steps, or it
 #: ended at a point where the cost is not finite (NaN or inf).
-LM_STOPPED = ("converged", "max_iterations", "non_finite")
+LM_STOPPED = (Status.CONVERGED, Status.MAX_ITERATIONS, Status.NON_FINITE)
 
 
-def lm_stop_reason(cost: float, iterations: int, rule_unmet: bool, max_iterations: int) -> str:
+def lm_stop_reason(cost: float, iterations: int, rule_unmet: bool,
+                   max_iterations: int) -> Status:
     """One of LM_STOPPED. A NaN gradient also ends jaxopt's loop (its stopping test compares
     NaN), so a non-finite end is named before the iteration count is looked at."""
     if not np.isfinite(cost):
-        return "non_finite"
+        return Status.NON_FINITE
     if rule_unmet and iterations >= max_iterations:
-        return "max_iterations"
-    return "converged"
+        return Status.MAX_ITERATIONS
+    return Status.CONVERGED
 
 
 def problem_of(space: FitSpace, data: FitData) -> dict:

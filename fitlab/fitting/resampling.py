@@ -25,6 +25,7 @@ from fitlab.fitting import goodness as gof
 from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_stop_reason,
                                           pad_rows, problem_of, progress_bar, residuals_native)
 from fitlab.fitting.losses import has_absolute_noise
+from fitlab.fitting.status import Status
 
 #: The bootstrap needs at least this many fitted incidence directions (blocks).
 MIN_BLOCKS = 3
@@ -118,14 +119,14 @@ def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int,
         if bar is not None:
             bar.close()
     stops = np.asarray(stops)
-    ok = stops != "non_finite"
+    ok = stops != Status.NON_FINITE
     samples = np.asarray(natives, float)[ok]
     u = space.to_unit(samples) if samples.size else np.zeros((0, space.ndim))
     edge = (u < 1e-6) | (u > 1 - 1e-6)  # as the fit's at_bound
     at_bound = {name: int(c) for name, c in zip(space.names, edge.sum(axis=0)) if c}
     return {"samples": samples, "requested": int(replicates),
             "replicates": int(ok.sum()), "non_finite": int((~ok).sum()),
-            "max_iterations": int(np.sum(stops == "max_iterations")), "blocks": n_blocks,
+            "max_iterations": int(np.sum(stops == Status.MAX_ITERATIONS)), "blocks": n_blocks,
             "at_bound": at_bound, "seconds": time.perf_counter() - t0}
 
 

@@ -14,6 +14,7 @@ from types import MappingProxyType
 import numpy as np
 
 from fitlab.fitting.space import SCALE
+from fitlab.fitting.status import Status, channel_statuses
 
 
 def _freeze(obj):
@@ -188,6 +189,28 @@ class FitResult:
     def warnings(self) -> dict[str, list[str]]:
         """{channel: sentences saying what did not go as planned}."""
         return {f["channel"]: list(f.get("warnings", [])) for f in self.record["fits"]}
+
+    def statuses(self, channel: str | None = None) -> tuple[Status, ...]:
+        """What limits trust in the fit of ``channel`` (``(Status.CONVERGED,)`` when nothing
+        does; fitlab.fitting.status): read from the record, so a loaded fit answers alike."""
+        return channel_statuses(thaw(self._fit(channel)))
+
+    @property
+    def ok(self) -> bool:
+        """Whether every channel's fit can be used as it stands (every status ``ok``)."""
+        return all(s.ok for f in self.record["fits"] for s in channel_statuses(thaw(f)))
+
+    def raise_for_status(self) -> "FitResult":
+        """This result if it is :attr:`ok`, else a :class:`fitlab.errors.FitlabError` naming
+        each channel's statuses and what to do about each."""
+        from fitlab.errors import FitlabError
+
+        bad = [(f["channel"], s) for f in self.record["fits"]
+               for s in channel_statuses(thaw(f)) if not s.ok]
+        if bad:
+            raise FitlabError("the fit is not to be trusted as it stands: " + "; ".join(
+                f"channel {ch}: {s.value} ({s.advice})" for ch, s in bad))
+        return self
 
     @property
     def notes(self) -> tuple[str, ...]:
