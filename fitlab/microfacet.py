@@ -41,6 +41,7 @@ from jax.scipy.special import erf, erfc, erfinv
 from fitlab import vmf
 from fitlab.frame import dot
 from fitlab.numerics import clamp_alpha, safe_div, safe_rsqrt, safe_sqrt
+from fitlab.registry import Registry
 
 #: Beckmann-style a = 1 / (α tan θ) is capped here: G1 is 1 to machine precision beyond it.
 _A_MAX = 30.0
@@ -568,7 +569,7 @@ class MicrofacetDistribution:
         return safe_div(self.G1(w) * jnp.maximum(dot(w, m), 0.0) * self.D(m), jnp.abs(w[..., 2]))
 
 
-REGISTRY: dict[str, Family] = {
+REGISTRY: Registry[Family] = Registry("microfacet distribution", {
     f.name: f
     for f in (
         Family("ggx", D_GGX, G1_GGX, sample_m_GGX, "Walter 2007 eqs 33-36; anisotropic: "
@@ -592,7 +593,7 @@ REGISTRY: dict[str, Family] = {
                "16-point Gauss-Legendre quadrature), kappa = 2/alpha^2 (isotropic only)",
                walter=False),
     )
-}
+})
 
 #: The vMF NDF's registry families by masking, keyed by the choices of the thin layer's
 #: ``masking`` option (fitlab.vmf.MASKING): eq. 7 integrated (exact) or eq. 8 (approx). A scene
@@ -610,16 +611,12 @@ def names(*, walter: bool | None = True, anisotropic: bool | None = None) -> tup
 
 
 #: Walter 2007's distributions (the microfacet models' choices), by name: a view of REGISTRY.
-DISTRIBUTIONS: dict[str, Family] = {n: REGISTRY[n] for n in names()}
+DISTRIBUTIONS: Registry[Family] = Registry("microfacet distribution",
+                                           {n: REGISTRY[n] for n in names()})
 
 
 def get_distribution(name: str) -> Family:
-    try:
-        return REGISTRY[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown microfacet distribution {name!r}; choose one of {', '.join(REGISTRY)}"
-        ) from None
+    return REGISTRY.get_entry(name)
 
 
 def widened_alpha(alpha, cos_i):

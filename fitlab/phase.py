@@ -18,10 +18,13 @@ to σ(ω) (SpongeCake eq. 3): ``sggx_sigma`` gives that factor to the random wal
 
 from __future__ import annotations
 
+from typing import Callable, NamedTuple
+
 import jax.numpy as jnp
 
 from fitlab.frame import dot, normalize, reflect
 from fitlab.numerics import safe_div, safe_rsqrt, safe_sqrt
+from fitlab.registry import Registry
 
 _INV_4PI = 0.25 / jnp.pi
 
@@ -224,8 +227,13 @@ def sample_sggx(params, wi, u):
 
 
 #: name → (eval, sample); params: hg {"g"}, sggx {"S"} (see sggx_matrix), isotropic {}.
-PHASE_FUNCTIONS = {
-    "isotropic": (eval_isotropic, sample_isotropic),
-    "hg": (eval_hg, sample_hg),
-    "sggx": (eval_sggx, sample_sggx),
-}
+class PhaseFunction(NamedTuple):
+    eval: Callable
+    sample: Callable
+
+
+PHASE_FUNCTIONS: Registry[PhaseFunction] = Registry("phase function", {
+    "isotropic": PhaseFunction(eval_isotropic, sample_isotropic),
+    "hg": PhaseFunction(eval_hg, sample_hg),
+    "sggx": PhaseFunction(eval_sggx, sample_sggx),
+})

@@ -94,10 +94,10 @@ def test_bad_start_does_not_decide(corner):
     try:
         # The driver starts from each parameter's default; make the defaults the bad corner.
         driver_model = model._replace(parameters=tuple(p._replace(default=bad[p.name]) for p in orig))
-        fitlab.models.MODELS["rough_dielectric"] = driver_model
+        fitlab.models.MODELS.register("rough_dielectric", driver_model, replace=True)
         res = driver.fit_measurement(m, "rough_dielectric", quiet=True, n_starts=0, seed=1)
     finally:
-        fitlab.models.MODELS["rough_dielectric"] = model
+        fitlab.models.MODELS.register("rough_dielectric", model, replace=True)
     (ch,) = res["channels"]
     starts = ch["ls"].starts
     assert starts[-1]["start"]["alpha"] == pytest.approx(bad["alpha"])

@@ -120,7 +120,7 @@ def test_refusals(model, channels, needle):
         finally:
             from fitlab.models import MODELS
 
-            MODELS.pop("btdf_only", None)
+            MODELS.unregister("btdf_only")
         return
     with pytest.raises(ExportError, match=needle):
         convert(material_from_model(model, channels))

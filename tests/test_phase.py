@@ -46,7 +46,7 @@ WI = np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
 def test_phase_function_is_normalized(case):
     name, params = _params(case)
     w, dw = _sphere_grid()
-    p = np.asarray(phase.PHASE_FUNCTIONS[name][0](params, jnp.asarray(np.broadcast_to(WI, w.shape)),
+    p = np.asarray(phase.PHASE_FUNCTIONS[name].eval(params, jnp.asarray(np.broadcast_to(WI, w.shape)),
                                                   jnp.asarray(w)))
     assert np.sum(p) * dw == pytest.approx(1.0, abs=2e-3)
 
@@ -82,7 +82,7 @@ def test_phase_reciprocity(case):
     """HG and isotropic: p(wi, wo) = p(wo, wi); SGGX: σ(wi) p(wi, wo) = σ(wo) p(wo, wi)
     (SpongeCake eqs 1, 6)."""
     name, params = _params(case)
-    ev = phase.PHASE_FUNCTIONS[name][0]
+    ev = phase.PHASE_FUNCTIONS[name].eval
     rng = np.random.default_rng(1)
     a = rng.normal(size=(50, 3)); a /= np.linalg.norm(a, axis=1, keepdims=True)
     b = rng.normal(size=(50, 3)); b /= np.linalg.norm(b, axis=1, keepdims=True)

@@ -40,7 +40,7 @@ def _constant(name, value):
 def scratch_name():
     name = "contract_scratch_model"
     yield name
-    MODELS.pop(name, None)
+    MODELS.unregister(name)
 
 
 def test_redefined_model_is_not_served_stale_code(scratch_name):

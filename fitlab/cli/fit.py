@@ -59,7 +59,7 @@ def add_parser(sub):
 
     p.add_argument("--sampler", choices=list(SAMPLERS), default="emcee",
                    help="posterior sampler with --mcmc: "
-                   + "; ".join(f"{k}: {v[0]}" for k, v in SAMPLERS.items())
+                   + "; ".join(f"{k}: {v.description}" for k, v in SAMPLERS.items())
                    + " (default emcee; with nuts, --walkers is the number of chains, default 4)")
     p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")
     p.add_argument("--walkers", type=int, help="number of walkers (default max(32, 4 x dim))")

@@ -11,7 +11,7 @@ from fitlab.errors import FitlabError
 def add_parser(sub):
     from fitlab.tradeoffs.knobs import KNOBS
 
-    knobs = "; ".join(f"{k.name} ({k.group})" for k in KNOBS)
+    knobs = "; ".join(f"{k.name} ({k.group})" for k in KNOBS.values())
     p = sub.add_parser(
         "tradeoffs", help="measure what each accuracy knob costs in time for one material "
         "(HTML + JSON report)",

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 from fitlab.export.material import ExportError, Material
+from fitlab.registry import Registry
 from fitlab.version import __version__
 
 
@@ -82,7 +83,7 @@ def _plugin(material):
     return plugin_bsdf(material)
 
 
-EXPORTERS: dict[str, Exporter] = {
+EXPORTERS: Registry[Exporter] = Registry("export format", {
     e.name: e for e in (
         Exporter("mitsuba", "Mitsuba 3",
                  "Mitsuba 3's own plugins (roughconductor, roughdielectric, diffuse, plastic, "
@@ -99,7 +100,7 @@ EXPORTERS: dict[str, Exporter] = {
                  "preview sphere; the conversion error is reported",
                  (".gltf",), "data_formats/gltf_material.md", _gltf_build),
     )
-}
+})
 
 
 def exporter_for(to: str | None, out: str | None) -> tuple[Exporter, str]:
@@ -114,7 +115,7 @@ def exporter_for(to: str | None, out: str | None) -> tuple[Exporter, str]:
                           f"{'|'.join(EXPORTERS)} or an output ending in "
                           f"{', '.join(sorted({s for e in EXPORTERS.values() for s in e.suffixes}))}")
     if to not in EXPORTERS:
-        raise ExportError(f"unknown export format {to!r}; formats: {', '.join(EXPORTERS)}")
+        raise ExportError(str(EXPORTERS.unknown(to)))
     e = EXPORTERS[to]
     if out is None:
         return e, e.suffixes[0]

@@ -12,6 +12,7 @@ from fitlab.export import merl, zemax
 from fitlab.io.atomic import atomic_write_text
 from fitlab.io.files import path_for_record
 from fitlab.io.measurement import format_measurement_csv
+from fitlab.registry import Registry
 
 
 class Writer(NamedTuple):
@@ -58,7 +59,7 @@ def _describe_merl(s) -> str:
             f"{s['f_range'][1]:.4g} 1/sr")
 
 
-WRITERS: dict[str, Writer] = {
+WRITERS: Registry[Writer] = Registry("writer", {
     w.name: w
     for w in (
         Writer("csv", "measurement CSV", "fitlab measurement CSV of any file fitlab reads",
@@ -72,7 +73,7 @@ WRITERS: dict[str, Writer] = {
                (".binary",), "data_formats/merl_binary.md", None, merl.write_merl,
                merl.write_merl_from_fit, _describe_merl),
     )
-}
+})
 
 #: The writer of an output whose suffix no writer claims.
 DEFAULT = "csv"
@@ -81,7 +82,7 @@ DEFAULT = "csv"
 def writer_for(path, name: str | None = None) -> Writer:
     """``name``'s writer if given, else the one claiming ``path``'s suffix, else DEFAULT's."""
     if name is not None:
-        return WRITERS[name]
+        return WRITERS.get_entry(name)
     suffix = str(path).lower()
     for w in WRITERS.values():
         if any(suffix.endswith(s) for s in w.suffixes):

@@ -100,7 +100,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     from fitlab.fitting.samplers import SAMPLERS
 
     if sampler not in SAMPLERS:
-        raise FitlabError(f"unknown sampler {sampler!r}; samplers: {', '.join(SAMPLERS)}")
+        raise FitlabError(str(SAMPLERS.unknown(sampler)))
     if mcmc and mcmc_steps < 100:
         raise FitlabError("mcmc_steps must be at least 100")
     share = (share,) if isinstance(share, str) else tuple(share or ())

@@ -594,7 +594,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     from fitlab.fitting.losses import LOSSES
 
     if loss is not None and loss not in LOSSES:
-        raise FitlabError(f"--loss {loss}: unknown loss; choose one of {', '.join(LOSSES)}")
+        raise FitlabError(f"--loss {loss}: {LOSSES.unknown(loss)}")
     loss = loss or ("chi2" if m.sigma is not None else "relative")
     expr = subset if isinstance(subset, str) else None
     if isinstance(subset, str):

@@ -23,6 +23,8 @@ from typing import Callable, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from fitlab.registry import Registry
+
 
 class Loss(NamedTuple):
     """One loss: what it is, the constants its residual needs and the residual itself."""
@@ -65,7 +67,7 @@ def _cos_l2_weights(value, sigma, cos_o):
 
 #: The losses, by name (the order is the CLI's order of choices; chi2 and relative are the
 #: defaults with and without sigma).
-LOSSES: dict[str, Loss] = {
+LOSSES: Registry[Loss] = Registry("loss", {
     loss.name: loss for loss in (
         Loss("chi2", "(m - v)/sigma: data with absolute uncertainties, a true chi-square",
              _chi2_weights, _weighted_residual, True),
@@ -76,14 +78,11 @@ LOSSES: dict[str, Loss] = {
         Loss("cos_l2", "(m - v)|cos theta_o|: cosine-weighted L2 (the reflected flux)",
              _cos_l2_weights, _weighted_residual, False),
     )
-}
+})
 
 
 def get_loss(name: str) -> Loss:
-    try:
-        return LOSSES[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}") from None
+    return LOSSES.get_entry(name)
 
 
 def loss_weights(loss: str, value, sigma, cos_o):

@@ -3,23 +3,32 @@ the reference) and NUTS (fitlab/fitting/nuts.py, blackjax, loaded only when aske
 
 from __future__ import annotations
 
+from typing import Callable, NamedTuple
+
 from fitlab.errors import FitlabError
 from fitlab.fitting.mcmc import run_mcmc
+from fitlab.registry import Registry
 
 
-#: The posterior samplers: name → (description, run(space, data, loss, ls, *, seed, nsteps,
-#: walkers, progress) -> MCMCResult). ``walkers``: emcee's walkers, NUTS's chains.
-SAMPLERS = {
-    "emcee": ("affine-invariant ensemble sampler (emcee), the default and the reference",
-              lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: run_mcmc(
-                  space, data, loss, ls, seed=seed, nsteps=nsteps, nwalkers=walkers,
-                  progress=progress)),
-    "nuts": ("No-U-Turn sampler (blackjax), adapted and drawn in one compiled call, chains "
-             "vmapped; diagnostics by ArviZ (fitlab/fitting/nuts.py)",
-             lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _nuts(
-                 space, data, loss, ls, seed=seed, nsteps=nsteps, nchains=walkers or 4,
-                 progress=progress)),
-}
+class Sampler(NamedTuple):
+    description: str
+    #: run(space, data, loss, ls, *, seed, nsteps, walkers, progress) -> MCMCResult
+    #: (``walkers``: emcee's walkers, NUTS's chains)
+    run: Callable
+
+
+#: The posterior samplers, by name.
+SAMPLERS: Registry[Sampler] = Registry("sampler", {
+    "emcee": Sampler("affine-invariant ensemble sampler (emcee), the default and the reference",
+                     lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: run_mcmc(
+                         space, data, loss, ls, seed=seed, nsteps=nsteps, nwalkers=walkers,
+                         progress=progress)),
+    "nuts": Sampler("No-U-Turn sampler (blackjax), adapted and drawn in one compiled call, "
+                    "chains vmapped; diagnostics by ArviZ (fitlab/fitting/nuts.py)",
+                    lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _nuts(
+                        space, data, loss, ls, seed=seed, nsteps=nsteps, nchains=walkers or 4,
+                        progress=progress)),
+})
 
 
 def _nuts(*args, **kwargs):
@@ -36,6 +45,6 @@ def _nuts(*args, **kwargs):
 def sample_posterior(sampler: str, space, data, loss, ls, *, seed, nsteps, walkers, progress):
     """The posterior of one fit by the sampler named ``sampler`` (:data:`SAMPLERS`)."""
     if sampler not in SAMPLERS:
-        raise FitlabError(f"unknown sampler {sampler!r}; samplers: {', '.join(SAMPLERS)}")
-    return SAMPLERS[sampler][1](space, data, loss, ls, seed=seed, nsteps=nsteps,
-                                walkers=walkers, progress=progress)
+        raise FitlabError(str(SAMPLERS.unknown(sampler)))
+    return SAMPLERS[sampler].run(space, data, loss, ls, seed=seed, nsteps=nsteps,
+                                 walkers=walkers, progress=progress)

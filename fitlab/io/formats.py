@@ -12,6 +12,7 @@ from pathlib import Path
 
 from fitlab.errors import InputFileError
 from fitlab.io.format import Format
+from fitlab.registry import Registry
 from fitlab.io.files import read_bytes
 
 #: Bytes read from the start of a file for detection.
@@ -28,12 +29,15 @@ READER_MODULES = (
 )
 
 
-def formats() -> dict[str, Format]:
-    out = {}
-    for mod in READER_MODULES:
-        fmt = importlib.import_module(mod).FORMAT
-        out[fmt.name] = fmt
-    return out
+_FORMATS: list[Registry[Format]] = []  # built on first use (importing every reader module)
+
+
+def formats() -> Registry[Format]:
+    """The formats fitlab reads, in detection order."""
+    if not _FORMATS:
+        fmts = [importlib.import_module(mod).FORMAT for mod in READER_MODULES]
+        _FORMATS.append(Registry("format", {f.name: f for f in fmts}, listing="`fitlab info`"))
+    return _FORMATS[0]
 
 
 def detect_format(path, name: str | None = None) -> Format:

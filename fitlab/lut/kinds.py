@@ -13,6 +13,7 @@ from typing import Callable, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from fitlab.registry import Registry
 import fitlab.api
 from fitlab.api import eval_bsdf
 from fitlab.models import get_model
@@ -722,7 +723,7 @@ def _distribution_kind(name, summary, n_axes, default_size, default_mappings, ax
                 functools.partial(_prepare_distribution, name, distributions), distributions)
 
 
-KINDS = {k.name: k for k in (
+KINDS: Registry[Kind] = Registry("table kind", {k.name: k for k in (
     _distribution_kind("D", "microfacet distribution π α² D(cos θh; α) (Elek 2010 section 3.1)",
                        2, (512, 512), ("u8", "log"), ("cos_theta_h", "alpha"), _make_D,
                        D_DISTRIBUTIONS),
@@ -748,14 +749,11 @@ KINDS = {k.name: k for k in (
          "(μ, κ1, κ2)", 3, (16, 16, 16), ("linear", "log", "log"),
          "a thin_layer model's eta, tau and bottom index (κ1, κ2 are the axes)",
          ("mu", "kappa1", "kappa2"), _make_thin_layer, _prepare_thin_layer),
-)}
+)})
 
 
 def get_kind(name: str) -> Kind:
-    try:
-        return KINDS[name]
-    except KeyError:
-        raise ValueError(f"unknown table kind {name!r}; choose one of {', '.join(KINDS)}") from None
+    return KINDS.get_entry(name)
 
 
 def make_spec(kind: str, *, size=None, mappings=None, model=None, params=None, options=None,

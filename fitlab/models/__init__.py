@@ -9,12 +9,14 @@ Adding a model is one file that defines a :class:`Model` and one line in ``_BUIL
 from __future__ import annotations
 
 import functools
+from typing import Callable
 
 from fitlab.models import diffuse, gltf_pbr, rough_conductor, rough_dielectric
 from fitlab.models.base import ROLES, Capabilities, Model, Option, Parameter
 from fitlab.models.composite import SEPARATOR, make_sum
 from fitlab.models import coated, spongecake, thin_layer, weidlich_wilkie  # noqa: E402  (layered: built from the above)
 from fitlab.models.syntax import parse_call, split_top_level
+from fitlab.registry import Registry
 
 _BUILTIN = (
     rough_dielectric.MODEL,
@@ -29,11 +31,13 @@ _BUILTIN = (
     gltf_pbr.TRANSMISSION_MODEL,
 )
 
-MODELS: dict[str, Model] = {m.name: m for m in _BUILTIN}
+MODELS: Registry[Model] = Registry("model", {m.name: m for m in _BUILTIN},
+                                   listing="`fitlab models`")
 
 #: Layered constructors, ``name(MODEL[,key=value])`` (syntax: fitlab/models/syntax.py).
-CONSTRUCTORS = {coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call,
-                thin_layer.NAME: thin_layer.from_call, spongecake.NAME: spongecake.from_call}
+CONSTRUCTORS: Registry[Callable] = Registry("layered model", {
+    coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call,
+    thin_layer.NAME: thin_layer.from_call, spongecake.NAME: spongecake.from_call})
 
 #: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
 LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
@@ -80,7 +84,7 @@ def _sum_of(components: tuple[Model, ...]) -> Model:
 
 def _add_layered_examples() -> None:
     for name in LAYERED_EXAMPLES:
-        MODELS[name] = get_model(name)
+        MODELS.register(name, get_model(name), replace=True)
 
 
 def register_model(model: Model, *, replace: bool = False) -> Model:
@@ -92,15 +96,14 @@ def register_model(model: Model, *, replace: bool = False) -> Model:
     if not isinstance(model, Model):
         raise TypeError(f"register_model needs a fitlab.models.Model, got {type(model).__name__}")
     if not replace and model.name in MODELS:
-        raise ValueError(f"a model named {model.name!r} is already registered; pass "
-                         "replace=True to redefine it")
+        MODELS.register(model.name, model)  # the registry's error: already registered
     if any(ch in model.name for ch in f"(),{SEPARATOR}= "):
         raise ValueError(f"model name {model.name!r}: use letters, digits and '_' only")
     for p in model.parameters:
         if p.role not in ROLES:
             raise ValueError(f"parameter {p.name} of {model.name!r} has unknown role "
                              f"{p.role!r}; roles: {', '.join(ROLES)}")
-    MODELS[model.name] = model
+    MODELS.register(model.name, model, replace=True)
     _add_layered_examples()
     return model
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from fitlab.fresnel import CONDUCTOR_PRESETS
+from fitlab.registry import Registry
 
 CHANNELS = ("R", "G", "B")
 
@@ -39,7 +40,7 @@ class Preset(NamedTuple):
 
 _CR, _CU, _CU2O = (CONDUCTOR_PRESETS[k] for k in ("chromium", "copper", "cuprite"))
 
-PRESETS = {
+PRESETS: Registry[Preset] = Registry("preset", {
     p.name: p
     for p in (
         Preset(
@@ -95,14 +96,11 @@ PRESETS = {
             "fibers' albedo and orientation maps become γ (0.6, 0.35, 0.2) and fibers along x: "
             "fitlab's choices"),
     )
-}
+}, listing="`fitlab models`")
 
 
 def get_preset(name: str) -> Preset:
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ValueError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}") from None
+    return PRESETS.get_entry(name)
 
 
 def check_preset_model(name: str, model: str | None) -> Preset:

@@ -25,10 +25,11 @@ Beckmann (exact and rational masking), Phong and vMF interfaces (see
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
+from fitlab.registry import Registry
 from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT
 
 #: Microfacet distributions Mitsuba's rough plugins implement as fitlab defines them (fitlab name
@@ -256,12 +257,12 @@ def _spectrum(values):
 
 
 #: boundary kind → builder(spec, values, forceable) of a protocol.py boundary (None: no event).
-BOUNDARIES = {
+BOUNDARIES: Registry[Callable | None] = Registry("boundary kind", {
     "pass": None,
     "dielectric": _dielectric,
     "lambertian": _lambertian,
     "conductor": _conductor,
-}
+})
 
 
 def make_boundary(spec: BoundarySpec, values: BoundaryValues, forceable: bool = False):
@@ -399,4 +400,5 @@ def _sggx(values):
 
 
 #: phase kind → builder(values) of a protocol.py phase function.
-PHASES = {"isotropic": _isotropic, "hg": _hg, "sggx": _sggx}
+PHASES: Registry[Callable] = Registry("phase kind",
+                                     {"isotropic": _isotropic, "hg": _hg, "sggx": _sggx})

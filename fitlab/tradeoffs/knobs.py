@@ -13,6 +13,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from fitlab.registry import Registry
 from fitlab.tradeoffs.core import (ALBEDO_ORDER, ALBEDO_THETA, Context, NotApplicable, Variant,
                                    evaluation_seconds, reference_values, score, seconds,
                                    with_reflection)
@@ -508,7 +509,7 @@ class Knob(NamedTuple):
 
 
 #: Every knob, in the report's order.
-KNOBS = (
+KNOBS: Registry[Knob] = Registry("knob", {k.name: k for k in (
     Knob("precision", "evaluation", precision, precision.__doc__),
     *(Knob(ok.knob, "evaluation", option_knob(ok), ok.description) for ok in OPTION_KNOBS),
     Knob("layered physics", "layered physics", layered_physics, layered_physics.__doc__),
@@ -517,7 +518,7 @@ KNOBS = (
     Knob("sampled albedo", "monte carlo", sampled_albedo, sampled_albedo.__doc__),
     Knob("simulator paths", "monte carlo", simulator_samples, simulator_samples.__doc__),
     Knob("MCMC length", "monte carlo", mcmc_length, mcmc_length.__doc__),
-)
+)})
 GROUPS = ("evaluation", "layered physics", "tables", "monte carlo")
 
 __all__ = ["GROUPS", "KNOBS", "Knob", "OPTION_KNOBS", "OptionKnob"]

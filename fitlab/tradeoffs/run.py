@@ -218,14 +218,13 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
         if data is not None:
             measurement = data if hasattr(data, "value") else read(data)
         material = material_of(model=model, params=params, options=options)
-    names = [k.name for k in KNOBS]
-    wanted = list(names) if knobs is None else list(knobs)
-    unknown = [k for k in wanted if k not in names]
-    if unknown:
-        raise FitlabError(f"unknown knob {', '.join(unknown)}; knobs: {', '.join(names)}")
+    wanted = list(KNOBS) if knobs is None else list(knobs)
+    for k in wanted:
+        if k not in KNOBS:
+            raise FitlabError(str(KNOBS.unknown(k)))
     ctx = _context(material, fit, measurement, seed, quick, say)
     variants, skipped = [], {}
-    todo = [k for k in KNOBS if k.name in wanted]
+    todo = [k for k in KNOBS.values() if k.name in wanted]
     for i, knob in enumerate(todo):
         elapsed = time.perf_counter() - t_start
         eta = "" if i == 0 else f", about {elapsed / i * (len(todo) - i):.0f} s left"
