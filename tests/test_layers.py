@@ -138,3 +138,65 @@ def test_the_checks_see_what_they_should(table):
     assert layer_of(table, "") == len(table) - 1  # the root: nothing below imports it
     with pytest.raises(LookupError, match="no layer"):
         layer_of(table, "a_module_nobody_placed")
+
+
+# --------------------------------------------------------------------------------------------
+# Names are not structure: a model carries its structure (Model.terms, .inner, .arguments,
+# .translations); outside fitlab/models/ nothing parses or compares a model's name
+# --------------------------------------------------------------------------------------------
+
+#: the name-syntax functions of fitlab/models/syntax.py
+NAME_PARSERS = {"parse_call", "split_top_level", "call_arguments"}
+
+
+def _model_ish(node) -> bool:
+    """An expression that is a model (get_model(...), model, mdl, ctx.model, ...)."""
+    if isinstance(node, ast.Call):
+        f = node.func
+        return (f.id if isinstance(f, ast.Name) else getattr(f, "attr", "")) == "get_model"
+    text = ast.unparse(node).lower()
+    return "model" in text or text in ("mdl", "m")
+
+
+def name_branches(source: str) -> list[str]:
+    """Where ``source`` compares or parses a model's name."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Compare) and all(
+                isinstance(op, (ast.Eq, ast.NotEq, ast.In, ast.NotIn)) for op in node.ops):
+            for side in (node.left, *node.comparators):
+                if isinstance(side, ast.Attribute) and (
+                        (side.attr == "name" and _model_ish(side.value))
+                        or side.attr in ("func", "model")):
+                    out.append(f"line {node.lineno}: {ast.unparse(side)} compared")
+                    break
+        elif isinstance(node, ast.Call):
+            f = node.func
+            name = f.id if isinstance(f, ast.Name) else getattr(f, "attr", None)
+            if name in NAME_PARSERS:
+                out.append(f"line {node.lineno}: {name}(...)")
+            elif name == "startswith" and node.args:
+                arg = node.args[0]
+                for lit in (arg.elts if isinstance(arg, (ast.Tuple, ast.List)) else [arg]):
+                    if isinstance(lit, ast.Constant) and isinstance(lit.value, str) \
+                            and "(" in lit.value:
+                        out.append(f"line {node.lineno}: .startswith({lit.value!r})")
+    return out
+
+
+def test_no_model_name_is_parsed_or_compared_outside_models():
+    hits = [f"{path.relative_to(PACKAGE.parent)}: {hit}"
+            for path in sorted(PACKAGE.rglob("*.py"))
+            if "models" not in path.relative_to(PACKAGE).parts[:1]
+            for hit in name_branches(path.read_text(encoding="utf-8"))]
+    assert not hits, "\n".join(hits)
+
+
+def test_the_name_check_sees_what_it_should():
+    src = ("if get_model(a).name != get_model(b).name: pass\n"
+           "if material.model in NATIVE: pass\n"
+           "call = parse_call(x)\n"
+           "ok = p.model.startswith('spongecake(')\n"
+           "fine = knob.name in wanted\n")
+    assert [h.split(":")[0] for h in name_branches(src)] == ["line 1", "line 2", "line 3",
+                                                             "line 4"]

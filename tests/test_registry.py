@@ -57,3 +57,29 @@ def test_the_registries_are_registries():
                 CONSTRUCTORS, PRESETS, PHASE_FUNCTIONS, BOUNDARIES, PHASES, KNOBS):
         assert isinstance(reg, Registry), reg
         assert reg.names() and all(isinstance(n, str) for n in reg.names())
+
+
+def test_a_model_carries_its_structure():
+    """Sums, layered models and renderer translations are fields of the Model (read by the
+    exporters, the lobe fit, the tradeoffs' variants) rather than parsed from its name."""
+    from fitlab.models import get_model, variant_name
+    from fitlab.models.spongecake import stack_kinds
+
+    two = get_model("rough_conductor+rough_conductor")
+    assert [t.model.name for t in two.terms] == ["rough_conductor", "rough_conductor"]
+    assert set(two.terms[0].parameter_names) | set(two.terms[1].parameter_names) == \
+        set(two.parameter_names)
+    assert set(two.terms[0].parameter_names).isdisjoint(two.terms[1].parameter_names)
+    coated = get_model("coated(lambertian)")
+    assert coated.inner[0].model is get_model("lambertian")
+    assert coated.argument("specular") == "delta" and coated.translation("mitsuba") == "plastic"
+    assert get_model("coated(rough_conductor)").translation("mitsuba") is None
+    assert get_model("rough_conductor").translation("mitsuba") == "roughconductor"
+    assert get_model("lambertian").terms == () == get_model("lambertian").inner
+    sponge = get_model("spongecake(fiber, surface_z)")
+    assert stack_kinds(sponge) == ("fiber", "surface_z") and sponge.argument("multiple") is None
+    assert get_model("spongecake(fiber,substrate=lambertian)").inner[0].model.name == "lambertian"
+    learned = variant_name(sponge, "multiple", "learned")
+    assert get_model(learned).argument("multiple") == "learned"
+    assert variant_name(get_model(learned), "multiple", None) == "spongecake(fiber,surface_z)"
+    assert variant_name(get_model("lambertian"), "multiple", "lobe") is None

@@ -15,7 +15,7 @@ def add_parser(sub):
     from fitlab.models.presets import PRESETS
     from fitlab.learn.lobe import PHI_BINS, SAMPLES, THETA_BINS, THETA_I
 
-    sponge = [n for n, p in PRESETS.items() if p.model.startswith("spongecake(")]
+    sponge = [n for n, p in PRESETS.items() if get_model(p.model).argument("kinds")]
     p = sub.add_parser(
         "multiple-lobe", help="fit a SpongeCake stack's multiple-scattering lobe to the simulator",
         description="Simulate a SpongeCake stack (no substrate) on a hemisphere grid of both "

@@ -119,17 +119,17 @@ def _coated(material: Material, scale: float = 1.0) -> dict:
     (coated.py, ``_closed_form_factor``); Mitsuba's r is its fitted F_dr polynomial, the source of
     the small difference the tests measure (data_formats/mitsuba_export.md)."""
     from fitlab.models import get_model
-    from fitlab.models.syntax import call_arguments, parse_call
 
-    call = parse_call(material.model)
-    inner, kwargs = call_arguments(call, "coated(lambertian)", {"specular": "specular"})
-    if kwargs.get("specular", "delta") == "lobe":
+    model = get_model(material.model)
+    inner = model.inner[0].model
+    if model.argument("specular", "delta") == "lobe":
         _refuse(material.model, "its coat's GGX lobe sits on a diffuse term seen through the "
                 "smooth coat's transmittance, where Mitsuba's roughplastic uses the rough coat's "
                 "(they differ by up to 12.5 % at ρ = 0.6, η = 1.5, α = 0.1: "
                 "data_formats/mitsuba_export.md)")
-    if not get_model(inner).capabilities.lambertian:
-        _refuse(material.model, f"Mitsuba's plastic has a Lambertian base, this one is {inner}")
+    if not inner.capabilities.lambertian:
+        _refuse(material.model, f"Mitsuba's plastic has a Lambertian base, this one is "
+                f"{inner.name}")
     if material.options.get("interreflection") != "closed_form":
         _refuse(material.model, "its coat keeps one bounce off the base "
                 "(interreflection=single); Mitsuba's plastic sums every bounce (fit with "
@@ -139,7 +139,7 @@ def _coated(material: Material, scale: float = 1.0) -> dict:
                 "clear")
     if scale != 1.0:
         _refuse(material.model, "a plastic cannot be scaled inside a sum")
-    albedo = get_model(inner).parameters_with_role("albedo")[0].name
+    albedo = inner.parameters_with_role("albedo")[0].name
     out = {"type": "plastic",
            "diffuse_reflectance": _spectrum(material, material.values(albedo)),
            "int_ior": _num(material.scalar("coat_eta", what="Mitsuba's plastic (int_ior)")),
@@ -147,31 +147,25 @@ def _coated(material: Material, scale: float = 1.0) -> dict:
     return out
 
 
-#: Registry models with a native Mitsuba equivalent: name → translator(material, scale) → dict.
+#: Mitsuba's plugins fitlab translates to, by the plugin a model declares it is
+#: (``Model.translations``): plugin → translator(material, scale) → dict.
 NATIVE: dict[str, Callable] = {
-    "rough_conductor": _rough_conductor,
-    "rough_conductor_anisotropic": _rough_conductor,
-    "rough_dielectric": _rough_dielectric,
-    "rough_dielectric_anisotropic": _rough_dielectric,
-    "lambertian": _lambertian,
+    "roughconductor": _rough_conductor,
+    "roughdielectric": _rough_dielectric,
+    "diffuse": _lambertian,
+    "plastic": _coated,
 }
-#: Layered constructors with a native equivalent (for some of their arguments).
-NATIVE_LAYERED: dict[str, Callable] = {"coated": _coated}
 
 
 def _component_materials(material: Material) -> list[Material] | None:
     """The components of a sum as materials of their own (None if ``material`` is no sum)."""
     from fitlab.models import get_model
-    from fitlab.models.composite import SEPARATOR, sum_names
-    from fitlab.models.syntax import split_top_level
 
-    names = split_top_level(material.model, SEPARATOR)
-    if len(names) < 2:
+    terms = get_model(material.model).terms
+    if not terms:
         return None
-    components = [get_model(n) for n in names]
-    pnames, onames = sum_names(components)
     out = []
-    for m, pn, on in zip(components, pnames, onames):
+    for m, pn, on in terms:
         channels = {c: {p.name: v[n] for p, n in zip(m.parameters, pn)}
                     for c, v in material.channels.items()}
         options = {o.name: material.options[n] for o, n in zip(m.options, on)
@@ -187,7 +181,7 @@ def _largest_scale(material: Material) -> float:
     from fitlab.models import get_model
 
     model = get_model(material.model)
-    if model.name not in NATIVE:
+    if model.translation("mitsuba") not in NATIVE:
         return 1.0
     if model.capabilities.lambertian:
         top = float(np.max(material.values(model.parameters_with_role("albedo")[0].name)))
@@ -220,7 +214,7 @@ def blend_weights(parts: list[Material]) -> np.ndarray:
 
 
 def _translate(material: Material, scale: float = 1.0) -> dict:
-    from fitlab.models.syntax import parse_call
+    from fitlab.models import get_model
 
     parts = _component_materials(material)
     if parts is not None:
@@ -233,11 +227,9 @@ def _translate(material: Material, scale: float = 1.0) -> dict:
             bsdf = {"type": "blendbsdf", "weight": _num(rest / (w[j] + rest)),
                     "bsdf_0": _translate(parts[j], scale / w[j]), "bsdf_1": bsdf}
         return bsdf
-    if material.model in NATIVE:
-        return NATIVE[material.model](material, scale)
-    call = parse_call(material.model)
-    if call is not None and call.func in NATIVE_LAYERED:
-        return NATIVE_LAYERED[call.func](material, scale)
+    plugin = get_model(material.model).translation("mitsuba")
+    if plugin in NATIVE:
+        return NATIVE[plugin](material, scale)
     _refuse(material.model, "Mitsuba 3 has no plugin that evaluates this model")
 
 
@@ -389,5 +381,5 @@ def scene_xml(bsdf: dict, *, preview: bool = False, comment: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["SEP", "plugin_property", "DISTRIBUTIONS", "NATIVE", "NATIVE_LAYERED", "MATERIAL_ID", "native_bsdf",
+__all__ = ["SEP", "plugin_property", "DISTRIBUTIONS", "NATIVE", "MATERIAL_ID", "native_bsdf",
            "plugin_bsdf", "preview_scene", "scene_xml"]

@@ -151,7 +151,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
                               f"{', '.join(m.channel_names)}")
         chan_ids = [m.channel_names.index(c) for c in channels]
     try:
-        result = fit_measurement(m, mdl.name, options=options, fixed=fixed, free=tuple(free or ()),
+        result = fit_measurement(m, mdl, options=options, fixed=fixed, free=tuple(free or ()),
                                  loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,
                                  mcmc_walkers=walkers, seed=seed, n_starts=starts, share=share,
                                  quiet=not progress, channels=chan_ids, warn=False,

@@ -15,7 +15,7 @@ from fitlab.fitting.least_squares import FitData
 from fitlab.fitting.losses import loss_weights
 from fitlab.fitting.space import SCALE, make_space, model_values
 from fitlab.fitting.status import Status
-from fitlab.models import get_model
+from fitlab.models import Model, get_model
 
 #: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
 #: error statistics (relative errors of near-zero data are meaningless).
@@ -150,8 +150,9 @@ def fitted_rows(m, c, rows_fit):
 def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None, start=None):
     """The model, its options, the fixed parameters (eta from the data file unless freed), notes
     for the user, the loss and the extra start point (the model's defaults, overridden by
-    ``start``): everything channels share."""
-    model = get_model(model_name)
+    ``start``): everything channels share. ``model_name``: a registry name or the Model
+    itself (a model carries its structure, so an unregistered one fits too)."""
+    model = model_name if isinstance(model_name, Model) else get_model(model_name)
     options = resolve_options(model, options)
     fixed = dict(fixed or {})
     notes = []

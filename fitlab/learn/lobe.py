@@ -31,21 +31,12 @@ SAMPLES = 20_000
 
 
 def stack_call(model_name: str):
-    """(layer kinds, delta) of a SpongeCake model name without substrate or multiple=."""
-    from fitlab.models import spongecake
-    from fitlab.models.syntax import parse_call
+    """The layer kinds of a SpongeCake model name without substrate or multiple=
+    (fitlab.models.spongecake.stack_kinds; ValueError for any other model)."""
+    from fitlab.models import get_model
+    from fitlab.models.spongecake import stack_kinds
 
-    call = parse_call(model_name)
-    if call is None or call.func != spongecake.NAME:
-        raise ValueError(f"{model_name!r} is not a SpongeCake model; the lobe fit takes "
-                         f"{spongecake.NAME}(LAYER[,LAYER...])")
-    kw = dict(call.kwargs)
-    if "substrate" in kw:
-        raise ValueError(f"{model_name}: the simulator's media have no substrate, so the lobe of "
-                         "a stack over a substrate cannot be simulated; fit the stack alone")
-    if kw.get("multiple", "none") != "none":
-        raise ValueError(f"{model_name}: give the single-scattering model (without multiple=)")
-    return tuple(call.args)
+    return stack_kinds(get_model(model_name))
 
 
 def stack_scene(kinds, channel_params: dict, *, theta_i=THETA_I, theta_bins=THETA_BINS,

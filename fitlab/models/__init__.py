@@ -87,6 +87,18 @@ def _add_layered_examples() -> None:
         MODELS.register(name, get_model(name), replace=True)
 
 
+def variant_name(model: Model, key: str, value: str | None) -> str | None:
+    """The name of ``model`` with its layered constructor's keyword ``key`` set to ``value``
+    (None: left out), or None for a model no constructor made."""
+    call = parse_call(model.name)
+    if call is None:
+        return None
+    args = list(call.args) + [f"{k}={v}" for k, v in call.kwargs if k != key]
+    if value is not None:
+        args.append(f"{key}={value}")
+    return f"{call.func}({','.join(args)})"
+
+
 def register_model(model: Model, *, replace: bool = False) -> Model:
     """Add ``model`` to the registry under ``model.name`` (``replace=True`` to redefine one).
 

@@ -105,6 +105,19 @@ class Option(NamedTuple):
     description: str
 
 
+class Term(NamedTuple):
+    """A model inside another, with the names its parameters and options carry there: a sum's
+    term (fitlab/models/composite.py renames repeated ones) or a layered model's inner model."""
+
+    model: "Model"
+    parameter_names: tuple[str, ...]
+    option_names: tuple[str, ...]
+
+    @classmethod
+    def same_names(cls, model: "Model") -> "Term":
+        return cls(model, model.parameter_names, tuple(o.name for o in model.options))
+
+
 class Model(NamedTuple):
     name: str
     summary: str
@@ -129,6 +142,25 @@ class Model(NamedTuple):
     #: for parameter values the simulator cannot express (data_formats/layered_models.md, "The
     #: simulator's scene of a model").
     scene_of: Callable | None = None
+    #: a sum's terms, each with its renamed parameters and options (() for other models)
+    terms: tuple[Term, ...] = ()
+    #: a layered model's inner models: a coat's inner model, Weidlich–Wilkie's base, the thin
+    #: layer's bottom, SpongeCake's substrate (() for other models)
+    inner: tuple[Term, ...] = ()
+    #: a layered constructor's arguments, (key, value) pairs: its keywords as written, and
+    #: SpongeCake's layer kinds under "kinds" (a tuple): code asks this instead of parsing names
+    arguments: tuple[tuple[str, object], ...] = ()
+    #: (renderer, its native plugin that evaluates this same f) pairs, e.g. ("mitsuba",
+    #: "roughconductor"); an exporter translates by plugin, never by model name
+    translations: tuple[tuple[str, str], ...] = ()
+
+    def translation(self, renderer: str) -> str | None:
+        """The native plugin of ``renderer`` that evaluates this model's f, or None."""
+        return dict(self.translations).get(renderer)
+
+    def argument(self, key: str, default=None):
+        """A layered constructor's keyword argument (``default`` where not written)."""
+        return dict(self.arguments).get(key, default)
 
     @property
     def lobes(self) -> str:

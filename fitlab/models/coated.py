@@ -36,7 +36,7 @@ from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refract_down,
                               refract_up, solid_angle_compression, transmittance)
 from fitlab.models import rough_conductor
-from fitlab.models.base import (OUTSIDE, Capabilities, Model, Option, Parameter,
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Option, Parameter, Term,
                                 absorbing_slab, interface, layered_scene, sample_result)
 from fitlab.models.syntax import call_arguments
 from fitlab.numerics import safe_div
@@ -230,6 +230,10 @@ def make_coated(inner: Model, specular: str = "delta") -> Model:
                 "(coated.specular_reflectance)", inner.capabilities.delta) if d)),
         exchangeable=inner.exchangeable,  # f_inner's repeated lobes still trade places
         scene_of=scene_of if inner.scene_of is not None else None,
+        inner=(Term.same_names(inner),),
+        arguments=(("specular", specular),),
+        # Mitsuba's plastic: a Lambertian under a smooth coat (export/mitsuba.py checks the rest)
+        translations=(("mitsuba", "plastic"),) if lambertian else (),
         reference=("bsdf_under_smooth_interface (f = T(θi)T(θo) η0²/η1² f_inner(ωi', ωo')); "
                    "Elek 2010 eq. 3 (absorption); Walter 2007 eq. 22 (Fresnel)" + lobe_note
                    + f"; inner: {inner.reference}"),

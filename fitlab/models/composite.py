@@ -24,7 +24,7 @@ from collections import Counter
 
 import jax.numpy as jnp
 
-from fitlab.models.base import Exchangeable, Model, Option, Parameter
+from fitlab.models.base import Exchangeable, Model, Option, Parameter, Term
 from fitlab.numerics import safe_div
 
 SEPARATOR = "+"
@@ -127,6 +127,7 @@ def make_sum(components: tuple[Model, ...]) -> Model:
         pdf=pdf,
         capabilities=capabilities,
         exchangeable=_exchangeable(components, pnames, onames),
+        terms=tuple(Term(m, tuple(pn), tuple(on)) for m, pn, on in zip(components, pnames, onames)),
         reference="; ".join(f"{m.name}: {m.reference}" for m in components)
         + "; one-sample mixture sampling with equal probabilities",
     )

@@ -87,6 +87,7 @@ LAMBERTIAN = Model(
     reference="Lambert; cosine-weighted hemisphere sampling",
     capabilities=Capabilities(lambertian=True),
     scene_of=scene_of_lambertian,
+    translations=(("mitsuba", "diffuse"),),
 )
 
 OREN_NAYAR = Model(

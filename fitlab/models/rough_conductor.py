@@ -93,6 +93,7 @@ def make(anisotropic: bool) -> Model:
         capabilities=Capabilities(isotropic=not anisotropic),
         microfacet=ndf,
         scene_of=scene_of,
+        translations=(("mitsuba", "roughconductor"),),
     )
 
 

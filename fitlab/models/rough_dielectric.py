@@ -175,6 +175,7 @@ def make(anisotropic: bool) -> Model:
         capabilities=Capabilities(transmission=True, isotropic=not anisotropic),
         microfacet=ndf,
         scene_of=scene_of,
+        translations=(("mitsuba", "roughdielectric"),),
     )
 
 

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 
 from fitlab.fresnel import fresnel_schlick
 from fitlab.frame import dot, normalize, reflect
-from fitlab.models.base import (OUTSIDE, Capabilities, Model, Parameter, choose_branch,
+from fitlab.models.base import (OUTSIDE, Capabilities, Model, Parameter, Term, choose_branch,
                                 layered_scene, sample_result)
 from fitlab.models.syntax import Call
 from fitlab.numerics import safe_div
@@ -428,6 +428,11 @@ def from_call(call: Call, get_model) -> Model:
 
 @functools.lru_cache(maxsize=None)
 def _cached(kinds, substrate, delta, multiple="none") -> Model:
+    return _structured(_built(kinds, substrate, delta, multiple), kinds, substrate, delta,
+                       multiple)
+
+
+def _built(kinds, substrate, delta, multiple) -> Model:
     base = make_spongecake(kinds, substrate, False if multiple == "only" else delta)
     if multiple == "none":
         return base
@@ -438,6 +443,35 @@ def _cached(kinds, substrate, delta, multiple="none") -> Model:
     # multiple=only has no scene: its parameters are the fitted lobe's, not the stack's
     return model if multiple == "only" else \
         model._replace(scene_of=with_multiple_scattering(base.scene_of))
+
+
+def _structured(model: Model, kinds, substrate, delta, multiple) -> Model:
+    """``model`` carrying its call's structure: the layer kinds (``kinds``), the substrate
+    (``inner``), delta and multiple as written."""
+    args = [("kinds", tuple(kinds))]
+    if substrate is not None:
+        args.append(("substrate", substrate.name))
+    if delta is not None:
+        args.append(("delta", "true" if delta else "false"))
+    if multiple != "none":
+        args.append(("multiple", multiple))
+    return model._replace(inner=(Term.same_names(substrate),) if substrate is not None else (),
+                          arguments=tuple(args))
+
+
+def stack_kinds(model: Model) -> tuple[str, ...]:
+    """The layer kinds of a single-scattering SpongeCake stack without substrate (what the
+    simulator can trace and the lobe fit takes); ValueError for any other model."""
+    kinds = model.argument("kinds")
+    if kinds is None:
+        raise ValueError(f"{model.name!r} is not a SpongeCake model; the lobe fit takes "
+                         f"{NAME}(LAYER[,LAYER...])")
+    if model.inner:
+        raise ValueError(f"{model.name}: the simulator's media have no substrate, so the lobe of "
+                         "a stack over a substrate cannot be simulated; fit the stack alone")
+    if model.argument("multiple", "none") != "none":
+        raise ValueError(f"{model.name}: give the single-scattering model (without multiple=)")
+    return tuple(kinds)
 
 
 def with_multiple_scattering(scene_of):

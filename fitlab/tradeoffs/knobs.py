@@ -361,8 +361,7 @@ def _model_variants(ctx: Context) -> list[tuple[str, str, dict, dict]]:
     """(label, model, options, channels) of the material and its layered-physics variants:
     every other value of its LAYERED_OPTIONS, and the model with or without a KEYWORD_VARIANTS
     keyword (parameters restricted to the other model's)."""
-    from fitlab.models import get_model
-    from fitlab.models.syntax import parse_call
+    from fitlab.models import get_model, variant_name
 
     m = ctx.material
     out = [(f"{m.model} (the material)", m.model, dict(m.options), m.channels)]
@@ -373,28 +372,26 @@ def _model_variants(ctx: Context) -> list[tuple[str, str, dict, dict]]:
         for v in map(str, o.choices):
             if v != current:
                 out.append((f"{o.name}={v}", m.model, {**m.options, o.name: v}, m.channels))
-    call = parse_call(m.model)
-    if call is not None:
-        kwargs = dict(call.kwargs)
-        for kw, values in KEYWORD_VARIANTS.items():
-            rest = list(call.args) + [f"{k}={v}" for k, v in call.kwargs if k != kw]
-            if kw in kwargs:
-                tries = [(f"without {kw}={kwargs[kw]}", f"{call.func}({','.join(rest)})")]
-            else:
-                tries = [(f"with {kw}={v}", f"{call.func}({','.join(rest + [f'{kw}={v}'])})")
-                         for v in values]
-            for label, name in tries:
-                try:
-                    other = get_model(name)
-                except ValueError:
-                    continue
-                names = set(other.parameter_names)
-                if not names <= set(ctx.model.parameter_names):
-                    continue  # it needs parameters the material does not have
-                valid = {o.name for o in other.options}
-                out.append((label, name, {k: v for k, v in m.options.items() if k in valid},
-                            {c: {k: v for k, v in p.items() if k in names}
-                             for c, p in m.channels.items()}))
+    for kw, values in KEYWORD_VARIANTS.items():
+        current = ctx.model.argument(kw)
+        if current is not None:
+            tries = [(f"without {kw}={current}", variant_name(ctx.model, kw, None))]
+        else:
+            tries = [(f"with {kw}={v}", variant_name(ctx.model, kw, v)) for v in values]
+        for label, name in tries:
+            if name is None:  # no layered constructor made this model
+                continue
+            try:
+                other = get_model(name)
+            except ValueError:
+                continue
+            names = set(other.parameter_names)
+            if not names <= set(ctx.model.parameter_names):
+                continue  # it needs parameters the material does not have
+            valid = {o.name for o in other.options}
+            out.append((label, name, {k: v for k, v in m.options.items() if k in valid},
+                        {c: {k: v for k, v in p.items() if k in names}
+                         for c, p in m.channels.items()}))
     return out
 
 
