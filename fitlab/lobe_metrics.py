@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fitlab import metrics
+
 #: Values below this fraction of a channel's largest f·cos are left out of relative errors.
 ERROR_FLOOR = 1e-3
 #: Side of the lobe images (pixels).
@@ -42,11 +44,8 @@ def relative_errors(ref: np.ndarray, test: np.ndarray, cos_o: np.ndarray,
     a, b = ref * np.abs(cos_o)[:, None], test * np.abs(cos_o)[:, None]
     if not a.size:
         return {"relative_rms": 0.0, "relative_max": 0.0, "pairs": 0}
-    rel = []
-    for c in range(a.shape[1]):
-        keep = a[:, c] > floor * a[:, c].max() if a[:, c].max() > 0 else np.zeros(len(a), bool)
-        rel.append((b[keep, c] - a[keep, c]) / a[keep, c])
-    rel = np.concatenate(rel)
+    rel = np.concatenate([metrics.relative_errors(b[:, c], a[:, c], floor)[0]
+                          for c in range(a.shape[1])])
     if not rel.size:
         return {"relative_rms": 0.0, "relative_max": 0.0, "pairs": 0}
     return {"relative_rms": float(np.sqrt(np.mean(rel ** 2))),

@@ -15,11 +15,11 @@ from fitlab.fitting.least_squares import FitData
 from fitlab.fitting.losses import loss_weights
 from fitlab.fitting.space import SCALE, make_space, model_values
 from fitlab.fitting.status import Status
+from fitlab.metrics import REL_ERR_FLOOR, relative_errors
 from fitlab.models import Model, get_model
 
-#: Rows whose |value| is below this fraction of the channel's maximum are left out of relative
-#: error statistics (relative errors of near-zero data are meaningless).
-REL_ERR_FLOOR = 0.01
+#: Rows whose |value| is below REL_ERR_FLOOR of the channel's maximum are left out of relative
+#: error statistics (fitlab/metrics.py: the one rule).
 
 
 class FitWarning(UserWarning):
@@ -76,12 +76,6 @@ def _scale_reference(model, options, start, m, rows, in_chan):
         pos = f > 0
         s = float(np.median(np.abs(v[pos])) / np.median(f[pos])) if pos.any() else 1.0
     return max(s, 1e-300)
-
-
-def relative_errors(pred, value):
-    floor = REL_ERR_FLOOR * np.max(np.abs(value)) if value.size else 0.0
-    keep = np.abs(value) >= floor
-    return (pred[keep] - value[keep]) / value[keep], keep
 
 
 def _rms(x):

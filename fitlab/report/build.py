@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fitlab.errors import FitlabError
-from fitlab.fitting.channel import REL_ERR_FLOOR, relative_errors
+from fitlab.metrics import REL_ERR_FLOOR, relative_errors
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
 from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,

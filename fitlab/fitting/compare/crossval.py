@@ -1,0 +1,168 @@
+"""Incidences, relative errors, the jackknife, and leave-one-incidence-out cross-validation of
+one candidate (and its in-sample errors under the same rule)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+from fitlab.fitting.compare.candidates import Resolved
+from fitlab.fitting.compare.common import relative_errors
+from fitlab.fitting.status import Status
+
+
+# --------------------------------------------------------------------------------------------
+# Incidences, relative errors, the jackknife
+# --------------------------------------------------------------------------------------------
+
+
+def incidence_keys(m) -> np.ndarray:
+    """(θi, φi mod 360) of every row, degrees (the fit statistics' grouping)."""
+    return np.stack([m.theta_i, np.mod(m.phi_i, 360.0)], axis=1)
+
+
+def incidences_of(m, rows) -> list[tuple[float, float]]:
+    keys = incidence_keys(m)[rows]
+    return [(float(t), float(p)) for t, p in np.unique(keys, axis=0)] if keys.size else []
+
+
+def _rel_err_floor() -> float:
+    from fitlab.fitting.channel import REL_ERR_FLOOR
+
+    return REL_ERR_FLOOR
+
+
+def _rms(x) -> float | None:
+    x = np.asarray(x, float)
+    return float(np.sqrt(np.mean(x * x))) if x.size else None
+
+
+def jackknife_difference(sq_a, sq_b, counts) -> tuple[float, float]:
+    """(Δ, its standard error) of Δ = RMS_a − RMS_b, where fold k holds ``counts[k]`` rows whose
+    squared errors sum to ``sq_a[k]`` and ``sq_b[k]``: the delete-one-fold jackknife."""
+    sq_a, sq_b, n = (np.asarray(x, float) for x in (sq_a, sq_b, counts))
+    full = math.sqrt(sq_a.sum() / n.sum()) - math.sqrt(sq_b.sum() / n.sum())
+    k = n.size
+    if k < 2:
+        return full, float("nan")
+    rest = n.sum() - n
+    ok = rest > 0
+    d = np.sqrt((sq_a.sum() - sq_a[ok]) / rest[ok]) - np.sqrt((sq_b.sum() - sq_b[ok]) / rest[ok])
+    se = math.sqrt((k - 1) / k * float(np.sum((d - d.mean()) ** 2)))
+    return full, se
+
+
+# --------------------------------------------------------------------------------------------
+# Cross-validation
+# --------------------------------------------------------------------------------------------
+
+
+def _masked(data_all, data_kept, kept):
+    """``data_all`` (every row of the fit) with the loss constants of a fit to the ``kept``
+    rows, and the row mask that zeroes the others (their constants are a kept row's: finite)."""
+    import jax
+
+    from fitlab.fitting.least_squares import ROW_MASK
+
+    consts = {}
+    for key, v in data_kept.consts.items():
+        v = np.asarray(v)
+        full = np.empty(kept.shape + v.shape[1:], v.dtype)
+        full[kept] = v
+        full[~kept] = v[0]
+        consts[key] = full
+    consts[ROW_MASK] = kept.astype(np.float64)
+    return jax.device_put(data_all._replace(consts=consts))
+
+
+def aperture_order(result, channel_name):
+    """The aperture quadrature order a fit used for a channel (data with an aperture), or None."""
+    return (result._fit(channel_name).get("aperture") or {}).get("order")
+
+
+def _predict(space, native, m, in_chan, order=None):
+    """The model at every row of a channel, as the fit predicts them (fitlab.fitting.driver):
+    at the rows' directions, or averaged over their apertures."""
+    if order is None:
+        return space.predict(native, m.wi[in_chan], m.wo[in_chan])
+    from fitlab.fitting.aperture import predict_rows
+
+    return predict_rows(space, native, m, in_chan, order)
+
+
+def _channel_problem(m, base, rows, order):
+    from fitlab.fitting.channel import channel_problem
+
+    extra = {} if order is None else {"aperture_order": order}
+    return channel_problem(m, base["model"], base["options"], base["fixed"], base["loss"],
+                           base["start"], rows, m.channel_names[base["channel"]],
+                           base["in_chan"], **extra)
+
+
+def _problem(m, cand: Resolved, loss, rows, channel, order=None):
+    """(model, options, fixed, loss, start, space, data) of a fit of ``rows`` of a channel,
+    exactly as fitlab.fit builds it (``order``: its aperture quadrature order, if any)."""
+    from fitlab.fitting.channel import resolve_fit
+
+    mdl, options, fixed, _, loss, start = resolve_fit(m, cand.model.name, options=cand.options,
+                                                      fixed=cand.fix, free=cand.free, loss=loss,
+                                                      start=cand.start)
+    base = {"model": mdl, "options": options, "fixed": fixed, "loss": loss, "start": start,
+            "channel": channel, "in_chan": m.channel == channel, "order": order}
+    space, data, start_native = _channel_problem(m, base, rows, order)
+    return {**base, "space": space, "data": data, "start_native": start_native}
+
+
+def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, order=None,
+                   on_fold=None):
+    """Leave-one-incidence-out CV of one candidate on one channel's ``rows`` (bool, all rows of
+    the measurement; ``order``: the fit's aperture quadrature order, if any). Returns one dict
+    per incidence: theta_i, phi_i, rel (held-out relative errors of the counted rows),
+    parameters (the fold's fit), warnings, error (a fold that could not be fitted)."""
+    from fitlab.fitting.channel import least_squares_warnings
+    from fitlab.fitting.least_squares import fit_least_squares
+
+    base = _problem(m, cand, loss, rows, channel, order)
+    in_chan = base["in_chan"]
+    keys = incidence_keys(m)
+    folds = []
+    for ti, pi in incidences_of(m, rows):
+        held = rows & (keys[:, 0] == ti) & (keys[:, 1] == pi)
+        kept = rows & ~held
+        fold = {"theta_i": ti, "phi_i": pi, "rel": np.zeros(0), "parameters": None,
+                "warnings": [], "error": None}
+        try:
+            space, data_k, start_native = _channel_problem(m, base, kept, order)
+            data = _masked(base["data"], data_k, kept[rows])
+            ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
+                                   n_starts=starts, seed=seed)
+            if ls.solver["stopped"] == Status.NON_FINITE:
+                raise ValueError("no start reached a finite cost")
+            pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
+            fold["rel"], _ = relative_errors(pred, m.value[held])
+            fold["parameters"] = {n: float(v) for n, v in zip(space.names, ls.native)}
+            fold["warnings"] = least_squares_warnings(ls)
+        except (ValueError, FitlabError) as exc:
+            fold["error"] = str(exc)
+        folds.append(fold)
+        if on_fold is not None:
+            on_fold(fold)
+    return folds
+
+
+def in_sample_errors(m, cand: Resolved, result, loss, rows, channel):
+    """Relative errors of the full fit at each incidence's counted rows (the CV's rule)."""
+    name = m.channel_names[channel]
+    order = aperture_order(result, name)
+    base = _problem(m, cand, loss, rows, channel, order)
+    space, in_chan = base["space"], base["in_chan"]
+    params = result.parameters[name]
+    pred = _predict(space, np.array([params[n] for n in space.names]), m, in_chan, order)
+    keys = incidence_keys(m)
+    out = []
+    for ti, pi in incidences_of(m, rows):
+        held = rows & (keys[:, 0] == ti) & (keys[:, 1] == pi)
+        out.append(relative_errors(pred[held[in_chan]], m.value[held])[0])
+    return out
