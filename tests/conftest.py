@@ -222,6 +222,30 @@ def _release_after_module(request):
     _release_compiled_code(request.module)
 
 
+#: The modules whose quick cases tests/test_compiler_settings.py runs again in a child session
+#: under XLA's defaults (what users get).
+DEFAULTS_CHECKED_MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py",
+                            "tests/test_sampling.py")
+DEFAULTS_SESSION_TEST = "test_compiler_settings.py::test_contract_holds_under_xla_default_settings"
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """A session that runs the child session under XLA's defaults (the whole suite) runs the
+    quick cases of DEFAULTS_CHECKED_MODULES there only, under the settings users get, and not a
+    second time at the tests' fast-compile settings: the same checks, compiled once. Their slow
+    cases, and every case in a session without the child (the quick tier), run here."""
+    if not FAST_COMPILE or not any(i.nodeid.endswith(DEFAULTS_SESSION_TEST) for i in items):
+        return
+    root = str(config.rootpath)
+    again = [i for i in items if i.get_closest_marker("slow") is None
+             and os.path.relpath(str(i.path), root) in DEFAULTS_CHECKED_MODULES]
+    if again:
+        config.hook.pytest_deselected(items=again)
+        keep = set(map(id, again))
+        items[:] = [i for i in items if id(i) not in keep]
+
+
 _OPTIMIZED = {"now": not FAST_COMPILE}
 
 

@@ -1,8 +1,10 @@
 """The suite compiles with fast-compile XLA settings (tests/conftest.py: TEST_XLA_FLAGS); users
 get XLA's defaults. This runs the numerics that depend most on code generation — the registry
 contract (values and gradients on the hard cases in float32 and float64, sampling weights and
-pdfs, reciprocity, white furnace), the hard-case tests and the sampling tests — again in a child
-session under XLA's defaults, so that both configurations are tested."""
+pdfs, reciprocity, white furnace), the hard-case tests and the sampling tests — in a child
+session under XLA's defaults. A session that runs this test (the whole suite) runs those quick
+cases there only, under the settings users get; the quick tier, without it, runs them at the
+fast-compile settings (conftest.pytest_collection_modifyitems)."""
 
 from __future__ import annotations
 
@@ -13,13 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from conftest import (NO_OPTIMIZATION_ENV, TEST_XLA_FLAGS, XLA_DEFAULTS_ENV, _release_compiled_code,
-                      user_environment, xla_default_flags)
+from conftest import (DEFAULTS_CHECKED_MODULES, NO_OPTIMIZATION_ENV, TEST_XLA_FLAGS, XLA_DEFAULTS_ENV,
+                      _release_compiled_code, user_environment, xla_default_flags)
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: The modules run again under XLA's defaults (their quick cases).
-MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py", "tests/test_sampling.py")
+#: The modules run under XLA's defaults (their quick cases; a session that runs this test runs
+#: them only there: conftest.pytest_collection_modifyitems).
+MODULES = DEFAULTS_CHECKED_MODULES
 
 
 def test_default_flags_strip_only_the_test_settings():
