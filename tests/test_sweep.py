@@ -7,8 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -24,9 +22,22 @@ SWEEPS = ROOT / "data_formats" / "examples" / "sweeps"
 GRID = SWEEPS / "coated_lambertian_grid.toml"
 
 
-def _cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "fitlab.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd)
+def _cli(*args):
+    """``fitlab ARGS`` run in this process (as main() runs it; a child process would spend most
+    of its time importing): its exit status and what it printed."""
+    import contextlib
+    import io
+    import types
+
+    from fitlab.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse
+            code = exc.code
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def test_valid_examples_load_with_their_points():
