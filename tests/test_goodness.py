@@ -443,6 +443,7 @@ def test_checks_pass_at_their_nominal_rate(with_sigma):
 
 
 @pytest.mark.slow
+@pytest.mark.optimized  # the bootstrap's refits: 14 s at -O0, 5.5 s optimized (alone)
 def test_bootstrap_agrees_with_least_squares_when_the_model_is_right():
     """Right model, right noise, 12 incidences: the bootstrap standard error of α agrees with
     the least-squares one (geometric mean of the ratio over 6 datasets within [0.7, 1.4]; each

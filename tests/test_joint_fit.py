@@ -130,6 +130,7 @@ def test_share_on_one_channel_is_an_independent_fit(rgb):
 
 
 @pytest.mark.slow
+@pytest.mark.optimized  # the quadrature fits: 17 s at -O0, 10 s optimized (alone)
 def test_joint_fit_of_data_with_an_aperture(rgb):
     """Rows that average over a 0.5° detector cone: the joint problem carries every channel's
     aperture nodes, and each channel records the quadrature and its measured error."""

@@ -170,8 +170,8 @@ SLOW_TABLES = {"albedo_dielectric", "thin_layer"}
 
 
 @pytest.mark.parametrize("texelfetch", [False, True], ids=["hw_bilinear", "texelfetch"])
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TABLES
-                                  else n for n in TABLES])
+@pytest.mark.parametrize("name", [pytest.param(n, marks=(pytest.mark.slow, pytest.mark.optimized))
+                                  if n in SLOW_TABLES else n for n in TABLES])
 def test_glsl_reproduces_direct_evaluation(gl, tmp_path, name, texelfetch, record_property):
     if name not in _BAKED:  # the same table for both filtering paths
         spec = TABLES[name]()

@@ -79,7 +79,7 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
     from fitlab.export.paramfile import build_record, chains_payload, run_timings
     from fitlab.fitting.driver import fit_measurement
     from fitlab.fitting.result import FitResult
-    from fitlab.fitting.subset import subset_mask
+    from fitlab.fitting.subset import channel_ids, rows_of
     from fitlab.io.measurement import one_dataset, sanity_warnings
 
     m = one_dataset(read(measurement) if not hasattr(measurement, "value") else measurement)
@@ -133,23 +133,9 @@ def fit(measurement, model, *, fix: dict | None = None, free=(), options: dict |
             not 1 <= lm_maxiter <= MAX_LM_MAXITER:
         raise FitlabError(f"lm_maxiter must be an integer from 1 to {MAX_LM_MAXITER}, got "
                           f"{lm_maxiter!r}")
-    expr = subset if isinstance(subset, str) else None
-    if isinstance(subset, str):
-        mask = subset_mask(subset, m)
-    elif subset is not None:
-        mask = np.asarray(subset, dtype=bool)
-        if mask.shape != (m.n,):
-            raise FitlabError(f"subset: a mask of {m.n} rows is needed, got shape {mask.shape}")
-    else:
-        mask = None
-    chan_ids = None
-    if channels is not None:
-        channels = [channels] if isinstance(channels, str) else list(channels)
-        unknown = [c for c in channels if c not in m.channel_names]
-        if unknown:
-            raise FitlabError(f"channel {', '.join(unknown)}: {m.path} has channels "
-                              f"{', '.join(m.channel_names)}")
-        chan_ids = [m.channel_names.index(c) for c in channels]
+    expr, mask = rows_of(subset, m)
+    mask = None if subset is None else mask
+    chan_ids = channel_ids(channels, m)
     try:
         result = fit_measurement(m, mdl, options=options, fixed=fixed, free=tuple(free or ()),
                                  loss=loss, subset=mask, mcmc=mcmc, mcmc_steps=mcmc_steps,

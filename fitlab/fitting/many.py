@@ -188,7 +188,7 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
 def _problems(measurements, model, *, fix, free, options, loss, subset):
     """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
     from fitlab.fitting.channel import channel_problem, fitted_rows, resolve_fit
-    from fitlab.fitting.subset import subset_mask
+    from fitlab.fitting.subset import rows_of
 
     problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
     for i, m in enumerate(measurements):
@@ -197,12 +197,7 @@ def _problems(measurements, model, *, fix, free, options, loss, subset):
                                                               fixed=fix, free=free, loss=loss)
         except ValueError as exc:
             raise FitlabError(f"{m.path}: {exc}") from None
-        if subset is None:
-            mask = np.ones(m.n, dtype=bool)
-        elif isinstance(subset, str):
-            mask = subset_mask(subset, m)
-        else:
-            mask = np.asarray(subset, dtype=bool)
+        _, mask = rows_of(subset, m)
         rows.append(mask)
         fixed_all.append(fixed)
         notes_all.append(notes)

@@ -38,6 +38,35 @@ def _specular_deg(wi, wo):
 MAX_EXPRESSION = 2000
 
 
+def rows_of(subset, measurement) -> tuple[str | None, np.ndarray]:
+    """(the expression or None, the boolean mask of the fitted rows) of a fit's ``subset``: an
+    expression (:func:`subset_mask`), a boolean mask of the measurement's rows, or None (every
+    row). The one check fit, compare and fit_many share."""
+    n = measurement.n
+    if isinstance(subset, str):
+        return subset, subset_mask(subset, measurement)
+    if subset is None:
+        return None, np.ones(n, dtype=bool)
+    mask = np.asarray(subset, dtype=bool)
+    if mask.shape != (n,):
+        raise FitlabError(f"subset: a mask of {n} rows is needed, got shape {mask.shape}")
+    return None, mask
+
+
+def channel_ids(channels, measurement, what: str = "channel") -> list[int] | None:
+    """The indices of the named channels (a name or a list of names; None: None, every
+    channel), each checked against the measurement's (``what`` names the argument in the
+    message)."""
+    if channels is None:
+        return None
+    channels = [channels] if isinstance(channels, str) else list(channels)
+    unknown = [c for c in channels if c not in measurement.channel_names]
+    if unknown:
+        raise FitlabError(f"{what} {', '.join(unknown)}: {measurement.path} has channels "
+                          f"{', '.join(measurement.channel_names)}")
+    return [measurement.channel_names.index(c) for c in channels]
+
+
 def subset_mask(expr: str, measurement, source: str = "--fit-subset") -> np.ndarray:
     """Rows of ``measurement`` the expression selects. ``source`` names where the expression
     came from in messages (the option, or a parameter file's field)."""

@@ -91,7 +91,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
     likelihood). progress: a bar with the time left on stderr."""
     from fitlab.fitting.api import fit, read
-    from fitlab.fitting.subset import subset_mask
+    from fitlab.fitting.subset import channel_ids, rows_of
 
     m = read(measurement) if not hasattr(measurement, "value") else measurement
     cands = resolve_candidates(models, fix, options, free)
@@ -107,24 +107,9 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     if loss is not None and loss not in LOSSES:
         raise FitlabError(f"--loss {loss}: {LOSSES.unknown(loss)}")
     loss = loss or ("chi2" if m.sigma is not None else "relative")
-    expr = subset if isinstance(subset, str) else None
-    if isinstance(subset, str):
-        rows_fit = subset_mask(subset, m)
-    elif subset is not None:
-        rows_fit = np.asarray(subset, dtype=bool)
-        if rows_fit.shape != (m.n,):
-            raise FitlabError(f"subset: a mask of {m.n} rows is needed, got {rows_fit.shape}")
-    else:
-        rows_fit = np.ones(m.n, dtype=bool)
-    if channels is None:
-        chan_ids = list(range(len(m.channel_names)))
-    else:
-        channels = [channels] if isinstance(channels, str) else list(channels)
-        unknown = [c for c in channels if c not in m.channel_names]
-        if unknown:
-            raise FitlabError(f"--channel {', '.join(unknown)}: {m.path} has channels "
-                              f"{', '.join(m.channel_names)}")
-        chan_ids = [m.channel_names.index(c) for c in channels]
+    expr, rows_fit = rows_of(subset, m)
+    chan_ids = channel_ids(channels, m, "--channel")
+    chan_ids = list(range(len(m.channel_names))) if chan_ids is None else chan_ids
     chan_ids = [c for c in chan_ids if np.any(rows_fit & (m.channel == c))]
     if not chan_ids:
         raise FitlabError(f"{m.path}: no row is left to fit (check --fit-subset and --channel)")
