@@ -29,9 +29,17 @@ from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E4
 from fitlab.export.renderers import export_material  # noqa: E402
 from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
 from fitlab.tradeoffs import Tradeoffs, tradeoffs  # noqa: E402
-from fitlab.report.api import write_report  # noqa: E402
 
 __all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
            "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
            "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs",
            "write_report"]
+
+
+def __getattr__(name):
+    # write_report loads the report package (matplotlib): on first use, not with `import fitlab`
+    if name == "write_report":
+        from fitlab.report.api import write_report
+
+        return write_report
+    raise AttributeError(f"module 'fitlab' has no attribute {name!r}")

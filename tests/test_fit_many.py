@@ -59,6 +59,20 @@ def test_recovers_known_values_and_chunks_do_not_change_results(synthetic):
     np.testing.assert_allclose(a1, a2, rtol=1e-9)
     assert np.all(np.abs(a1 - truth) <= 0.05 * truth), (a1, truth)  # 5 % noise, 69 rows
     assert [f.dataset for f in one.fits] == list(range(5))
+    # statuses by the single fit's rule (fitlab.fitting.status): these converge inside the box
+    assert one.ok and all(one.statuses(k) == ("converged",) for k in range(5))
+    assert one.raise_for_status() is one
+
+
+def test_a_fit_stopped_by_its_iteration_limit_is_not_ok(synthetic):
+    from fitlab.errors import FitlabError
+    from fitlab.fitting.status import Status
+
+    ms, _ = synthetic
+    short = fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1)
+    assert not short.ok and Status.MAX_ITERATIONS in short.statuses(0)
+    with pytest.raises(FitlabError, match="dataset 0 channel Y: max_iterations"):
+        fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1, throw=True)
 
 
 def test_structures_are_grouped(synthetic):

@@ -24,6 +24,7 @@ import numpy as np
 from fitlab.errors import FitlabError
 from fitlab.fitting.batch import CHUNK, SCAN, STARTS, BatchResult, Problem, chunks, fit_chunk, group
 from fitlab.fitting.least_squares import LM_MAXITER, LeastSquaresResult, lm_record
+from fitlab.fitting.status import Status, channel_statuses
 
 #: Columns of the table before the per-parameter ones.
 TABLE_COLUMNS = ("dataset", "source", "channel", "rows_fitted", "cost", "dof", "noise_scale",
@@ -71,6 +72,32 @@ class ManyResult(NamedTuple):
             if f.dataset == dataset and (channel is None or f.channel == channel):
                 return dict(zip(f.names, map(float, f.native)))
         raise KeyError((dataset, channel))
+
+    def statuses(self, dataset: int, channel: str | None = None) -> tuple[Status, ...]:
+        """What limits trust in one dataset's fit (and channel): fitlab.fitting.status, by the
+        same rule as a single fit's (its solver's stop, parameters at a bound, the chain)."""
+        for f in self.fits:
+            if f.dataset == dataset and (channel is None or f.channel == channel):
+                return channel_statuses({
+                    "solver": {"stopped": f.lm_stopped},
+                    "parameters": {n: {"at_bound": n in f.at_bound} for n in f.names},
+                    "mcmc": None if f.mcmc is None else {"trustworthy": f.mcmc.trustworthy}})
+        raise KeyError((dataset, channel))
+
+    @property
+    def ok(self) -> bool:
+        """Whether every dataset's fit can be used as it stands."""
+        return all(s.ok for f in self.fits for s in self.statuses(f.dataset, f.channel))
+
+    def raise_for_status(self) -> "ManyResult":
+        """This result if it is :attr:`ok`, else a FitlabError naming each fit's statuses."""
+        bad = [(f, s) for f in self.fits for s in self.statuses(f.dataset, f.channel)
+               if not s.ok]
+        if bad:
+            raise FitlabError("fits not to be trusted as they stand: " + "; ".join(
+                f"dataset {f.dataset} channel {f.channel}: {s.value} ({s.advice})"
+                for f, s in bad))
+        return self
 
     def table(self, out=None) -> str:
         """Every fit as CSV text (data_formats/fit_table_csv.md): one row per dataset and
@@ -247,7 +274,8 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
              options: dict | None = None, loss: str | None = None, subset=None,
              starts: int = STARTS, scan: int = SCAN, seed: int = 0,
              lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK, mcmc: bool = False,
-             mcmc_steps: int = 1000, chains: int = 4, progress: bool = False) -> ManyResult:
+             mcmc_steps: int = 1000, chains: int = 4, progress: bool = False,
+             throw: bool = False) -> ManyResult:
     """Fit ``model`` to every channel of every measurement (Measurements or paths; a file with
     a ``dataset`` column is one measurement per dataset, ``ManyResult.measurements``) with
     batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
@@ -257,7 +285,9 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
     model's defaults; ``chunk``: datasets per compiled call (memory grows with it); ``mcmc``:
     also the posterior of every dataset by NUTS (blackjax; ``chains`` chains × ``mcmc_steps``
     adaptation and draws), vmapped over the datasets of a chunk as well (emcee, the single
-    fit's reference sampler, is not batched: use fitlab.fit per file)."""
+    fit's reference sampler, is not batched: use fitlab.fit per file). ``throw``: raise a
+    FitlabError naming the fits that are not ``ok`` (``ManyResult.statuses``) instead of
+    returning them."""
     from fitlab.models import get_model
     from fitlab.fitting.api import parameter_values, read
 
@@ -318,8 +348,9 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
     settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
                 "chunk": chunk, "mcmc": mcmc, "spaces": spaces, "rows": rows,
                 "subset_expr": subset if isinstance(subset, str) else None}
-    return ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
-                      time.perf_counter() - t0, settings)
+    out = ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
+                     time.perf_counter() - t0, settings)
+    return out.raise_for_status() if throw else out
 
 
 __all__ = ["fit_many", "ManyResult", "Fitted", "TABLE_COLUMNS", "output_name"]
