@@ -52,6 +52,15 @@ class Fitted(NamedTuple):
     mcmc: object = None
 
 
+def _statuses_of(f: Fitted) -> tuple[Status, ...]:
+    """A batched fit's statuses by the single fit's rule (fitlab.fitting.status), from the
+    parts of a parameter file's channel entry it has."""
+    return channel_statuses({
+        "solver": {"stopped": f.lm_stopped},
+        "parameters": {n: {"at_bound": n in f.at_bound} for n in f.names},
+        "mcmc": None if f.mcmc is None else {"trustworthy": f.mcmc.trustworthy}})
+
+
 class ManyResult(NamedTuple):
     """Every dataset's fit (``fits``, in dataset then channel order) and the run's facts."""
 
@@ -78,21 +87,21 @@ class ManyResult(NamedTuple):
         same rule as a single fit's (its solver's stop, parameters at a bound, the chain)."""
         for f in self.fits:
             if f.dataset == dataset and (channel is None or f.channel == channel):
-                return channel_statuses({
-                    "solver": {"stopped": f.lm_stopped},
-                    "parameters": {n: {"at_bound": n in f.at_bound} for n in f.names},
-                    "mcmc": None if f.mcmc is None else {"trustworthy": f.mcmc.trustworthy}})
+                return _statuses_of(f)
         raise KeyError((dataset, channel))
+
+    def _untrusted(self) -> list[tuple[Fitted, Status]]:
+        """(fit, status) of every status that is not ``ok``."""
+        return [(f, s) for f in self.fits for s in _statuses_of(f) if not s.ok]
 
     @property
     def ok(self) -> bool:
         """Whether every dataset's fit can be used as it stands."""
-        return all(s.ok for f in self.fits for s in self.statuses(f.dataset, f.channel))
+        return not self._untrusted()
 
     def raise_for_status(self) -> "ManyResult":
         """This result if it is :attr:`ok`, else a FitlabError naming each fit's statuses."""
-        bad = [(f, s) for f in self.fits for s in self.statuses(f.dataset, f.channel)
-               if not s.ok]
+        bad = self._untrusted()
         if bad:
             raise FitlabError("fits not to be trusted as they stand: " + "; ".join(
                 f"dataset {f.dataset} channel {f.channel}: {s.value} ({s.advice})"

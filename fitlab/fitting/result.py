@@ -195,18 +195,22 @@ class FitResult:
         does; fitlab.fitting.status): read from the record, so a loaded fit answers alike."""
         return channel_statuses(thaw(self._fit(channel)))
 
+    def _untrusted(self) -> list[tuple[str, Status]]:
+        """(channel, status) of every status that is not ``ok``."""
+        return [(f["channel"], s) for f in self.record["fits"]
+                for s in channel_statuses(thaw(f)) if not s.ok]
+
     @property
     def ok(self) -> bool:
         """Whether every channel's fit can be used as it stands (every status ``ok``)."""
-        return all(s.ok for f in self.record["fits"] for s in channel_statuses(thaw(f)))
+        return not self._untrusted()
 
     def raise_for_status(self) -> "FitResult":
         """This result if it is :attr:`ok`, else a :class:`fitlab.errors.FitlabError` naming
         each channel's statuses and what to do about each."""
         from fitlab.errors import FitlabError
 
-        bad = [(f["channel"], s) for f in self.record["fits"]
-               for s in channel_statuses(thaw(f)) if not s.ok]
+        bad = self._untrusted()
         if bad:
             raise FitlabError("the fit is not to be trusted as it stands: " + "; ".join(
                 f"channel {ch}: {s.value} ({s.advice})" for ch, s in bad))

@@ -7,6 +7,7 @@ lists them in detection order (the most specific signatures first, fitlab's own 
 
 from __future__ import annotations
 
+import functools
 import importlib
 from pathlib import Path
 
@@ -29,15 +30,12 @@ READER_MODULES = (
 )
 
 
-_FORMATS: list[Registry[Format]] = []  # built on first use (importing every reader module)
-
-
+@functools.cache
 def formats() -> Registry[Format]:
-    """The formats fitlab reads, in detection order."""
-    if not _FORMATS:
-        fmts = [importlib.import_module(mod).FORMAT for mod in READER_MODULES]
-        _FORMATS.append(Registry("format", {f.name: f for f in fmts}, listing="`fitlab info`"))
-    return _FORMATS[0]
+    """The formats fitlab reads, in detection order (built on first use: it imports every
+    reader module)."""
+    fmts = [importlib.import_module(mod).FORMAT for mod in READER_MODULES]
+    return Registry("format", {f.name: f for f in fmts}, listing="`fitlab info`")
 
 
 def detect_format(path, name: str | None = None) -> Format:

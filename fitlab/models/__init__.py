@@ -107,15 +107,13 @@ def register_model(model: Model, *, replace: bool = False) -> Model:
     one; the listed layered examples are rebuilt from the new registry."""
     if not isinstance(model, Model):
         raise TypeError(f"register_model needs a fitlab.models.Model, got {type(model).__name__}")
-    if not replace and model.name in MODELS:
-        MODELS.register(model.name, model)  # the registry's error: already registered
     if any(ch in model.name for ch in f"(),{SEPARATOR}= "):
         raise ValueError(f"model name {model.name!r}: use letters, digits and '_' only")
     for p in model.parameters:
         if p.role not in ROLES:
             raise ValueError(f"parameter {p.name} of {model.name!r} has unknown role "
                              f"{p.role!r}; roles: {', '.join(ROLES)}")
-    MODELS.register(model.name, model, replace=True)
+    MODELS.register(model.name, model, replace=replace)
     _add_layered_examples()
     return model
 

@@ -9,8 +9,8 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.compare.candidates import Resolved
-from fitlab.fitting.compare.common import relative_errors
 from fitlab.fitting.status import Status
+from fitlab.metrics import relative_errors
 
 
 # --------------------------------------------------------------------------------------------
@@ -26,12 +26,6 @@ def incidence_keys(m) -> np.ndarray:
 def incidences_of(m, rows) -> list[tuple[float, float]]:
     keys = incidence_keys(m)[rows]
     return [(float(t), float(p)) for t, p in np.unique(keys, axis=0)] if keys.size else []
-
-
-def _rel_err_floor() -> float:
-    from fitlab.fitting.channel import REL_ERR_FLOOR
-
-    return REL_ERR_FLOOR
 
 
 def _rms(x) -> float | None:

@@ -8,10 +8,11 @@ import re
 
 import numpy as np
 
-from fitlab.fitting.compare.common import SCHEMA, SCHEMA_VERSION, relative_errors
+from fitlab.fitting.compare.common import SCHEMA, SCHEMA_VERSION
 from fitlab.fitting.compare.criteria import _arviz, _compare_ic
-from fitlab.fitting.compare.crossval import (_rel_err_floor, _rms, incidence_keys,
-                                             incidences_of, jackknife_difference)
+from fitlab.fitting.compare.crossval import (_rms, incidence_keys, incidences_of,
+                                             jackknife_difference)
+from fitlab.metrics import REL_ERR_FLOOR, relative_errors
 
 #: A difference is decisive beyond this many standard errors ...
 DECISIVE_SE = 2.0
@@ -308,7 +309,7 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
         "settings": {"loss": loss, "seed": seed, "starts": starts,
                      "cross_validation": "leave-one-incidence-out" if cv else None,
                      "mcmc": {"steps": mcmc_steps, "walkers": walkers} if mcmc else None,
-                     "relative_error_floor": _rel_err_floor(), "decisive_standard_errors":
+                     "relative_error_floor": REL_ERR_FLOOR, "decisive_standard_errors":
                      DECISIVE_SE, "small_elpd": SMALL_ELPD,
                      "fix": dict(fix or {}), "options": dict(options or {}),
                      "free": list(free or ())},
