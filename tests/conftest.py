@@ -71,8 +71,8 @@ def _same_values(got, want, rtol, where):
             _same_values(g, w, rtol, f"{where}[{i}]")
     elif isinstance(want, (int, float)) and not isinstance(want, bool):
         assert isinstance(got, (int, float)) and not isinstance(got, bool), (where, got, want)
-        assert got == want or abs(got - want) <= rtol * max(abs(got), abs(want)), \
-            (where, got, want)
+        assert got == want or (got != got and want != want) or \
+            abs(got - want) <= rtol * max(abs(got), abs(want)), (where, got, want)  # NaN = NaN
     else:
         assert got == want, (where, got, want)
 
@@ -222,8 +222,8 @@ def _release_after_module(request):
     _release_compiled_code(request.module)
 
 
-#: The modules whose quick cases tests/test_compiler_settings.py runs again in a child session
-#: under XLA's defaults (what users get).
+#: The modules whose quick cases tests/test_compiler_settings.py runs in a child session under
+#: XLA's defaults (what users get).
 DEFAULTS_CHECKED_MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py",
                             "tests/test_sampling.py")
 DEFAULTS_SESSION_TEST = "test_compiler_settings.py::test_contract_holds_under_xla_default_settings"
