@@ -77,6 +77,7 @@ def main(argv=None) -> int:
 
     import fitlab
     from fitlab.fitting.channel import resolve_fit
+    from fitlab.fitting.request import FitRequest
 
     ms, truth, p = datasets(args.n)
     print(machine_line(machine()))
@@ -100,7 +101,7 @@ def main(argv=None) -> int:
           f"3 σ of the truth: {within:.3f}; peak memory {peak:.0f} MiB")
 
     # the peer gets fitlab's own bounds and start per dataset (the scale's reference)
-    _, _, _, _, _, start = resolve_fit(ms[0], "rough_dielectric")
+    _, _, _, _, _, start = resolve_fit(ms[0], FitRequest("rough_dielectric"))
     spaces = r.settings["spaces"]
     t0 = time.perf_counter()
     peer, ok = [], []

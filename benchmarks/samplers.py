@@ -164,7 +164,7 @@ def main(argv=None) -> int:
                   "all": (walter, layered)}[args.posterior]:
         p = build(args)
         prep = channel.prepare_channel(p["measurement"], p["model"], rows=p["rows"],
-                                      fixed=p["fixed"])
+                                      fix=p["fixed"])
         describe(p, prep)
         ls = least_squares(p, prep)
         compare(p, prep, ls)

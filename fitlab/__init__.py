@@ -1,7 +1,7 @@
 """fitlab: BSDF measurement fitting and tabulation in JAX.
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
-immutable :class:`FitResult`), :func:`fit_many` (many datasets at once, batched),
+immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked once), :func:`fit_many` (many datasets at once, batched),
 :func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
 held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
 glTF 2.0), :func:`write_report` (the HTML report of a fit or of a comparison), and
@@ -24,13 +24,14 @@ from fitlab.version import __version__  # noqa: E402
 from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
 from fitlab.models import MODELS, get_model, register_model  # noqa: E402
 from fitlab.fitting.api import fit, read  # noqa: E402
+from fitlab.fitting.request import FitRequest  # noqa: E402
 from fitlab.fitting.result import FitResult, load_fit  # noqa: E402
 from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E402
 from fitlab.export.renderers import export_material  # noqa: E402
 from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
 from fitlab.tradeoffs import Tradeoffs, tradeoffs  # noqa: E402
 
-__all__ = ["__version__", "read", "fit", "load_fit", "FitResult", "compare", "CompareResult",
+__all__ = ["__version__", "read", "fit", "FitRequest", "load_fit", "FitResult", "compare", "CompareResult",
            "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
            "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs",
            "write_report"]

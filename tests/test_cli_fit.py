@@ -89,7 +89,7 @@ def test_fit_to_stdout_without_mcmc(capsys):
         (["--model", "rough_dielectric", "--loss", "chi2"], "needs a sigma column"),
         (["--model", "rough_dielectric", "--option", "distribution=x"], "must be one of"),
         (["--model", "rough_dielectric", "--channel", "R"], "has channels Y"),
-        (["--model", "rough_dielectric", "--lm-maxiter", "0"], "--lm-maxiter must be from 1"),
+        (["--model", "rough_dielectric", "--lm-maxiter", "0"], "--lm-maxiter must be an integer from 1"),
     ],
 )
 def test_fit_bad_arguments_write_nothing(tmp_path, capsys, monkeypatch, extra, fragment):

@@ -117,11 +117,12 @@ def test_fit_a_sum(tmp_path):
     from test_fit import synthetic
 
     from fitlab.fitting.driver import fit_measurement
+    from fitlab.fitting.request import FitRequest
 
     truth = {"albedo": 0.3, "alpha": 0.12, "n": 1.6, "k": 0.0}
     m = synthetic("lambertian+rough_conductor", truth, thetas_i=(15, 45, 75),
                   thetas_o=tuple(range(0, 90, 3)), seed=3)
-    res = fit_measurement(m, "lambertian+rough_conductor", fixed={"k": 0.0}, quiet=True, seed=0)
+    res = fit_measurement(m, FitRequest("lambertian+rough_conductor", fix={"k": 0.0}, seed=0))
     ch = res["channels"][0]
     got = dict(zip(ch["space"].names, ch["ls"].native))
     err = dict(zip(ch["space"].names, ch["ls"].stderr))

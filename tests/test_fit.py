@@ -11,6 +11,7 @@ import pytest
 
 import fitlab
 from fitlab.fitting.driver import fit_measurement
+from fitlab.fitting.request import FitRequest
 from fitlab.fitting.subset import subset_mask
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.measurement import Measurement, read_measurement
@@ -66,7 +67,7 @@ SLOW_RECOVERY = {1, 2}
                          ids=[f"{r[0]}-{i}" for i, r in enumerate(RECOVERY)])
 def test_recovery_within_uncertainty(model, truth, options, grid):
     m = synthetic(model, truth, options=options, seed=11, **grid)
-    res = fit_measurement(m, model, options=options, quiet=True, n_starts=6, seed=3)
+    res = fit_measurement(m, FitRequest(model, options=options, starts=6, seed=3))
     (ch,) = res["channels"]
     ls, names = ch["ls"], ch["space"].names
     assert set(names) == set(truth)
@@ -95,7 +96,7 @@ def test_bad_start_does_not_decide(corner):
         # The driver starts from each parameter's default; make the defaults the bad corner.
         driver_model = model._replace(parameters=tuple(p._replace(default=bad[p.name]) for p in orig))
         fitlab.models.MODELS.register("rough_dielectric", driver_model, replace=True)
-        res = driver.fit_measurement(m, "rough_dielectric", quiet=True, n_starts=0, seed=1)
+        res = driver.fit_measurement(m, FitRequest("rough_dielectric", starts=0, seed=1))
     finally:
         fitlab.models.MODELS.register("rough_dielectric", model, replace=True)
     (ch,) = res["channels"]
@@ -111,7 +112,7 @@ def test_relative_scale_recovered():
     truth = {"alpha": 0.3, "eta": 1.5}
     m = synthetic("rough_dielectric", truth, thetas_i=(0,), thetas_o=tuple(range(96, 181, 3)),
                   relative_scale=250.0, seed=2)
-    res = fit_measurement(m, "rough_dielectric", fixed={"eta": 1.5}, quiet=True, seed=0)
+    res = fit_measurement(m, FitRequest("rough_dielectric", fix={"eta": 1.5}, seed=0))
     (ch,) = res["channels"]
     got = dict(zip(ch["space"].names, ch["ls"].native))
     err = dict(zip(ch["space"].names, ch["ls"].stderr))
@@ -124,7 +125,7 @@ def test_degenerate_parameters_are_reported():
     exist along a curve; the starts must say so."""
     m = synthetic("lambertian", {"albedo": 0.5}, thetas_i=(0, 40), thetas_o=tuple(range(0, 90, 10)),
                   relative_scale=3.0, seed=0)
-    res = fit_measurement(m, "lambertian", quiet=True, n_starts=8, seed=0)
+    res = fit_measurement(m, FitRequest("lambertian", starts=8, seed=0))
     dis = res["channels"][0]["ls"].disagreement
     assert dis is not None and "do not pin the parameters down" in dis["message"]
     prods = [o["albedo"] * o["scale"] for o in dis["optima"]]
@@ -134,7 +135,7 @@ def test_degenerate_parameters_are_reported():
 def test_mcmc_diagnostics_and_short_chain_warning():
     m = synthetic("oren_nayar", {"albedo": 0.6, "sigma": 0.5}, thetas_i=(0, 45),
                   thetas_o=tuple(range(0, 90, 6)), seed=4)
-    res = fit_measurement(m, "oren_nayar", quiet=True, mcmc=True, mcmc_steps=120, seed=9)
+    res = fit_measurement(m, FitRequest("oren_nayar", mcmc=True, mcmc_steps=120, seed=9))
     mc = res["channels"][0]["mcmc"]
     assert mc.nsteps == 120 and mc.nwalkers == 32
     assert not mc.trustworthy
@@ -147,7 +148,8 @@ def test_mcmc_diagnostics_and_short_chain_warning():
 def test_mcmc_posterior_matches_least_squares():
     m = synthetic("rough_dielectric", {"alpha": 0.2, "eta": 1.6}, thetas_i=(0, 40),
                   thetas_o=tuple(range(0, 90, 5)) + tuple(range(95, 181, 5)), seed=8)
-    res = fit_measurement(m, "rough_dielectric", quiet=True, mcmc=True, mcmc_steps=2500, seed=2)
+    res = fit_measurement(m, FitRequest("rough_dielectric", mcmc=True, mcmc_steps=2500,
+                                        seed=2))
     ch = res["channels"][0]
     mc, ls = ch["mcmc"], ch["ls"]
     assert mc.trustworthy, mc.warnings
@@ -162,7 +164,7 @@ def test_walter_protocol_on_bundled_example():
     other incidences, as Walter et al. 2007 section 6.1 did."""
     m = read_measurement(EXAMPLES / "walter_rough_glass.csv")
     sub = subset_mask("theta_i == 0", m)
-    res = fit_measurement(m, "rough_dielectric", subset=sub, quiet=True, seed=0)
+    res = fit_measurement(m, FitRequest("rough_dielectric", subset=sub, seed=0))
     assert res["fixed"] == {"eta": pytest.approx(1.51)}
     ch = res["channels"][0]
     got = dict(zip(ch["space"].names, ch["ls"].native))
@@ -181,7 +183,7 @@ def test_walter_empirical_D():
     from fitlab.fitting.walter import add_empirical_D
 
     m = read_measurement(EXAMPLES / "walter_rough_glass.csv")
-    res = fit_measurement(m, "rough_dielectric", subset=subset_mask("theta_i == 0", m), quiet=True)
+    res = fit_measurement(m, FitRequest("rough_dielectric", subset=subset_mask("theta_i == 0", m)))
     rec = build_record(res, m)
     add_empirical_D(rec, res, m)
     d = rec["fits"][0]["diagnostics"]["empirical_D"]
@@ -194,12 +196,12 @@ def test_walter_empirical_D():
 def test_same_seed_same_result():
     m = synthetic("oren_nayar", {"albedo": 0.6, "sigma": 0.5}, thetas_i=(0, 45),
                   thetas_o=tuple(range(0, 90, 6)), seed=4)
-    a = fit_measurement(m, "oren_nayar", quiet=True, mcmc=True, mcmc_steps=150, seed=21)
-    b = fit_measurement(m, "oren_nayar", quiet=True, mcmc=True, mcmc_steps=150, seed=21)
+    a = fit_measurement(m, FitRequest("oren_nayar", mcmc=True, mcmc_steps=150, seed=21))
+    b = fit_measurement(m, FitRequest("oren_nayar", mcmc=True, mcmc_steps=150, seed=21))
     np.testing.assert_array_equal(a["channels"][0]["ls"].native, b["channels"][0]["ls"].native)
     np.testing.assert_array_equal(a["channels"][0]["mcmc"].chain_unit,
                                   b["channels"][0]["mcmc"].chain_unit)
-    c = fit_measurement(m, "oren_nayar", quiet=True, mcmc=True, mcmc_steps=150, seed=22)
+    c = fit_measurement(m, FitRequest("oren_nayar", mcmc=True, mcmc_steps=150, seed=22))
     assert not np.array_equal(a["channels"][0]["mcmc"].chain_unit,
                               c["channels"][0]["mcmc"].chain_unit)
 
@@ -233,8 +235,8 @@ def test_credible_interval_calibration():
     for seed in range(60):
         m = synthetic("rough_dielectric", truth, thetas_i=(0, 45), thetas_o=tuple(range(0, 90, 8))
                       + tuple(range(98, 181, 8)), seed=1000 + seed, rel_noise=0.05)
-        res = fit_measurement(m, "rough_dielectric", quiet=True, mcmc=True, mcmc_steps=800,
-                              n_starts=2, seed=seed)
+        res = fit_measurement(m, FitRequest("rough_dielectric", mcmc=True, mcmc_steps=800,
+                                                starts=2, seed=seed))
         ch = res["channels"][0]
         lo, hi = np.percentile(ch["mcmc"].samples_native, [16, 84], axis=0)
         for k, name in enumerate(ch["space"].names):
@@ -255,9 +257,9 @@ def test_reference_fit_is_reproduced():
 
     m, _ = load_data(ref, root / "fits" / "walter_rough_glass.json")
     assert m.sha256 == ref["data"]["sha256"]
-    res = fit_measurement(m, ref["model"]["name"], options=ref["model"]["options"],
-                          subset=subset_mask(ref["data"]["fit_subset"], m), quiet=True,
-                          seed=ref["seed"])
+    res = fit_measurement(m, FitRequest(ref["model"]["name"], options=ref["model"]["options"],
+                                        subset=subset_mask(ref["data"]["fit_subset"], m),
+                                        seed=ref["seed"]))
     ch = res["channels"][0]
     for name, value in zip(ch["space"].names, ch["ls"].native):
         assert value == pytest.approx(ref["fits"][0]["parameters"][name]["value"], rel=1e-6)

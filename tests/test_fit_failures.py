@@ -18,6 +18,7 @@ from fitlab.fitting import least_squares as fls
 from fitlab.fitting import mcmc as fmcmc
 from fitlab.fitting.channel import FitWarning
 from fitlab.fitting.driver import fit_measurement
+from fitlab.fitting.request import FitRequest
 from fitlab.fitting.losses import LOSSES, Loss, has_absolute_noise, loss_weights, residuals
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -72,7 +73,7 @@ def test_lm_iteration_limit_is_recorded_and_warned(oren_nayar_data, monkeypatch)
     m = oren_nayar_data
     _no_global_search(monkeypatch, 0.05)
     with pytest.warns(FitWarning, match="stopped at its iteration limit \\(2 iterations\\)"):
-        res = fit_measurement(m, "oren_nayar", quiet=True, n_starts=2, seed=0, lm_maxiter=2)
+        res = fit_measurement(m, FitRequest("oren_nayar", starts=2, seed=0, lm_maxiter=2))
     ch = res["channels"][0]
     assert ch["ls"].solver["stopped"] == "max_iterations"
     assert any("iteration limit" in w for w in ch["warnings"])
@@ -86,7 +87,7 @@ def test_lm_iteration_limit_is_recorded_and_warned(oren_nayar_data, monkeypatch)
                and "--lm-maxiter" in w for w in fit["warnings"])
 
     # The same fit with the default limit converges, and says nothing about iterations.
-    res = fit_measurement(m, "oren_nayar", quiet=True, n_starts=2, seed=0, warn=False)
+    res = fit_measurement(m, FitRequest("oren_nayar", starts=2, seed=0), warn=False)
     fit = build_record(res, m)["fits"][0]
     assert fit["solver"]["stopped"] == "converged"
     assert 2 < fit["solver"]["iterations"] < fit["solver"]["max_iterations"] == fls.LM_MAXITER
@@ -135,7 +136,7 @@ def test_non_finite_costs_are_recorded_and_warned(oren_nayar_data, nan_where_alb
     m = oren_nayar_data
     nan_where_albedo_above(0.9)  # truth 0.6: the optimum is still reachable
     with pytest.warns(FitWarning, match="non-finite cost"):
-        res = fit_measurement(m, "oren_nayar", quiet=True, n_starts=2, seed=0)
+        res = fit_measurement(m, FitRequest("oren_nayar", starts=2, seed=0))
     fit = json.loads(json.dumps(build_record(res, m), allow_nan=False))["fits"][0]
     g = fit["global_search"]
     assert 0 < g["non_finite"] < g["evaluations"]
@@ -149,7 +150,7 @@ def test_clean_fit_has_no_warnings(oren_nayar_data):
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", FitWarning)
-        res = fit_measurement(oren_nayar_data, "oren_nayar", quiet=True, n_starts=2, seed=0)
+        res = fit_measurement(oren_nayar_data, FitRequest("oren_nayar", starts=2, seed=0))
     fit = build_record(res, oren_nayar_data)["fits"][0]
     assert fit["global_search"]["non_finite"] == 0
     assert fit["warnings"] == []
@@ -162,7 +163,7 @@ def test_clean_fit_has_no_warnings(oren_nayar_data):
 
 def test_mcmc_nan_log_probability_names_the_point(oren_nayar_data, nan_where_albedo_above):
     m = oren_nayar_data
-    res = fit_measurement(m, "oren_nayar", quiet=True, n_starts=1, seed=0, warn=False)
+    res = fit_measurement(m, FitRequest("oren_nayar", starts=1, seed=0), warn=False)
     ch = res["channels"][0]
     space, ls = ch["space"], ch["ls"]
     assert space.names[0] == "albedo"
@@ -254,8 +255,8 @@ def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
     so, and the parameter file is valid JSON."""
     m = synthetic("rough_dielectric", {"alpha": 0.3, "eta": 1.5}, thetas_i=(0.0, 30.0),
                   thetas_o=tuple(range(7, 180, 10)), options={"distribution": "beckmann"})
-    res = fit_measurement(m, "rough_dielectric", options={"distribution": "beckmann"},
-                          fixed={"eta": 1.5}, quiet=True, warn=False)
+    res = fit_measurement(m, FitRequest("rough_dielectric", options={"distribution": "beckmann"},
+                                        fix={"eta": 1.5}), warn=False)
     ls = res["channels"][0]["ls"]
     lost = [s for s in ls.starts if s["lm_stopped"] == "non_finite"]
     assert lost and all(s["end"] is None and s["cost"] is None for s in lost)

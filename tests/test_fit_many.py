@@ -161,7 +161,7 @@ def test_batched_posteriors_by_nuts(synthetic):
     least-squares optimum (median within 2 standard errors), trusted, in the table."""
     pytest.importorskip("blackjax")
     ms, truth = synthetic
-    r = fitlab.fit_many(ms[:3], "rough_dielectric", mcmc=True, mcmc_steps=300, chains=4)
+    r = fitlab.fit_many(ms[:3], "rough_dielectric", mcmc=True, mcmc_steps=300, walkers=4)
     for f in r.fits:
         med = np.median(f.mcmc.samples_native, axis=0)
         assert np.all(np.abs(med - f.native) < 2 * f.stderr), (med, f.native, f.stderr)

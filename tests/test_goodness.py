@@ -373,7 +373,8 @@ def test_bootstrap_argument_checked(capsys):
         fitlab.fit(m, "rough_conductor", bootstrap=3)
     assert main(["fit", str(ROOT / "data_formats" / "examples" / "walter_rough_glass.csv"),
                  "--model", "rough_dielectric", "--bootstrap", "5"]) == 2
-    assert "--bootstrap must be 0 (off) or at least 10" in capsys.readouterr().err
+    assert "--bootstrap must be 0 (off) or a number of refits of at least 10" in \
+        capsys.readouterr().err
 
 
 def test_fewer_than_three_incidences_no_bootstrap():
@@ -381,16 +382,19 @@ def test_fewer_than_three_incidences_no_bootstrap():
     explicitly with a warning (no refit is attempted)."""
     from types import SimpleNamespace
 
+    from fitlab.fitting.request import FitRequest
     from fitlab.fitting.resampling import channel_misfit
 
     m = synthetic("rough_conductor", TRUTH, thetas_i=(10.0, 40.0), step=10.0)
     rows = np.ones(m.n, bool)
     ls = SimpleNamespace(residuals=np.random.default_rng(0).standard_normal(m.n), starts=[{}])
     space = SimpleNamespace(ndim=1)
-    out = channel_misfit(m, rows, space, None, "chi2", ls, None, bootstrap=None, seed=0)
+    out = channel_misfit(m, rows, space, None, "chi2", ls, None,
+                         FitRequest("rough_conductor", bootstrap=None, seed=0))
     assert out["bootstrap"] is None and out["warnings"] == []
     assert out["goodness"]["describes_data"]
-    out = channel_misfit(m, rows, space, None, "chi2", ls, None, bootstrap=50, seed=0)
+    out = channel_misfit(m, rows, space, None, "chi2", ls, None,
+                         FitRequest("rough_conductor", bootstrap=50, seed=0))
     assert "needs at least 3" in out["bootstrap"]["skipped"]
     assert out["warnings"][0].startswith("no bootstrap: 2 fitted incidence direction(s)")
 

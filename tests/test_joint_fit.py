@@ -104,7 +104,7 @@ def test_shared_alpha_is_better_constrained_than_independent_fits(rgb, joint):
     independent = []
     for c in range(3):
         prob = prepare_channel(rgb, MODEL, rows=np.ones(rgb.n, bool), channel=c,
-                               fixed={"k": 0.0})
+                               fix={"k": 0.0})
         ls = fit_least_squares(prob["space"], prob["data"], prob["loss"],
                                start_native=prob["start_native"], n_starts=4, seed=0)
         independent.append(ls.stderr[list(prob["space"].names).index("alpha")])

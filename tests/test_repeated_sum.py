@@ -79,9 +79,11 @@ def test_fit_recovers_both_lobes(two_lobe_data):
     parameter within 4 standard errors of the truth, the lobes reported narrowest first, and no
     start counted as 'a different optimum' for having found the same lobes under swapped names."""
     from fitlab.fitting.driver import fit_measurement
+    from fitlab.fitting.request import FitRequest
 
-    res = fit_measurement(two_lobe_data, MODEL, fixed={"k": 0.0, "k_2": 0.0}, quiet=True,
-                          seed=0, warn=False, bootstrap=0)  # the bootstrap: test_goodness.py
+    # no bootstrap here (test_goodness.py tests it)
+    res = fit_measurement(two_lobe_data, FitRequest(MODEL, fix={"k": 0.0, "k_2": 0.0}, seed=0,
+                                                    bootstrap=0), warn=False)
     ch = res["channels"][0]
     got = dict(zip(ch["space"].names, ch["ls"].native))
     err = dict(zip(ch["space"].names, ch["ls"].stderr))
@@ -99,9 +101,11 @@ def test_fit_recovers_both_lobes(two_lobe_data):
 @pytest.mark.optimized  # the chain: 15 s at -O0, 12 s optimized (alone)
 def test_mcmc_stays_in_the_ordered_labelling(two_lobe_data):
     from fitlab.fitting.driver import fit_measurement
+    from fitlab.fitting.request import FitRequest
 
-    res = fit_measurement(two_lobe_data, MODEL, fixed={"k": 0.0, "k_2": 0.0}, quiet=True,
-                          seed=1, warn=False, mcmc=True, mcmc_steps=200, n_starts=2)
+    res = fit_measurement(two_lobe_data, FitRequest(MODEL, fix={"k": 0.0, "k_2": 0.0}, seed=1,
+                                                    mcmc=True, mcmc_steps=200, starts=2),
+                          warn=False)
     ch = res["channels"][0]
     names = list(ch["space"].names)
     s = ch["mcmc"].samples_native

@@ -42,7 +42,7 @@ def _measurement(n_o: int, seed: int) -> Measurement:
 
 def _prepared(m):
     return prepare_channel(m, "rough_conductor", rows=np.ones(len(m.value), bool),
-                           fixed={"k": 2.6})
+                           fix={"k": 2.6})
 
 
 def test_padding_leaves_cost_gradient_and_residuals_unchanged():

@@ -80,7 +80,7 @@ def _uniformity_p(ranks: np.ndarray) -> np.ndarray:
 def test_nuts_is_calibrated():
     pytest.importorskip("blackjax")
     truth, ms = _datasets(seed=5)
-    r = fitlab.fit_many(ms, "oren_nayar", mcmc=True, mcmc_steps=400, chains=4, chunk=96)
+    r = fitlab.fit_many(ms, "oren_nayar", mcmc=True, mcmc_steps=400, walkers=4, chunk=96)
     rng = np.random.default_rng(0)
     ranks = np.array([_ranks(f.mcmc.samples_native, t, rng) for f, t in zip(r.fits, truth)])
     p = _uniformity_p(ranks)

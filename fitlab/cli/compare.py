@@ -86,12 +86,6 @@ def run(args):
     if not args.model or len(args.model) < 2:
         raise FitlabError("--model: give two or more candidates to compare, e.g. --model "
                           "lambertian+rough_conductor --model 'weidlich_wilkie(lambertian)'")
-    if args.mcmc_steps < 100:
-        raise FitlabError("--mcmc-steps must be at least 100")
-    if args.walkers is not None and args.walkers < 2:
-        raise FitlabError("--walkers must be at least 2 (default max(32, 4 x dim))")
-    if args.starts < 0:
-        raise FitlabError("--starts must be 0 or more")
     for flag in ("no_report", "no_fits"):
         if getattr(args, flag) and not args.out:
             raise FitlabError(f"--{flag.replace('_', '-')} needs --out DIR: without --out "
@@ -99,14 +93,9 @@ def run(args):
     if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
         raise FitlabError(f"--out {args.out}: is a file, not a folder; give a folder")
     cands = [parse_candidate(text) for text in args.model]
-    fix = {}
-    for name, text in parse_assignments(args.fix, "fix").items():
-        try:
-            fix[name] = float(text)
-        except ValueError:
-            raise FitlabError(f"--fix {name}={text!r}: the value must be a number") from None
+    # the settings are checked once, by the candidates' FitRequests inside compare
     m = fitlab.read(args.data, args.format)
-    result = compare(m, cands, fix=fix, options=parse_assignments(args.option, "option"),
+    result = compare(m, cands, fix=parse_assignments(args.fix, "fix"), options=parse_assignments(args.option, "option"),
                      free=args.free or (), loss=args.loss, subset=args.fit_subset,
                      channels=[args.channel] if args.channel else None, cv=not args.no_cv,
                      mcmc=not args.no_mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,

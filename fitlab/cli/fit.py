@@ -6,8 +6,7 @@ from __future__ import annotations
 import sys
 
 from fitlab.assignments import parse_assignments
-from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
-                               get_model, model_options)
+from fitlab.cli.common import add_channel, add_format, add_model, add_option, add_quiet
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
 from fitlab.fitting.status import Status, channel_statuses
@@ -149,14 +148,7 @@ def _run_many(args):
                           "file) and/or --table FILE.csv (one row per file and channel)")
     if args.chunk is not None and args.chunk < 1:
         raise FitlabError("--chunk must be at least 1")
-    if args.lm_maxiter is not None:
-        from fitlab.fitting.least_squares import MAX_LM_MAXITER
-
-        if not 1 <= args.lm_maxiter <= MAX_LM_MAXITER:
-            raise FitlabError(f"--lm-maxiter must be from 1 to {MAX_LM_MAXITER}")
-    model = get_model(args.model)
-    options = model_options(model, args.option)
-    fixed = _values_from_cli(model, args.fix, "fix")
+    request = request_of(args, walkers=args.walkers or 4)
     ms = [d for path in args.data for d in read(path, args.format).datasets()]
     names = [output_name(m) for m in ms]
     if args.out_dir and len(set(names)) != len(names):
@@ -165,11 +157,7 @@ def _run_many(args):
                           "rename them (each gets DIR/NAME.json)")
     from fitlab.fitting.batch import CHUNK
 
-    result = fit_many(ms, model.name, fix=fixed, free=args.free or (), options=options,
-                      loss=args.loss, subset=args.fit_subset, starts=args.starts,
-                      seed=args.seed, lm_maxiter=args.lm_maxiter or 200,
-                      chunk=args.chunk or CHUNK, mcmc=args.mcmc, mcmc_steps=args.mcmc_steps,
-                      chains=args.walkers or 4, progress=not args.quiet)
+    result = fit_many(ms, request, chunk=args.chunk or CHUNK)
     written = 0
     if args.out_dir:
         out = Path(args.out_dir)
@@ -209,16 +197,15 @@ def _run_distributed(args):
                           "parameter files there)")
     if args.mcmc and args.sampler != "nuts":
         raise FitlabError("--mcmc on workers samples with --sampler nuts (batched)")
-    model = get_model(args.model)
-    options = model_options(model, args.option)
-    fixed = _values_from_cli(model, args.fix, "fix")
-    summary = fit_files(args.data, model.name, args.out_dir, workers=args.workers or 2,
+    request = request_of(args, walkers=args.walkers or 4)
+    summary = fit_files(args.data, request.model.name, args.out_dir, workers=args.workers or 2,
                         scheduler=args.scheduler,
                         files_per_chunk=args.files_per_chunk or FILES_PER_CHUNK,
-                        progress=not args.quiet, fix=fixed, free=list(args.free or ()),
-                        options=options, loss=args.loss, subset=args.fit_subset,
-                        starts=args.starts, seed=args.seed, lm_maxiter=args.lm_maxiter or 200,
-                        mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, chains=args.walkers or 4)
+                        progress=not args.quiet, fix=dict(request.fix),
+                        free=list(request.free), options=dict(request.options),
+                        loss=request.loss, subset=request.subset, starts=request.starts,
+                        seed=request.seed, lm_maxiter=request.lm_maxiter, mcmc=request.mcmc,
+                        mcmc_steps=request.mcmc_steps, walkers=request.walkers)
     if not args.quiet:
         print(f"{summary['files']} files in {summary['chunks']} chunks: {summary['fitted']} "
               f"fitted now, {summary['done_before']} done before; wrote {summary['table']} and "
@@ -226,12 +213,22 @@ def _run_distributed(args):
     return 0
 
 
-def _values_from_cli(model, items, flag):
-    """--fix/--start NAME=VALUE items, checked before the data are read (the checks of
-    fitlab.fit's ``fix`` and ``start``)."""
-    from fitlab.fitting.api import parameter_values
+def request_of(args, **overrides):
+    """The FitRequest of the command line's options (``overrides``: settings a path sets
+    itself), checked once before any data are read; messages name the options."""
+    from fitlab.fitting.request import FitRequest
 
-    return parameter_values(model, parse_assignments(items, flag), f"--{flag}")
+    settings = dict(
+        fix=parse_assignments(args.fix, "fix"), start=parse_assignments(args.start, "start"),
+        free=tuple(args.free or ()), options=parse_assignments(args.option, "option"),
+        loss=args.loss, subset=args.fit_subset,
+        channels=(args.channel,) if args.channel else None, share=_share_names(args.share),
+        mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
+        sampler=args.sampler, starts=args.starts, seed=args.seed,
+        aperture_order=args.aperture_order, bootstrap=args.bootstrap,
+        lm_maxiter=args.lm_maxiter, walter_diagnostics=args.walter_diagnostics,
+        progress=not args.quiet)
+    return FitRequest(args.model, spelling="cli", **{**settings, **overrides})
 
 
 def _share_names(items):
@@ -351,37 +348,15 @@ def run(args):
     if len(args.data) > 1 or args.out_dir or args.table:
         return _run_many(args)
     args.data = args.data[0]
-    model = get_model(args.model)
-    options = model_options(model, args.option)
-    fixed = _values_from_cli(model, args.fix, "fix")
-    start = _values_from_cli(model, args.start, "start")
     if args.chain and not args.mcmc:
         raise FitlabError("--chain needs --mcmc: there is no chain to write")
     if args.report and not args.out:
         raise FitlabError("--report needs --out FILE.json: the report is built from the "
                           "parameter file")
-    if args.mcmc and args.mcmc_steps < 100:
-        raise FitlabError("--mcmc-steps must be at least 100")
-    if args.bootstrap is not None and args.bootstrap != 0:
-        from fitlab.fitting.resampling import MIN_REFITS
-
-        if args.bootstrap < MIN_REFITS:
-            raise FitlabError(f"--bootstrap must be 0 (off) or at least {MIN_REFITS} refits")
-    if args.lm_maxiter is not None:
-        from fitlab.fitting.least_squares import MAX_LM_MAXITER
-
-        if not 1 <= args.lm_maxiter <= MAX_LM_MAXITER:
-            raise FitlabError(f"--lm-maxiter must be from 1 to {MAX_LM_MAXITER}")
+    request = request_of(args)
     m = read(args.data, args.format)
     t_read = time.perf_counter() - t0
-    result = fit(m, model, fix=fixed, free=args.free or (), options=options, loss=args.loss,
-                 subset=args.fit_subset, channels=[args.channel] if args.channel else None,
-                 share=_share_names(args.share),
-                 mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
-                 starts=args.starts, seed=args.seed,
-                 walter_diagnostics=args.walter_diagnostics, progress=not args.quiet,
-                 aperture_order=args.aperture_order, bootstrap=args.bootstrap,
-                 lm_maxiter=args.lm_maxiter, start=start, sampler=args.sampler)
+    result = fit(m, request)
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)

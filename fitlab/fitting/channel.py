@@ -5,18 +5,19 @@ warnings its least-squares run gives. fitlab/fitting/driver.py runs the fit end 
 from __future__ import annotations
 
 import sys
+from typing import NamedTuple
 
 import jax
 import numpy as np
 
-from fitlab.api import check_params, resolve_options
+from fitlab.api import check_params
 from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData
 from fitlab.fitting.losses import loss_weights
 from fitlab.fitting.space import SCALE, make_space, model_values
 from fitlab.fitting.status import Status
 from fitlab.metrics import REL_ERR_FLOOR, relative_errors
-from fitlab.models import Model, get_model
+from fitlab.models import Model
 
 #: Rows whose |value| is below REL_ERR_FLOOR of the channel's maximum are left out of relative
 #: error statistics (fitlab/metrics.py: the one rule).
@@ -141,37 +142,38 @@ def fitted_rows(m, c, rows_fit):
     return name, in_chan, rows
 
 
-def resolve_fit(m, model_name, *, options=None, fixed=None, free=(), loss=None, start=None):
-    """The model, its options, the fixed parameters (eta from the data file unless freed), notes
-    for the user, the loss and the extra start point (the model's defaults, overridden by
-    ``start``): everything channels share. ``model_name``: a registry name or the Model
-    itself (a model carries its structure, so an unregistered one fits too)."""
-    model = model_name if isinstance(model_name, Model) else get_model(model_name)
-    options = resolve_options(model, options)
-    fixed = dict(fixed or {})
-    notes = []
+class FitSetup(NamedTuple):
+    """What every channel of one measurement's fit shares: the model, its options, the fixed
+    parameters, notes for the user, the loss and the extra start point (:func:`resolve_fit`)."""
+
+    model: Model
+    options: dict
+    fixed: dict
+    notes: list
+    loss: str
+    start: dict
+
+
+def resolve_fit(m, request) -> FitSetup:
+    """``request`` (a checked :class:`fitlab.fitting.request.FitRequest`) resolved against
+    measurement ``m``: eta fixed from the data file unless freed or fixed, the loss by the data
+    (chi2 with sigma, else relative) unless given, the extra start (the model's defaults
+    overridden by ``request.start``, fixed values where fixed)."""
+    model, fixed, notes = request.model, dict(request.fix), []
     eta_file = m.eta()
     if eta_file is not None and "eta" in model.parameter_names and "eta" not in fixed \
-            and "eta" not in free:
+            and "eta" not in request.free:
         fixed["eta"] = eta_file
         notes.append(f"eta fixed to {eta_file:.6g} = eta_inside/eta_outside from the data file "
                      "(use --free eta to fit it)")
-    for name in fixed:
-        if name not in model.parameter_names:
-            raise ValueError(f"--fix {name}: model {model.name!r} has no parameter {name!r} "
-                             f"(its parameters: {', '.join(model.parameter_names)})")
-    check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
-    loss = loss or ("chi2" if m.sigma is not None else "relative")
-    start = dict(start or {})
-    for name in start:
-        if name in fixed:
-            raise ValueError(f"--start {name}: {name} is fixed"
-                             + (" from the data file (--free eta to fit it)"
-                                if name == "eta" and eta_file is not None else "")
-                             + "; a start is for a parameter the fit moves")
-    check_params(model, {**{p.name: p.default for p in model.parameters}, **start, **fixed})
-    start = {p.name: fixed.get(p.name, start.get(p.name, p.default)) for p in model.parameters}
-    return model, options, fixed, notes, loss, start
+        if "eta" in request.start:
+            raise ValueError("--start eta: eta is fixed from the data file (--free eta to fit "
+                             "it); a start is for a parameter the fit moves")
+        check_params(model, {**{p.name: p.default for p in model.parameters}, **fixed})
+    loss = request.loss or ("chi2" if m.sigma is not None else "relative")
+    start = {p.name: fixed.get(p.name, request.start.get(p.name, p.default))
+             for p in model.parameters}
+    return FitSetup(model, dict(request.options), fixed, notes, loss, start)
 
 
 def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
@@ -201,12 +203,14 @@ def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
     return space, data, start_native
 
 
-def prepare_channel(m, model_name, *, rows, channel=0, options=None, fixed=None, free=(),
-                    loss=None, aperture_order=None):
+def prepare_channel(m, model, *, rows, channel=0, aperture_order=None, **settings):
     """What ``fit_measurement`` hands the least-squares stage for one channel (benchmarks and
-    tests use it to reproduce a fit exactly): a dict with space, data, loss, start_native."""
-    model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
-                                                            fixed=fixed, free=free, loss=loss)
+    tests use it to reproduce a fit exactly): a dict with space, data, loss, start_native.
+    ``model`` and ``settings`` make a :class:`fitlab.fitting.request.FitRequest` (``fix``,
+    ``free``, ``options``, ``loss``, …)."""
+    from fitlab.fitting.request import as_request
+
+    model, options, fixed, notes, loss, start = resolve_fit(m, as_request(model, settings))
     in_chan = m.channel == channel
     rows = np.asarray(rows, dtype=bool) & in_chan
     space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,

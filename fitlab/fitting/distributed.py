@@ -61,8 +61,15 @@ def fit_files(files, model: str, out_dir, *, workers: int = 2, scheduler: str | 
               retries: int = 3, **fit_kwargs) -> dict:
     """Fit every file with ``model`` on a Dask cluster (module text); returns a summary:
     ``chunks``, ``done_before`` (skipped: already fitted), ``fitted`` (this run), ``files``,
-    ``table``, ``index``."""
+    ``table``, ``index``. ``fit_kwargs``: fitlab.fit_many's settings (plain values: they are
+    hashed into each chunk's identity and sent to the workers), checked here as one
+    FitRequest before any worker starts."""
+    from fitlab.fitting.many import MANY_DEFAULTS
+    from fitlab.fitting.request import FitRequest
     from fitlab.io.atomic import atomic_write_text
+
+    FitRequest(model, **{**MANY_DEFAULTS, **{k: v for k, v in fit_kwargs.items()
+                                             if k not in ("scan", "chunk")}})
 
     files = [str(f) for f in files]
     names = [Path(f).stem for f in files]

@@ -21,39 +21,35 @@ import numpy as np
 
 from fitlab.fitting.channel import (FitWarning, channel_problem, fitted_rows, least_squares_warnings,
                                     log_line, non_finite_fit, resolve_fit, statistics)
-from fitlab.fitting.least_squares import LM_MAXITER, fit_least_squares
+from fitlab.fitting.least_squares import fit_least_squares
+from fitlab.fitting.request import FitRequest
 from fitlab.fitting.status import Status
+from fitlab.fitting.subset import channel_ids, rows_of
 
 
-def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=None,
-                    subset=None, mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0,
-                    n_starts=8, quiet=False, channels=None, lm_maxiter=LM_MAXITER, warn=True,
-                    aperture_order=None, bootstrap=None, share=(), start=None,
-                    sampler="emcee"):
-    """Fit ``model_name`` to Measurement ``m``; returns a dict (see data_formats/fit_json.md).
+def fit_measurement(m, request: FitRequest, *, warn: bool = True):
+    """Fit Measurement ``m`` as ``request`` asks (a checked :class:`FitRequest`; its
+    ``subset`` and ``channels`` are checked against ``m`` here); returns a dict (see data_formats/fit_json.md).
 
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
     module text); with ``warn`` (the default) each is also issued as a :class:`FitWarning`
-    (the CLI, which prints the list itself, turns this off). ``lm_maxiter`` is the step limit
-    of every Levenberg–Marquardt run. ``bootstrap``: refits of the block bootstrap over
-    incidences (None: :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP` where a channel has
-    at least 3 fitted incidences, else none; 0: none). Rows with an aperture (``m.has_aperture``) are fitted
-    by the aperture-averaged model, of quadrature order ``aperture_order`` (None: chosen
-    automatically, fitlab.fitting.aperture). ``start``: values for the extra
-    Levenberg–Marquardt start (the model's defaults elsewhere)."""
-    model, options, fixed, notes, loss, start = resolve_fit(m, model_name, options=options,
-                                                            fixed=fixed, free=free, loss=loss,
-                                                            start=start)
-    rows_fit = np.ones(m.n, dtype=bool) if subset is None else np.asarray(subset, dtype=bool)
+    (the CLI, which prints the list itself, turns this off). ``request.bootstrap``: refits of
+    the block bootstrap over incidences (None: :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP`
+    where a channel has at least 3 fitted incidences, else none; 0: none). Rows with an aperture
+    (``m.has_aperture``) are fitted by the aperture-averaged model, of quadrature order
+    ``request.aperture_order`` (None: chosen automatically, fitlab.fitting.aperture)."""
+    setup = resolve_fit(m, request)
+    model, options, fixed, notes, loss, start = setup
+    quiet, seed, n_starts = not request.progress, request.seed, request.starts
+    _, rows_fit = rows_of(request.subset, m)
+    channels = channel_ids(request.channels, m)
     chan_ids = range(len(m.channel_names)) if channels is None else channels
     fitted = [c for c in chan_ids if np.any((m.channel == c) & rows_fit)]
+    share = request.share
     if share and len(fitted) > 1:  # one problem over the channels (fitlab/fitting/joint.py)
         from fitlab.fitting.joint import fit_joint
 
-        results, joint = fit_joint(
-            m, model, options, fixed, loss, start, rows_fit, fitted, share, mcmc=mcmc,
-            mcmc_steps=mcmc_steps, mcmc_walkers=mcmc_walkers, seed=seed, n_starts=n_starts,
-            quiet=quiet, sampler=sampler, lm_maxiter=lm_maxiter, aperture_order=aperture_order, bootstrap=bootstrap)
+        results, joint = fit_joint(m, request, setup, rows_fit, fitted)
         for ch in results if warn else ():
             for w in ch["warnings"]:
                 _warnings.warn(f"channel {ch['channel']}: {w}", FitWarning, stacklevel=2)
@@ -73,13 +69,13 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         if m.has_aperture:
             from fitlab.fitting import aperture as _aperture
 
-            order, auto_order = _aperture.start_order(aperture_order)
+            order, auto_order = _aperture.start_order(request.aperture_order)
         space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
                                                     name, in_chan, order)
         log_line(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
                     f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
-                               seed=seed, lm_maxiter=lm_maxiter, progress=not quiet)
+                               seed=seed, lm_maxiter=request.lm_maxiter, progress=not quiet)
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == Status.NON_FINITE:
             raise non_finite_fit(f"{m.path}: channel {name}", len(ls.starts))
@@ -91,8 +87,8 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         if order is not None:
             def refit(d, start_at):
                 return fit_least_squares(space, d, loss, start_native=start_at,
-                                         n_starts=n_starts, seed=seed, lm_maxiter=lm_maxiter,
-                                         progress=not quiet)
+                                         n_starts=n_starts, seed=seed,
+                                         lm_maxiter=request.lm_maxiter, progress=not quiet)
 
             ls, data, aperture, more = _aperture.settle_order(
                 space, ls, data, m, rows, loss, order, auto=auto_order, refit=refit,
@@ -101,12 +97,12 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
             channel_warnings = least_squares_warnings(ls) + more
             t_ls = time.perf_counter() - t0
         chain = None
-        if mcmc:
+        if request.mcmc:
             from fitlab.fitting.samplers import sample_posterior  # the samplers load only here
 
-            log_line(quiet, f"  MCMC ({sampler}): {mcmc_steps} steps")
-            chain = sample_posterior(sampler, space, data, loss, ls, seed=seed,
-                                     nsteps=mcmc_steps, walkers=mcmc_walkers,
+            log_line(quiet, f"  MCMC ({request.sampler}): {request.mcmc_steps} steps")
+            chain = sample_posterior(request.sampler, space, data, loss, ls, seed=seed,
+                                     nsteps=request.mcmc_steps, walkers=request.walkers,
                                      progress=not quiet)
             channel_warnings += chain.warnings
         # Predictions for every row of this channel (fitted or not).
@@ -120,8 +116,7 @@ def fit_measurement(m, model_name, *, options=None, fixed=None, free=(), loss=No
         # Goodness of fit and the block bootstrap (fitlab.fitting.goodness, .resampling).
         from fitlab.fitting.resampling import channel_misfit
 
-        misfit = channel_misfit(m, rows, space, data, loss, ls, chain, bootstrap=bootstrap,
-                                seed=seed, lm_maxiter=lm_maxiter, progress=not quiet,
+        misfit = channel_misfit(m, rows, space, data, loss, ls, chain, request,
                                 log=lambda msg: log_line(quiet, msg))
         channel_warnings += misfit["warnings"]
         results.append({"channel": name, "space": space, "ls": ls, "mcmc": chain,

@@ -102,22 +102,6 @@ class JointStatic(NamedTuple):
         return params, scale
 
 
-def check_share(model: Model, share, fixed: dict) -> tuple[str, ...]:
-    """The shared parameter names, checked: model parameters, not fixed, not ``scale``."""
-    share = tuple(dict.fromkeys(share or ()))
-    for name in share:
-        if name == SCALE:
-            raise ValueError(f"share {SCALE}: the scale of relative data is per channel (each "
-                             "channel has its own unknown units); share model parameters")
-        if name not in model.parameter_names:
-            raise ValueError(f"share {name}: model {model.name!r} has no parameter {name!r} "
-                             f"(its parameters: {', '.join(model.parameter_names)})")
-        if name in fixed:
-            raise ValueError(f"share {name}: {name} is fixed (it is the same in every channel "
-                             "already); share free parameters")
-    return share
-
-
 def joint_space(spaces: list[FitSpace], channels: tuple[str, ...], counts: tuple[int, ...],
                 share: tuple[str, ...]) -> FitSpace:
     """The joint FitSpace of the channels' own spaces (same model, options, fixed values)."""
@@ -206,12 +190,10 @@ def joint_record(joint: FitSpace, ls, mc, share, n_fit: int) -> dict:
     return rec
 
 
-def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, *,
-              mcmc=False, mcmc_steps=3000, mcmc_walkers=None, seed=0, n_starts=8, quiet=False,
-              sampler="emcee",
-              lm_maxiter=None, aperture_order=None, bootstrap=None):
+def fit_joint(m, request, setup, rows_fit, chan_ids):
     """The channels ``chan_ids`` of Measurement ``m`` fitted as one problem with the parameters
-    ``share`` shared. Returns the channel entries of ``driver.fit_measurement``'s result and
+    ``request.share`` shared (``request``: the checked FitRequest; ``setup``: its FitSetup for
+    ``m``, fitlab.fitting.channel.resolve_fit). Returns the channel entries of ``driver.fit_measurement``'s result and
     the ``joint`` entry. Each channel's data, space and statistics are made as for an independent
     fit (fitlab.fitting.channel).
 
@@ -221,14 +203,15 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
     the quadrature's measured error at the joint optimum, with a warning when it is too large.
 
     Goodness of fit is checked on each channel as for an independent fit; the block bootstrap
-    (``bootstrap`` refits; None: fitlab.fitting.resampling's default) resamples whole incidences
+    (``request.bootstrap`` refits; None: fitlab.fitting.resampling's default) resamples whole incidences
     in all channels at once and refits the joint problem (:func:`joint_bootstrap`)."""
-    share = check_share(model, share, fixed)
+    model, options, fixed, _, loss, start = setup
+    share, seed, n_starts, quiet = request.share, request.seed, request.starts, not request.progress
     order = auto = None
     if m.has_aperture:
         from fitlab.fitting import aperture as _aperture
 
-        order, auto = _aperture.start_order(aperture_order)
+        order, auto = _aperture.start_order(request.aperture_order)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
 
@@ -257,9 +240,8 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
     log(f"fitting {model.name} to channels {', '.join(names)} jointly: {sum(counts)} rows, "
         f"shared {', '.join(share)}; {joint.ndim} free coordinates; loss {loss}; global search "
         f"+ {n_starts} starts")
-    kw = {} if lm_maxiter is None else {"lm_maxiter": lm_maxiter}
     ls = fit_least_squares(joint, data, loss, start_native=start_native, n_starts=n_starts,
-                           seed=seed, progress=not quiet, **kw)
+                           seed=seed, progress=not quiet, lm_maxiter=request.lm_maxiter)
     t_ls = time.perf_counter() - t0
     if ls.solver["stopped"] == Status.NON_FINITE:
         from fitlab.fitting.channel import non_finite_fit
@@ -269,15 +251,14 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
                                         zip(joint.names, ls.native, ls.stderr))
         + f"  ({t_ls:.2f} s)")
     chain = None
-    if mcmc:
+    if request.mcmc:
         from fitlab.fitting.samplers import sample_posterior
 
-        log(f"  MCMC: {mcmc_steps} steps over the joint posterior")
-        chain = sample_posterior(sampler, joint, data, loss, ls, seed=seed, nsteps=mcmc_steps,
-                                 walkers=mcmc_walkers, progress=not quiet)
-    boot = joint_bootstrap(m, joint, data, loss, ls, [mk[2] for mk in masks],
-                           bootstrap=bootstrap, seed=seed, lm_maxiter=lm_maxiter, quiet=quiet,
-                           log=log)
+        log(f"  MCMC: {request.mcmc_steps} steps over the joint posterior")
+        chain = sample_posterior(request.sampler, joint, data, loss, ls, seed=seed,
+                                 nsteps=request.mcmc_steps, walkers=request.walkers,
+                                 progress=not quiet)
+    boot = joint_bootstrap(m, joint, data, loss, ls, [mk[2] for mk in masks], request, log=log)
     results, offset = [], 0
     for k, (name, space_c) in enumerate(zip(names, spaces)):
         c, in_chan, rows_c = masks[k]
@@ -313,18 +294,20 @@ def fit_joint(m, model, options, fixed, loss, start, rows_fit, chan_ids, share, 
     return results, joint_record(joint, ls, chain, share, sum(counts))
 
 
-def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, *, bootstrap,
-                    seed, lm_maxiter, quiet, log) -> dict | None:
+def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, request, *,
+                    log) -> dict | None:
     """The block bootstrap of the joint problem (fitlab.fitting.resampling): whole incidence
     directions resampled **in every channel at once** (an incidence is one block across the
-    channels, as the instrument measured it), each replicate refitted jointly. None when not
-    run (``bootstrap=0``, or None with fewer than 3 incidences); {"skipped": ...} when asked
+    channels, as the instrument measured it), each replicate refitted jointly (the refits,
+    seed and step limit of ``request``). None when not run (``bootstrap=0``, or None with
+    fewer than 3 incidences); {"skipped": ...} when asked
     for with too few incidences."""
     from fitlab.fitting import goodness as gof
     from fitlab.fitting.resampling import DEFAULT_BOOTSTRAP, MIN_BLOCKS, block_bootstrap
 
     rows = np.concatenate([np.flatnonzero(r) for r in rows_list])
     keys, block = gof.incidence_blocks(m.theta_i[rows], m.phi_i[rows])
+    bootstrap = request.bootstrap
     n = bootstrap if bootstrap is not None else (DEFAULT_BOOTSTRAP if len(keys) >= MIN_BLOCKS
                                                  else 0)
     if not n:
@@ -334,9 +317,9 @@ def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, *, b
                 "skipped": f"{len(keys)} fitted incidence direction(s): the bootstrap resamples "
                            f"whole incidences and needs at least {MIN_BLOCKS}"}
     log(f"  bootstrap: refitting {n} resamples of {len(keys)} incidences (all channels jointly)")
-    kw = {} if lm_maxiter is None else {"lm_maxiter": lm_maxiter}
-    return block_bootstrap(joint, data, loss, ls, block, replicates=int(n), seed=seed,
-                           batch=len(ls.starts), progress=not quiet, **kw)
+    return block_bootstrap(joint, data, loss, ls, block, replicates=int(n), seed=request.seed,
+                           batch=len(ls.starts), progress=request.progress,
+                           lm_maxiter=request.lm_maxiter)
 
 
 def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, idx, *, seed):
@@ -381,5 +364,5 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
     return good, rec, ([sentence] if sentence else []) + warnings
 
 
-__all__ = ["JointStatic", "check_share", "coordinate_name", "joint_space", "joint_data",
+__all__ = ["JointStatic", "coordinate_name", "joint_space", "joint_data",
            "fit_joint", "joint_bootstrap"]

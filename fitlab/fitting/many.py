@@ -23,7 +23,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.batch import CHUNK, SCAN, STARTS, BatchResult, Problem, chunks, fit_chunk, group
-from fitlab.fitting.least_squares import LM_MAXITER, LeastSquaresResult, lm_record
+from fitlab.fitting.least_squares import LeastSquaresResult, lm_record
 from fitlab.fitting.status import Status, channel_statuses
 
 #: Columns of the table before the per-parameter ones.
@@ -221,7 +221,7 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
         lm_record(f.lm_stopped, int(f.lm_iterations), int(settings["lm_maxiter"])))
 
 
-def _problems(measurements, model, *, fix, free, options, loss, subset):
+def _problems(measurements, request):
     """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
     from fitlab.fitting.channel import channel_problem, fitted_rows, resolve_fit
     from fitlab.fitting.subset import rows_of
@@ -229,11 +229,10 @@ def _problems(measurements, model, *, fix, free, options, loss, subset):
     problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
     for i, m in enumerate(measurements):
         try:
-            mdl, opts, fixed, notes, lss, start = resolve_fit(m, model, options=options,
-                                                              fixed=fix, free=free, loss=loss)
+            mdl, opts, fixed, notes, lss, start = resolve_fit(m, request)
         except ValueError as exc:
             raise FitlabError(f"{m.path}: {exc}") from None
-        _, mask = rows_of(subset, m)
+        _, mask = rows_of(request.subset, m)
         rows.append(mask)
         fixed_all.append(fixed)
         notes_all.append(notes)
@@ -279,53 +278,61 @@ def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
     return run_nuts_many(items, seed=seed, nsteps=nsteps, nchains=chains)[:n_real]
 
 
-def fit_many(measurements, model, *, fix: dict | None = None, free=(),
-             options: dict | None = None, loss: str | None = None, subset=None,
-             starts: int = STARTS, scan: int = SCAN, seed: int = 0,
-             lm_maxiter: int = LM_MAXITER, chunk: int = CHUNK, mcmc: bool = False,
-             mcmc_steps: int = 1000, chains: int = 4, progress: bool = False,
-             throw: bool = False) -> ManyResult:
+#: fit_many's defaults where they differ from a single fit's (FitRequest's).
+MANY_DEFAULTS = {"starts": STARTS, "mcmc_steps": 1000, "walkers": 4, "sampler": "nuts"}
+
+
+def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
+             throw: bool = False, **settings) -> ManyResult:
     """Fit ``model`` to every channel of every measurement (Measurements or paths; a file with
     a ``dataset`` column is one measurement per dataset, ``ManyResult.measurements``) with
     batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
-    ``records()`` are parameter files, its ``table()`` one CSV of every fit). ``fix``, ``free``,
-    ``options``, ``loss``, ``subset`` as in :func:`fitlab.fit`; ``scan``: Halton points of the
-    global stage; ``starts``: Levenberg–Marquardt starts besides the scan's best point and the
-    model's defaults; ``chunk``: datasets per compiled call (memory grows with it); ``mcmc``:
-    also the posterior of every dataset by NUTS (blackjax; ``chains`` chains × ``mcmc_steps``
-    adaptation and draws), vmapped over the datasets of a chunk as well (emcee, the single
-    fit's reference sampler, is not batched: use fitlab.fit per file). ``throw``: raise a
-    FitlabError naming the fits that are not ``ok`` (``ManyResult.statuses``) instead of
+    ``records()`` are parameter files, its ``table()`` one CSV of every fit).
+
+    ``model`` is a registry name, a Model or a whole :class:`fitlab.fitting.request.FitRequest`;
+    ``settings`` are the request's fields as in :func:`fitlab.fit` (``fix``, ``free``,
+    ``options``, ``loss``, ``subset``, ``starts``, ``seed``, ``lm_maxiter``, ``mcmc``,
+    ``mcmc_steps``, ``walkers``, ``progress``), with the defaults of :data:`MANY_DEFAULTS`:
+    ``starts`` are Levenberg–Marquardt starts besides the scan's best point and the model's
+    defaults; ``mcmc`` also samples the posterior of every dataset by NUTS (blackjax;
+    ``walkers`` chains × ``mcmc_steps`` adaptation and draws), vmapped over the datasets of a
+    chunk as well (emcee, the single fit's reference sampler, is not batched: use fitlab.fit
+    per file). What only a single fit offers (``share``, ``bootstrap``, ``aperture_order``,
+    ``start``, ``channels``, ``walter_diagnostics``) is refused. ``scan``: Halton points of the
+    global stage; ``chunk``: datasets per compiled call (memory grows with it). ``throw``: raise
+    a FitlabError naming the fits that are not ``ok`` (``ManyResult.statuses``) instead of
     returning them."""
-    from fitlab.models import get_model
-    from fitlab.fitting.api import parameter_values, read
+    from fitlab.fitting.api import read
+    from fitlab.fitting.request import FitRequest, as_request
 
     t0 = time.perf_counter()
+    request = as_request(model, settings if isinstance(model, FitRequest)
+                         else {**MANY_DEFAULTS, **settings})
+    for name, v, lo in (("scan", scan, 1), ("chunk", chunk, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
+    single = request.single_only()
+    if single:
+        raise FitlabError(f"a batched fit of many datasets does not offer {', '.join(single)}; "
+                          "fit the files one at a time (fitlab.fit) for those")
+    if request.mcmc and request.sampler != "nuts":
+        raise FitlabError(f"a batched fit samples its posteriors with NUTS (sampler='nuts'), "
+                          f"not {request.sampler}: emcee runs one file at a time (fitlab.fit)")
     if isinstance(measurements, (str, bytes, os.PathLike)) or hasattr(measurements, "value"):
         measurements = [measurements]
     ms = [d for m in measurements
           for d in (read(m) if not hasattr(m, "value") else m).datasets()]
     if not ms:
         raise FitlabError("fit_many needs at least one measurement")
-    for name, v, lo in (("starts", starts, 0), ("scan", scan, 1), ("chunk", chunk, 1),
-                        ("lm_maxiter", lm_maxiter, 1), ("mcmc_steps", mcmc_steps, 100),
-                        ("chains", chains, 2)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
-    try:
-        mdl = get_model(model) if isinstance(model, str) else model
-    except ValueError as exc:
-        raise FitlabError(f"{exc} (see `fitlab models`)") from None
-    fix = parameter_values(mdl, fix, "fix")
-    problems, spaces, rows, fixed, notes, losses, opts = _problems(
-        ms, mdl.name, fix=fix, free=tuple(free or ()), options=options, loss=loss,
-        subset=subset)
+    starts, seed, lm_maxiter = request.starts, request.seed, request.lm_maxiter
+    mdl, subset = request.model, request.subset
+    problems, spaces, rows, fixed, notes, losses, opts = _problems(ms, request)
     if not problems:
         raise FitlabError("no dataset has rows to fit (check the subset)")
     groups = group(problems)
     work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
     bar = None
-    if progress:
+    if request.progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(problems), desc="fits", unit="fit", file=sys.stderr,
@@ -338,9 +345,9 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
                                          seed=seed, lm_maxiter=lm_maxiter,
                                          batch=min(chunk, len(g)))
             posts = [None] * len(idx)
-            if mcmc:
+            if request.mcmc:
                 posts = _posteriors([problems[j] for j in idx], res, seed=seed,
-                                    nsteps=mcmc_steps, chains=chains,
+                                    nsteps=request.mcmc_steps, chains=request.walkers or 4,
                                     batch=min(chunk, len(g)))
             for k, j in enumerate(idx):
                 i, channel = problems[j].key
@@ -355,7 +362,7 @@ def fit_many(measurements, model, *, fix: dict | None = None, free=(),
         if bar is not None:
             bar.close()
     settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
-                "chunk": chunk, "mcmc": mcmc, "spaces": spaces, "rows": rows,
+                "chunk": chunk, "mcmc": request.mcmc, "spaces": spaces, "rows": rows,
                 "subset_expr": subset if isinstance(subset, str) else None}
     out = ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
                      time.perf_counter() - t0, settings)

@@ -164,14 +164,15 @@ def predictive_check(space, data, loss, chain, block, *, seed: int,
     return gof.posterior_predictive(R, sigma, block)
 
 
-def channel_misfit(m, rows, space, data, loss, ls, chain, *, bootstrap: int | None, seed: int,
-                   lm_maxiter: int = LM_MAXITER, progress: bool = False,
+def channel_misfit(m, rows, space, data, loss, ls, chain, request, *,
                    log=lambda msg: None) -> dict:
     """Goodness of fit and the block bootstrap of one channel (``rows``: the boolean mask of its
-    fitted rows in ``m``; ``bootstrap``: refits, None for :data:`DEFAULT_BOOTSTRAP` where there
-    are enough incidences and none otherwise, 0 for none). Returns {goodness, bootstrap (or None),
+    fitted rows in ``m``; ``request``: the fit's FitRequest, whose ``bootstrap`` is the refits,
+    None for :data:`DEFAULT_BOOTSTRAP` where there are enough incidences and none otherwise, 0
+    for none; its seed and step limit are the refits'). Returns {goodness, bootstrap (or None),
     warnings}: the records of data_formats/fit_json.md and the sentences for the channel's
     warnings."""
+    seed, bootstrap = request.seed, request.bootstrap
     keys, block = gof.incidence_blocks(m.theta_i[rows], m.phi_i[rows])
     absolute = has_absolute_noise(loss)
     predictive = None
@@ -193,8 +194,8 @@ def channel_misfit(m, rows, space, data, loss, ls, chain, *, bootstrap: int | No
         else:
             log(f"  bootstrap: refitting {bootstrap} resamples of {len(keys)} incidences")
             res = block_bootstrap(space, data, loss, ls, block, replicates=int(bootstrap),
-                                  seed=seed, batch=len(ls.starts), lm_maxiter=lm_maxiter,
-                                  progress=progress)
+                                  seed=seed, batch=len(ls.starts),
+                                  lm_maxiter=request.lm_maxiter, progress=request.progress)
             seconds = res["seconds"]
             boot = {"method": "block bootstrap over incidence directions (whole incidences "
                               "resampled with replacement, each replicate refitted from the "

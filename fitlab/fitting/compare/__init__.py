@@ -94,25 +94,26 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     from fitlab.fitting.subset import channel_ids, rows_of
 
     m = read(measurement) if not hasattr(measurement, "value") else measurement
-    cands = resolve_candidates(models, fix, options, free)
     if not cv and not mcmc:
         raise FitlabError("nothing to rank by: keep cross-validation (cv=True, drop --no-cv) "
                           "or the posterior's PSIS-LOO and WAIC (mcmc=True, drop --no-mcmc)")
     if mcmc:
         _arviz()
-        if mcmc_steps < 100:
-            raise FitlabError("--mcmc-steps must be at least 100")
-    from fitlab.fitting.losses import LOSSES
-
-    if loss is not None and loss not in LOSSES:
-        raise FitlabError(f"--loss {loss}: {LOSSES.unknown(loss)}")
-    loss = loss or ("chi2" if m.sigma is not None else "relative")
     expr, rows_fit = rows_of(subset, m)
     chan_ids = channel_ids(channels, m, "--channel")
     chan_ids = list(range(len(m.channel_names))) if chan_ids is None else chan_ids
     chan_ids = [c for c in chan_ids if np.any(rows_fit & (m.channel == c))]
     if not chan_ids:
         raise FitlabError(f"{m.path}: no row is left to fit (check --fit-subset and --channel)")
+    # One request per candidate, all sharing these settings (checked once, by FitRequest). The
+    # fits' block bootstrap does not enter the ranking (the cross-validation is its
+    # misfit-aware measure): left out.
+    loss = loss or ("chi2" if m.sigma is not None else "relative")
+    settings = {"loss": loss, "subset": rows_fit, "mcmc": mcmc, "mcmc_steps": mcmc_steps,
+                "walkers": walkers, "starts": starts, "seed": seed, "bootstrap": 0,
+                "channels": tuple(m.channel_names[c] for c in chan_ids)}
+    cands = resolve_candidates(models, fix, options, free, settings)
+    fix = {k: float(v) for k, v in (fix or {}).items()}  # each checked by a candidate's request
     incs = {c: incidences_of(m, rows_fit & (m.channel == c)) for c in chan_ids}
     if cv:
         few = [m.channel_names[c] for c in chan_ids if len(incs[c]) < 2]
@@ -131,14 +132,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             if bar is not None:
                 bar.set_postfix_str(f"{cand.label}: fit" + (" + MCMC" if mcmc else ""))
             try:
-                res = fit(m, cand.model, fix=cand.fix, free=cand.free, start=cand.start,
-                          options=cand.options, loss=loss, subset=rows_fit,
-                          channels=[m.channel_names[c] for c in chan_ids], mcmc=mcmc,
-                          mcmc_steps=mcmc_steps, walkers=walkers, starts=starts,
-                          seed=seed, progress=False,
-                          # the fits' block bootstrap does not enter the ranking (the
-                          # cross-validation is its misfit-aware measure): left out
-                          bootstrap=0)
+                res = fit(m, cand.request)
             except FitlabError as exc:
                 raise FitlabError(f"--model {cand.label!r}: {exc}") from None
             res = res.with_record({**thaw(res.record),

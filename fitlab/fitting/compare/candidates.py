@@ -78,13 +78,33 @@ def parse_candidate(text: str) -> Candidate:
 
 
 class Resolved(NamedTuple):
+    """A candidate checked: its label, its spec (as the command line writes its own settings)
+    and its :class:`fitlab.fitting.request.FitRequest` (the comparison's settings with the
+    candidate's model, fixed values, options, freed parameters and start)."""
+
     label: str
-    spec: str  # the candidate as the command line writes it (its own settings)
-    model: object  # fitlab.models.Model
-    fix: dict  # its own fixed values and the global ones that apply to it
-    options: dict  # resolved (defaults filled in)
-    free: tuple
-    start: dict  # its extra Levenberg–Marquardt start (fitlab.fit's ``start``)
+    spec: str
+    request: object  # fitlab.fitting.request.FitRequest
+
+    @property
+    def model(self):
+        return self.request.model
+
+    @property
+    def fix(self) -> dict:
+        return dict(self.request.fix)
+
+    @property
+    def options(self) -> dict:
+        return dict(self.request.options)
+
+    @property
+    def free(self) -> tuple:
+        return self.request.free
+
+    @property
+    def start(self) -> dict:
+        return dict(self.request.start)
 
 
 def _spec(name, fix, options, free, start) -> str:
@@ -94,13 +114,15 @@ def _spec(name, fix, options, free, start) -> str:
     return " ".join(parts)
 
 
-def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved]:
+def resolve_candidates(models, fix=None, options=None, free=(), settings=None) -> list[Resolved]:
     """Every candidate checked before anything is fitted (model names, options, parameters and
     their values); ``fix``, ``options`` and ``free`` apply to each candidate that has that
-    parameter or option (a candidate's own settings win), and each must apply to one at least."""
+    parameter or option (a candidate's own settings win), and each must apply to one at least.
+    ``settings``: the comparison's shared FitRequest settings (loss, subset, steps, seed, …),
+    checked once; each candidate's request is a variant of them (default: FitRequest's
+    defaults)."""
     from fitlab.models import get_model
-    from fitlab.api import check_params, resolve_options
-    from fitlab.fitting.api import parameter_values
+    from fitlab.fitting.request import FitRequest
 
     fix, options, free = dict(fix or {}), dict(options or {}), tuple(free or ())
     if isinstance(models, (str, Candidate)):
@@ -118,17 +140,18 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
         raise FitlabError(f"give at least two models to compare (got {len(cands)}): repeat "
                           "--model, e.g. --model lambertian+rough_conductor --model "
                           "'weidlich_wilkie(lambertian)'")
+    mdls = []
+    for c in cands:
+        try:
+            mdls.append(get_model(c.model))
+        except ValueError as exc:
+            raise FitlabError(f"--model {c.model!r}: {exc} (see `fitlab models`)") from None
+    base = FitRequest(mdls[0], spelling="cli", **(settings or {}))
     used_fix, used_opt, used_free = set(), set(), set()
     out = []
-    for c in cands:
+    for c, mdl in zip(cands, mdls):
         where = f"--model {c.model!r}"
-        try:
-            mdl = get_model(c.model)
-        except ValueError as exc:
-            raise FitlabError(f"{where}: {exc} (see `fitlab models`)") from None
         names = mdl.parameter_names
-        own_fix = {k: float(v) for k, v in (c.fix or {}).items()}
-        own_opt = dict(c.options or {})
         opt_names = {o.name for o in mdl.options}
         glob_fix = {k: v for k, v in fix.items() if k in names}
         glob_opt = {k: v for k, v in options.items() if k in opt_names}
@@ -136,27 +159,16 @@ def resolve_candidates(models, fix=None, options=None, free=()) -> list[Resolved
         used_fix |= set(glob_fix)
         used_opt |= set(glob_opt)
         used_free |= set(glob_free)
-        for k in own_fix:
-            if k not in names:
-                raise FitlabError(f"{where}: --fix {k}: model {mdl.name!r} has no parameter "
-                                  f"{k!r} (its parameters: {', '.join(names)})")
-        for k in c.free or ():
-            if k not in names:
-                raise FitlabError(f"{where}: --free {k}: model {mdl.name!r} has no parameter "
-                                  f"{k!r} (its parameters: {', '.join(names)})")
-        fixed = {**glob_fix, **own_fix}
+        own_fix, own_opt, own_free = dict(c.fix or {}), dict(c.options or {}), tuple(c.free or ())
+        own = {"model": mdl, "fix": {**glob_fix, **own_fix}, "options": {**glob_opt, **own_opt},
+               "free": own_free + glob_free, "start": c.start or {}}
         try:
-            opts = resolve_options(mdl, {**glob_opt, **own_opt})
-            check_params(mdl, {**{p.name: p.default for p in mdl.parameters}, **fixed})
-        except ValueError as exc:
-            raise FitlabError(f"{where}: {exc} (see `fitlab models`)") from None
-        freed = tuple(dict.fromkeys(tuple(c.free or ()) + glob_free))
-        try:
-            start = parameter_values(mdl, c.start, "--start")
+            request = base.replace(**own)
         except FitlabError as exc:
             raise FitlabError(f"{where}: {exc}") from None
-        out.append(Resolved(c.label, _spec(mdl.name, own_fix, own_opt, tuple(c.free or ()),
-                                           start), mdl, fixed, opts, freed, start))
+        spec = _spec(mdl.name, {k: request.fix[k] for k in own_fix}, own_opt, own_free,
+                     request.start)
+        out.append(Resolved(c.label, spec, request))
     for what, given, used in (("--fix", fix, used_fix), ("--option", options, used_opt),
                               ("--free", free, used_free)):
         unused = [k for k in given if k not in used]

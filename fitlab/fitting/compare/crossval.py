@@ -100,9 +100,8 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     exactly as fitlab.fit builds it (``order``: its aperture quadrature order, if any)."""
     from fitlab.fitting.channel import resolve_fit
 
-    mdl, options, fixed, _, loss, start = resolve_fit(m, cand.model.name, options=cand.options,
-                                                      fixed=cand.fix, free=cand.free, loss=loss,
-                                                      start=cand.start)
+    mdl, options, fixed, _, loss, start = resolve_fit(
+        m, cand.request if cand.request.loss == loss else cand.request.replace(loss=loss))
     base = {"model": mdl, "options": options, "fixed": fixed, "loss": loss, "start": start,
             "channel": channel, "in_chan": m.channel == channel, "order": order}
     space, data, start_native = _channel_problem(m, base, rows, order)
@@ -131,7 +130,8 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
             space, data_k, start_native = _channel_problem(m, base, kept, order)
             data = _masked(base["data"], data_k, kept[rows])
             ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
-                                   n_starts=starts, seed=seed)
+                                   n_starts=starts, seed=seed,
+                                   lm_maxiter=cand.request.lm_maxiter)
             if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
