@@ -119,6 +119,65 @@ def test_true_model_wins_by_cross_validation(cv_runs):
     assert "CV rank" in stderr and "Decisive." in stderr
 
 
+def test_statuses_say_what_undermines_the_ranking(cv_runs, tmp_path):
+    """Each candidate's statuses per channel are in the record (the fit's statuses, and
+    folds_failed); a candidate that misfits leaves the comparison ok, any other status does not
+    (ok, raise_for_status, throw=, the terminal's status: lines); a schema_version 1 file loads
+    but cannot answer."""
+    from fitlab.fitting.status import Status
+
+    out, _, stderr = cv_runs[0]
+    r = cmp.load_compare(out / "compare.json")
+    assert r.statuses(TRUE_MODEL, "Y") == (Status.CONVERGED,)
+    assert Status.MISFIT in r.statuses("diffuse only", "Y")  # what the comparison finds
+    assert r.ok and r.raise_for_status() is r and "status:" not in stderr
+    with pytest.raises(ValueError, match="no candidate 'nope'"):
+        r.statuses("nope")
+    rec = json.loads((out / "compare.json").read_text(encoding="utf-8"))
+    rec["channels"][0]["models"][0]["statuses"] = ["at_bound"]
+    bad = cmp.CompareResult.from_record(rec)
+    assert not bad.ok and bad.statuses(TRUE_MODEL) == (Status.AT_BOUND,)
+    with pytest.raises(FitlabError, match=f"{TRUE_MODEL} channel Y: at_bound .widen"):
+        bad.raise_for_status()
+    assert f"status: {TRUE_MODEL} channel Y: at_bound: widen" in bad.summary()
+    # a file written before statuses were recorded
+    for mod in rec["channels"][0]["models"]:
+        del mod["statuses"]
+    rec["schema_version"] = 1
+    old = tmp_path / "compare.json"
+    old.write_text(json.dumps(rec), encoding="utf-8")
+    r1 = cmp.load_compare(old)
+    assert r1.winner() == TRUE_MODEL and "status:" not in r1.summary()
+    with pytest.raises(ValueError, match="older fitlab .schema_version 1"):
+        r1.statuses(TRUE_MODEL)
+    rec["schema_version"] = 3
+    old.write_text(json.dumps(rec), encoding="utf-8")
+    with pytest.raises(FitlabError, match="schema_version 3; this fitlab reads 1 to 2"):
+        cmp.load_compare(old)
+
+
+def test_a_failed_fold_is_a_status(synthetic, monkeypatch):
+    """A fold that cannot be fitted ranks its model last by CV and adds folds_failed, which
+    throw=True turns into an error naming the candidate and what to do."""
+    from fitlab.fitting.compare import crossval
+    from fitlab.fitting.status import Status
+
+    real = crossval._channel_problem
+    calls = {"n": 0}
+
+    def flaky(m, base, rows, order):
+        calls["n"] += 1
+        if base["model"].name == "lambertian" and calls["n"] > 2 and not rows.all():
+            raise ValueError("made to fail")
+        return real(m, base, rows, order)
+
+    monkeypatch.setattr(crossval, "_channel_problem", flaky)
+    r = fitlab.compare(synthetic, [TRUE_MODEL, "lambertian"], mcmc=False, starts=1)
+    assert Status.FOLDS_FAILED in r.statuses("lambertian") and not r.ok
+    with pytest.raises(FitlabError, match="lambertian channel Y: folds_failed .read the fold"):
+        fitlab.compare(synthetic, [TRUE_MODEL, "lambertian"], mcmc=False, starts=1, throw=True)
+
+
 def test_tables_match_the_spec(cv_runs):
     out = cv_runs[0][0]
     with open(out / "compare.csv", newline="", encoding="utf-8") as fh:

@@ -37,6 +37,8 @@ class Status(StrEnum):
     BOOTSTRAP_FAILED = "bootstrap_failed"
     #: the aperture quadrature moves the optimum by more than its tolerance
     APERTURE_INACCURATE = "aperture_inaccurate"
+    #: a cross-validation fold of a comparison could not be fitted (the model is ranked last)
+    FOLDS_FAILED = "folds_failed"
 
     @property
     def ok(self) -> bool:
@@ -68,6 +70,8 @@ _ADVICE = {
     Status.BOOTSTRAP_FAILED: "read the least-squares uncertainty with care, or refit with "
                              "fewer free parameters",
     Status.APERTURE_INACCURATE: "refit with a higher aperture order (--aperture-order)",
+    Status.FOLDS_FAILED: "read the fold's error in the comparison's warnings; give the candidate "
+                         "a start (--start inside its --model) or fix a parameter (--fix)",
 }
 
 

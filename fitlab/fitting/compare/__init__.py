@@ -79,7 +79,8 @@ def _progress(enabled, total):
 def compare(measurement, models, *, fix: dict | None = None, free=(), options: dict | None = None,
             loss: str | None = None, subset=None, channels=None, cv: bool = True,
             mcmc: bool = True, mcmc_steps: int = 3000, walkers: int | None = None,
-            starts: int = 8, seed: int = 0, progress: bool = False) -> "CompareResult":
+            starts: int = 8, seed: int = 0, progress: bool = False,
+            throw: bool = False) -> "CompareResult":
     """Fit each of ``models`` to ``measurement`` (a Measurement or a path) and rank them by
     leave-one-incidence-out cross-validation (``cv``) and by PSIS-LOO and WAIC from the MCMC
     posterior (``mcmc``, needs ArviZ); returns an immutable :class:`CompareResult`.
@@ -89,7 +90,9 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     fix, options, free: apply to every candidate that has the parameter or option (a
     candidate's own settings win). loss, subset, channels, mcmc_steps, walkers, starts, seed:
     as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
-    likelihood). progress: a bar with the time left on stderr."""
+    likelihood). progress: a bar with the time left on stderr. What limits trust in the ranking is
+    ``result.statuses(label, channel)`` and ``result.ok``; throw: raise a FitlabError naming it
+    instead of returning a comparison that is not ``ok``."""
     from fitlab.fitting.api import fit, read
     from fitlab.fitting.subset import channel_ids, rows_of
 
@@ -171,7 +174,8 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             bar.close()
     record = _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
                      mcmc_steps, walkers, starts, seed, fix, options, free, run_warnings)
-    return CompareResult.from_record(record, fits, m)
+    out = CompareResult.from_record(record, fits, m)
+    return out.raise_for_status() if throw else out
 
 
 __all__ = ["Candidate", "CompareResult", "compare", "load_compare", "parse_candidate",

@@ -3,4 +3,6 @@
 from __future__ import annotations
 
 SCHEMA = "fitlab-compare"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions load_compare reads (1: before channels[c].models[k].statuses).
+READABLE_VERSIONS = (1, 2)

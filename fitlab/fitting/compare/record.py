@@ -13,6 +13,7 @@ from fitlab.fitting.compare.criteria import _arviz, _compare_ic
 from fitlab.fitting.compare.crossval import (_rms, incidence_keys, incidences_of,
                                              jackknife_difference)
 from fitlab.metrics import REL_ERR_FLOOR, relative_errors
+from fitlab.fitting.status import Status, channel_statuses
 
 #: A difference is decisive beyond this many standard errors ...
 DECISIVE_SE = 2.0
@@ -219,6 +220,7 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
                 "in_sample": {"rms_relative_error": in_sample[cand.label],
                               "per_incidence": [_rms(x) for x in e["in_sample"]]},
                 "fit_warnings": list(fit.get("warnings") or []),
+                "statuses": [str(st) for st in channel_statuses(fit)],
             })
         ch = {"channel": name, "rows_fitted": int(rows.sum()),
               "noise_scale": {"relative": noise, "source": source},
@@ -231,6 +233,9 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
             block, order = _cv_block(entries, labels, noise)
             for mod in models:
                 mod["cv"] = block[mod["label"]]
+                if mod["cv"]["failed_folds"]:
+                    mod["statuses"] = [st for st in mod["statuses"] if st != Status.CONVERGED] \
+                        + [str(Status.FOLDS_FAILED)]
                 for f in block[mod["label"]]["failed_folds"]:
                     warnings.append(f"channel {name}: {mod['label']}: the cross-validation "
                                     f"fold without θi = {f['theta_i']:g}°, φi = "

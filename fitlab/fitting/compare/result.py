@@ -12,9 +12,10 @@ from pathlib import Path
 from types import MappingProxyType
 
 from fitlab.errors import FitlabError
-from fitlab.fitting.compare.common import SCHEMA, SCHEMA_VERSION
+from fitlab.fitting.compare.common import READABLE_VERSIONS, SCHEMA, SCHEMA_VERSION
 from fitlab.fitting.compare.record import _fmt
 from fitlab.fitting.result import _freeze, thaw
+from fitlab.fitting.status import Status
 
 #: The files ``CompareResult.save`` writes into the output folder (the report adds index.html).
 TABLE_JSON, TABLE_CSV, INCIDENCE_CSV, FITS_DIR = ("compare.json", "compare.csv",
@@ -115,6 +116,43 @@ class CompareResult:
     def warnings(self) -> tuple[str, ...]:
         return tuple(self.record["warnings"])
 
+    # ---- trust --------------------------------------------------------------------------
+
+    def statuses(self, label, channel=None) -> tuple[Status, ...]:
+        """What limits trust in candidate ``label``'s fit of ``channel`` (its fit's statuses,
+        fitlab.fitting.status, and ``FOLDS_FAILED`` where a cross-validation fold could not be
+        fitted); read from the record, so a loaded comparison answers alike."""
+        if label not in self.labels:
+            raise ValueError(f"no candidate {label!r}; candidates: {', '.join(self.labels)}")
+        mod = self._channel(channel)["models"][self.labels.index(label)]
+        if "statuses" not in mod:
+            raise ValueError("this comparison was written by an older fitlab (schema_version "
+                             f"{self.record.get('schema_version')}), without statuses: rerun "
+                             "fitlab compare")
+        return tuple(Status(s) for s in mod["statuses"])
+
+    def _untrusted(self) -> list[tuple[str, str, Status]]:
+        """(label, channel, status) of every status that undermines the comparison: any but
+        ``converged`` and ``misfit`` (a candidate that does not describe the data is what a
+        comparison finds, not a failure of it)."""
+        return [(lab, ch, s) for ch in self.channels for lab in self.labels
+                for s in self.statuses(lab, ch) if s not in (Status.CONVERGED, Status.MISFIT)]
+
+    @property
+    def ok(self) -> bool:
+        """Whether every candidate's fit and folds ran as they should, so that the ranking can
+        be used as it stands (candidates may misfit: that is what is ranked)."""
+        return not self._untrusted()
+
+    def raise_for_status(self) -> "CompareResult":
+        """This result if it is :attr:`ok`, else a FitlabError naming each candidate's statuses
+        and what to do about each."""
+        bad = self._untrusted()
+        if bad:
+            raise FitlabError("the comparison is not to be trusted as it stands: " + "; ".join(
+                f"{lab} channel {ch}: {s.value} ({s.advice})" for lab, ch, s in bad))
+        return self
+
     # ---- tables -----------------------------------------------------------------------
 
     def table(self) -> list[dict]:
@@ -174,7 +212,7 @@ class CompareResult:
 
     def summary(self) -> str:
         """What ``fitlab compare`` prints: per channel the ranking table and the verdict, then
-        the warnings."""
+        the warnings and the statuses that undermine the ranking (:attr:`ok`)."""
         lines = []
         for ch in self.record["channels"]:
             noise = ch["noise_scale"]["relative"]
@@ -216,6 +254,9 @@ class CompareResult:
                              "'When the measures disagree').")
         for w in self.record["warnings"]:
             lines.append(f"warning: {w}")
+        if all("statuses" in mod for ch in self.record["channels"] for mod in ch["models"]):
+            lines += [f"status: {lab} channel {ch}: {s.value}: {s.advice}"
+                      for lab, ch, s in self._untrusted()]
         return "\n".join(lines) + "\n"
 
     # ---- files ------------------------------------------------------------------------
@@ -263,9 +304,10 @@ def load_compare(path) -> CompareResult:
     if not isinstance(rec, dict) or rec.get("schema") != SCHEMA:
         raise InputFileError(path, f"is not a fitlab comparison (no \"schema\": \"{SCHEMA}\")",
                              hint=hint)
-    if rec.get("schema_version") != SCHEMA_VERSION:
+    if rec.get("schema_version") not in READABLE_VERSIONS:
         raise InputFileError(path, f"has schema_version {rec.get('schema_version')!r}; this "
-                             f"fitlab reads {SCHEMA_VERSION}", hint="rerun fitlab compare")
+                             f"fitlab reads {READABLE_VERSIONS[0]} to {SCHEMA_VERSION}",
+                             hint="rerun fitlab compare")
     for key, kind in (("data", dict), ("settings", dict), ("candidates", list),
                       ("channels", list), ("warnings", list), ("software", dict)):
         if not isinstance(rec.get(key), kind):
