@@ -105,7 +105,7 @@ def fresnel_conductor_LazanyiSzirmayKalos(cos_i, n, k):
     F = ((n-1)² + 4 n (1-cos)^5 + k²) / ((n+1)² + k²). Exact at normal and grazing incidence.
     Elek quotes a deviation of "5% at most"; for this form that holds up to about 55° for the
     appendix metals, but near 80° it overestimates by up to 6% (copper) and 41% (chromium)
-    (measured in tests/test_reference_values.py)."""
+    (measured in tests/models/test_reference_values.py)."""
     q = 1.0 - jnp.clip(jnp.abs(cos_i), 0.0, 1.0)
     return ((n - 1.0) ** 2 + 4.0 * n * q**5 + k * k) / ((n + 1.0) ** 2 + k * k)
 

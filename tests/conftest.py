@@ -20,7 +20,7 @@ import tempfile
 #: time goes into running compiled code (an MCMC chain, a network's training: 5 to 15 times
 #: slower at -O0) is marked ``optimized``: it compiles at XLA's default optimization level
 #: (the fixture ``_optimization_of_marked_tests``). What users get, XLA's defaults, is tested
-#: too: tests/test_compiler_settings.py runs the registry contract and the sampling tests under
+#: too: tests/project/test_compiler_settings.py runs the registry contract and the sampling tests under
 #: them. FITLAB_TEST_XLA_DEFAULTS=1 runs a session under XLA's defaults; a setting already in
 #: XLA_FLAGS is left as it is.
 TEST_XLA_FLAGS = {"xla_cpu_use_fusion_emitters": "false"}
@@ -222,10 +222,10 @@ def _release_after_module(request):
     _release_compiled_code(request.module)
 
 
-#: The modules whose quick cases tests/test_compiler_settings.py runs in a child session under
+#: The modules whose quick cases tests/project/test_compiler_settings.py runs in a child session under
 #: XLA's defaults (what users get).
-DEFAULTS_CHECKED_MODULES = ("tests/test_model_contract.py", "tests/test_hard_cases.py",
-                            "tests/test_sampling.py")
+DEFAULTS_CHECKED_MODULES = ("tests/models/test_model_contract.py",
+                            "tests/models/test_hard_cases.py", "tests/models/test_sampling.py")
 DEFAULTS_SESSION_TEST = "test_compiler_settings.py::test_contract_holds_under_xla_default_settings"
 
 

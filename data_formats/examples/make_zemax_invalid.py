@@ -2,7 +2,7 @@
 
 Each is an excerpt of the brown vinyl file (its first two angles of incidence, 15° and 20°:
 58 lines, DataEnd on line 58) with one fault; data_formats/zemax_bsdf.md lists them and
-tests/test_io_zemax.py checks the error each one raises (file, line, what to do).
+tests/io/test_io_zemax.py checks the error each one raises (file, line, what to do).
 
     python data_formats/examples/make_zemax_invalid.py
 """

@@ -1,7 +1,7 @@
 """GLSL (and HLSL) readers for fitlab lookup tables, with the exact index mapping of
 ``fitlab.lut`` (texel centres at the ends of every axis, the u⁸ / sqrt / log axis mappings,
 linear interpolation between the slices of a third axis). data_formats/lut_exr.md documents the
-layout; tests/test_lut_glsl.py compiles the GLSL in Mesa's llvmpipe and compares it with direct
+layout; tests/lut/test_lut_glsl.py compiles the GLSL in Mesa's llvmpipe and compares it with direct
 evaluation.
 
 Texture set-up the code expects: the table's channels, in the order of the ``fitlab.channels``

@@ -32,7 +32,7 @@ Three checks, each a p-value against :data:`P_FAIL`:
 
 A check *fails* when its p-value is below :data:`P_FAIL` = 0.001 (after the Šidák correction
 where it covers several incidences): at most 0.1% false alarms per check for a model that does
-describe the data (``tests/test_goodness.py`` checks the nominal rate).
+describe the data (``tests/fitting/test_goodness.py`` checks the nominal rate).
 
 The block bootstrap's summaries (:func:`bootstrap_summary`) live here too; its refits are in
 fitlab.fitting.resampling.

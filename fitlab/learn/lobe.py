@@ -7,7 +7,7 @@
    without the unscattered delta.
 2. Its multiple-scattering part is that result minus the exact single scattering, which the
    model computes (validated against the simulator's own single scattering:
-   tests/test_spongecake.py, benchmarks/spongecake_furnace.py). Its standard error is the
+   tests/models/test_spongecake.py, benchmarks/spongecake_furnace.py). Its standard error is the
    simulation's.
 3. ``spongecake(LAYERS,multiple=only)`` — the modified single-scattering lobe W1·f_ss(p') and the
    Lambertian lobes W2/π, W2T/π — is fitted to it by :func:`fitlab.fit_measurement` (global

@@ -344,7 +344,7 @@ def make(extension: str | None = None) -> Model:
         # KHR_materials_clearcoat's Fresnel uses N·V alone: f(i, o) != f(o, i). Appendix B's
         # fresnel_mix weighs the diffuse term by 1 - F(V·H) per half vector, which is not an
         # energy balance: a white base_color reflects 1.115 of the light at 85° incidence
-        # (tests/test_gltf_model.py measures it).
+        # (tests/models/test_gltf_model.py measures it).
         capabilities=Capabilities(reciprocal=not coat, energy_conserving=False,
                                   isotropic=not aniso, transmission=trans),
     )

@@ -22,7 +22,7 @@ The recursion (eq. 2), evaluated from the top with L, V the directions above lay
   by the solid-angle compression of the smooth-interface derivation (the same factor as the
   coated model); ``none`` is eq. 2 exactly as printed, which is not energy conserving (the
   lower lobe, widened by refraction, is integrated over the outside hemisphere without the
-  1/η² of the solid angle: up to η² too bright; measured in tests/test_layered.py).
+  1/η² of the solid angle: up to η² too bright; measured in tests/models/test_layered.py).
 
 Option ``roughness_clamp=clamp`` applies section 3's fix m_{i+1} ≥ m_i (α of every layer, and
 of a rough-conductor base, at least the largest α above it; Algorithm 1 line 21).

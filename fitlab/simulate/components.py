@@ -10,7 +10,7 @@ Mitsuba's conventions, converted here and nowhere else (:func:`f_from_mitsuba`):
 traces flux from the light, so every Mitsuba BSDF runs in ``TransportMode.Importance`` with
 ``si.wi`` toward the light; its sample weight is then the fraction of flux carried (no 1/η² of
 radiance transport), and its ``eval`` is f(wi, wo)|cos θo| with f in fitlab's (radiance)
-convention — checked against fitlab's JAX models in tests/test_simulate_engine.py.
+convention — checked against fitlab's JAX models in tests/simulate/test_simulate_engine.py.
 
 Used from Mitsuba (variant llvm_ad_rgb / cuda_ad_rgb): ``roughdielectric`` and
 ``roughconductor`` (GGX, isotropic and anisotropic, visible-normal sampling),
@@ -320,7 +320,7 @@ class SGGXPhase:
     Mitsuba's ``sggx`` plugin is not used: its ``sample`` does not follow its own ``eval_pdf``
     for a general incident direction (``sggx_sample`` projects S into the frame with the
     transposed basis: measured, the mean sampled direction differed from the quadrature of the
-    density by 0.8 for a fiber along x; tests/test_simulate_engine.py), and its S lives in a
+    density by 0.8 for a fiber along x; tests/simulate/test_simulate_engine.py), and its S lives in a
     volume texture looked up at every call. Here S is expressed in the frame of wi by fitlab
     (S' = Bᵀ S B, B = [s t wi]) and ``sggx_sample`` is called in the identity frame, where the
     two conventions agree."""

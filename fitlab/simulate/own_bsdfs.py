@@ -202,7 +202,7 @@ def G1_Beckmann(v, alpha, alpha_y=None):
     """Exact Beckmann Smith G1, Walter eq. 26: 2 / (1 + erf(a) + exp(-a²)/(a√π)), a = 1/(α tanθv),
     written 2a / (a (1 + erf a) + exp(-a²)/√π): no division by a. Mitsuba's ``beckmann``
     uses eq. 27's rational approximation instead (0.3 % from this, measured in
-    tests/test_simulate_engine.py), so fitlab's exact family is written here."""
+    tests/simulate/test_simulate_engine.py), so fitlab's exact family is written here."""
     import drjit as dr
 
     a = _beckmann_a(v, alpha, alpha_y)

@@ -1,0 +1,216 @@
+"""Batched fits (``fitlab.fit_many``, ``fitlab fit FILE FILE ...``): the same optimum as a single
+fit, grouping by structure, chunking that does not change results, the parameter files and the
+table, the CLI and its refusals."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fitlab
+from fitlab.cli import main
+from fitlab.errors import FitlabError
+
+ROOT = Path(__file__).resolve().parents[2]
+WALTER = ROOT / "data_formats" / "examples" / "walter_rough_glass.csv"
+RGB = ROOT / "data_formats" / "examples" / "measurement_rgb_sigma.csv"
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    """Five datasets of the Walter example's structure (normal incidence, relative data) with
+    known α and scale, 5 % noise."""
+    m = fitlab.read(WALTER)
+    base = m.select(m.theta_i == 0)
+    rng = np.random.default_rng(4)
+    truth = np.stack([rng.uniform(0.15, 0.5, 5), rng.uniform(0.7, 1.5, 5)], axis=1)
+    out = []
+    for k, (a, s) in enumerate(truth):
+        f = np.asarray(fitlab.eval_bsdf("rough_dielectric", {"alpha": a, "eta": base.eta()},
+                                        base.wi, base.wo))
+        v = s * f * (1 + 0.05 * rng.standard_normal(f.shape))
+        out.append(base._replace(value=np.maximum(v, 0.0), path=f"synthetic_{k}.csv"))
+    return out, truth
+
+
+def test_batched_fit_equals_the_single_fit():
+    m = fitlab.read(WALTER)
+    many = fitlab.fit_many([m], "rough_dielectric", subset="theta_i == 0")
+    single = fitlab.fit(m, "rough_dielectric", subset="theta_i == 0", bootstrap=0)
+    got = many.parameters(0)
+    for name in ("alpha", "scale"):
+        assert got[name] == pytest.approx(single.parameters["Y"][name], rel=1e-7)
+    f = many.fits[0]
+    for name, se in zip(f.names, f.stderr):
+        assert se == pytest.approx(single.stderr["Y"][name], rel=1e-5)
+    assert f.lm_stopped == "converged" and many.groups == 1
+
+
+def test_recovers_known_values_and_chunks_do_not_change_results(synthetic):
+    ms, truth = synthetic
+    one = fitlab.fit_many(ms, "rough_dielectric")
+    two = fitlab.fit_many(ms, "rough_dielectric", chunk=2)  # chunks of 2, the last padded
+    a1 = np.array([f.native for f in one.fits])
+    a2 = np.array([f.native for f in two.fits])
+    np.testing.assert_allclose(a1, a2, rtol=1e-9)
+    assert np.all(np.abs(a1 - truth) <= 0.05 * truth), (a1, truth)  # 5 % noise, 69 rows
+    assert [f.dataset for f in one.fits] == list(range(5))
+    # statuses by the single fit's rule (fitlab.fitting.status): these converge inside the box
+    assert one.ok and all(one.statuses(k) == ("converged",) for k in range(5))
+    assert one.raise_for_status() is one
+
+
+def test_a_fit_stopped_by_its_iteration_limit_is_not_ok(synthetic):
+    from fitlab.errors import FitlabError
+    from fitlab.fitting.status import Status
+
+    ms, _ = synthetic
+    short = fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1)
+    assert not short.ok and Status.MAX_ITERATIONS in short.statuses(0)
+    with pytest.raises(FitlabError, match="dataset 0 channel Y: max_iterations"):
+        fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1, throw=True)
+
+
+def test_structures_are_grouped(synthetic):
+    """The RGB file (chi2 loss: it has sigma; 4 rows) and the synthetic sets (relative loss,
+    69 rows) are two structures; every channel is a dataset."""
+    ms, _ = synthetic
+    r = fitlab.fit_many([ms[0], fitlab.read(RGB), ms[1]], "rough_conductor")
+    assert r.groups == 2
+    assert [(f.dataset, f.channel) for f in r.fits] == [(0, "Y"), (1, "R"), (1, "G"), (1, "B"),
+                                                        (2, "Y")]
+    assert r.loss == {0: "relative", 1: "chi2", 2: "relative"}
+
+
+def test_records_are_parameter_files_and_table_has_every_fit(tmp_path, synthetic):
+    from fitlab.export.paramfile import write_fit
+
+    ms, truth = synthetic
+    r = fitlab.fit_many(ms[:2], "rough_dielectric")
+    for i, record in r.records():
+        path = tmp_path / f"{i}.json"
+        write_fit(path, record)
+        loaded = fitlab.load_fit(path)
+        assert loaded.parameters["Y"]["alpha"] == pytest.approx(r.parameters(i)["alpha"])
+        assert loaded.stderr["Y"]["alpha"] > 0
+        assert "fit_many" in " ".join(loaded.record["notes"])
+        f = loaded.predict(ms[i].wi, ms[i].wo)
+        assert np.all(np.isfinite(f))
+    rows = list(csv.DictReader(io.StringIO("".join(r.table().splitlines(True)[1:]))))
+    assert [row["dataset"] for row in rows] == ["0", "1"]
+    assert float(rows[1]["alpha"]) == r.parameters(1)["alpha"]
+    assert float(rows[1]["alpha_stderr"]) == pytest.approx(r.fits[1].stderr[0])
+
+
+def test_cli_several_files(tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_bytes(WALTER.read_bytes())
+    b.write_bytes(WALTER.read_bytes())
+    code = main(["fit", str(a), str(b), "--model", "rough_dielectric", "--fit-subset",
+                 "theta_i == 0", "--out-dir", str(tmp_path / "fits"), "--table",
+                 str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "fitted 2 datasets of 2 files" in err and "fits/s" in err
+    for name in ("a", "b"):
+        r = fitlab.load_fit(tmp_path / "fits" / f"{name}.json")
+        assert r.parameters["Y"]["alpha"] == pytest.approx(0.39717, abs=1e-4)
+        assert r.record["data"]["path"] == f"../{name}.csv"  # relative, no machine path
+    text = (tmp_path / "t.csv").read_text()
+    assert text.splitlines()[1].startswith("dataset,source,channel,rows_fitted")
+    assert text.splitlines()[2].startswith("0,a.csv,Y,69,")  # relative to the table
+    assert str(tmp_path) not in text
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--mcmc", "--out-dir", "D"], "--sampler nuts"),
+    (["--chain", "x.json", "--out-dir", "D"], "not with --chain"),
+    (["--out", "x.json", "--table", "t.csv"], "not with --out"),
+    ([], "give --out-dir"),
+    (["--out-dir", "D", "--chunk", "0"], "--chunk must be at least 1"),
+])
+def test_cli_refusals(tmp_path, capsys, extra, needle):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_bytes(WALTER.read_bytes())
+    b.write_bytes(WALTER.read_bytes())
+    extra = [str(tmp_path / e) if e in ("D", "x.json", "t.csv") else e for e in extra]
+    code = main(["fit", str(a), str(b), "--model", "rough_dielectric", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"]
+
+
+def test_cli_bad_file_writes_nothing(tmp_path, capsys):
+    a, bad = tmp_path / "a.csv", tmp_path / "bad.csv"
+    a.write_bytes(WALTER.read_bytes())
+    bad.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n0,0,0,0,oops\n")
+    code = main(["fit", str(a), str(bad), "--model", "rough_dielectric", "--out-dir",
+                 str(tmp_path / "fits"), "--table", str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.csv" in err
+    assert not (tmp_path / "fits").exists() and not (tmp_path / "t.csv").exists()
+
+
+@pytest.mark.slow
+def test_batched_posteriors_by_nuts(synthetic):
+    """fit_many(mcmc=True): NUTS vmapped over the datasets; each posterior centred on its
+    least-squares optimum (median within 2 standard errors), trusted, in the table."""
+    pytest.importorskip("blackjax")
+    ms, truth = synthetic
+    r = fitlab.fit_many(ms[:3], "rough_dielectric", mcmc=True, mcmc_steps=300, walkers=4)
+    for f in r.fits:
+        med = np.median(f.mcmc.samples_native, axis=0)
+        assert np.all(np.abs(med - f.native) < 2 * f.stderr), (med, f.native, f.stderr)
+        assert f.mcmc.sampler == "nuts" and f.mcmc.samples_native.shape == (1200, 2)
+        np.testing.assert_allclose(f.mcmc.samples_native.std(0), f.stderr, rtol=0.25)
+    head = r.table().splitlines()[1].split(",")
+    assert "alpha_p50" in head and "posterior_trusted" in head
+    rec = dict(r.records())[0]
+    assert rec["fits"][0]["mcmc"]["sampler"] == "nuts"
+
+
+@pytest.mark.slow
+def test_dataset_column_one_fit_per_dataset(tmp_path):
+    """A file with a dataset column: fit_many and `fitlab fit FILE --out-dir` fit each dataset
+    on its own (α of the three synthetic samples back within 3 standard errors), name the
+    parameter files STEM.LABEL.json and the table's sources FILE#LABEL; a single fit of the
+    file is refused with that advice; a report of one dataset's fit takes its rows."""
+    import subprocess
+    import sys
+
+    data = ROOT / "data_formats" / "examples" / "measurement_datasets.csv"
+    res = fitlab.fit_many(data, "rough_dielectric")
+    assert [m.metadata["dataset"] for m in res.measurements] == ["frosted_a", "frosted_b",
+                                                                 "frosted_c"]
+    for k, truth in enumerate((0.12, 0.25, 0.4)):
+        f = [x for x in res.fits if x.dataset == k][0]
+        a, e = float(f.native[0]), float(f.stderr[0])
+        assert abs(a - truth) < 3 * e + 1e-3, (k, a, e)
+    with pytest.raises(FitlabError, match="holds 3 datasets"):
+        fitlab.fit(data, "rough_dielectric")
+    single = fitlab.fit(fitlab.read(data).dataset_named("frosted_b"), "rough_dielectric")
+    assert single.parameters["Y"]["alpha"] == pytest.approx(res.parameters(1)["alpha"], rel=1e-6)
+    out = tmp_path / "fits"
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
+                        "rough_dielectric", "--out-dir", str(out), "--table",
+                        str(out / "t.csv"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in out.glob("*.json")) == [
+        f"measurement_datasets.{x}.json" for x in ("frosted_a", "frosted_b", "frosted_c")]
+    rows = (out / "t.csv").read_text().splitlines()[2:]
+    assert [r.split(",")[1].rsplit("#", 1)[1] for r in rows] == ["frosted_a", "frosted_b",
+                                                                "frosted_c"]
+    rec = fitlab.load_fit(out / "measurement_datasets.frosted_c.json")
+    assert rec.record["data"]["metadata"]["dataset"] == "frosted_c"
+    assert rec.record["data"]["rows"] == fitlab.read(data).dataset_named("frosted_c").n
+    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
+                        "rough_dielectric"], capture_output=True, text=True)
+    assert r.returncode == 2 and "holds 3 datasets" in r.stderr and "--out-dir" in r.stderr
+    from fitlab.report.inputs import load_data
+
+    m, _ = load_data(rec.record, out / "measurement_datasets.frosted_c.json")
+    assert m.metadata["dataset"] == "frosted_c" and m.n == rec.record["data"]["rows"]

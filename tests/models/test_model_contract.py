@@ -1,0 +1,399 @@
+"""The contract every registry model keeps, tested over the whole registry: every model in
+``fitlab.models.MODELS``, every layered constructor applied to every registry model it accepts,
+and a sum, so a model is tested the moment it is registered.
+
+Checks, on a hard-case grid built from each parameter's declared bounds and role (roughness
+1e-4 to 1 and vMF concentrations κ at their bounds, index ratios at their bounds, near 1 and below 1, thick and absorbing layers) and
+directions (normal incidence, grazing to 89.99°, wi == wo, mirror pairs, transmission pairs,
+incidence from below):
+
+1. values and parameter gradients finite in float32 and float64, f >= 0;
+2. sampling: weight == f|cos θo|/pdf and ``pdf`` == the pdf ``sample`` returns;
+3. reciprocity where the model declares it (f(i, o) = f(o, i) on the reflection side; the
+   generalized form f(i, o)/η_o² = f(o, i)/η_i² across a transmitting interface);
+4. white furnace: the directional albedo (mean sample weight) is at most 1;
+4b. lobes a model declares interchangeable (``model.exchangeable``) trade places without
+   changing f or the pdf;
+5. (slow) χ² goodness of fit of ``sample`` against ``pdf`` (tests/chi2.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import zlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fitlab.models import CONSTRUCTORS, MODELS, get_model
+
+try:
+    from chi2 import chi2_test, sidak_level, sidak_z
+except ImportError:  # pragma: no cover
+    from tests.chi2 import chi2_test, sidak_level, sidak_z
+
+
+def _registry_models():
+    """Every registry model, every constructor over every plain model it accepts, a sum."""
+    plain = [n for n in MODELS if "(" not in n]
+    names = list(MODELS)
+    for ctor in CONSTRUCTORS:
+        for inner in plain:
+            name = f"{ctor}({inner})"
+            try:
+                get_model(name)
+            except ValueError:  # refused by the constructor (e.g. a transmitting base)
+                continue
+            names.append(name)
+    names += ["lambertian+rough_conductor", "coated(lambertian,specular=lobe)",
+              "weidlich_wilkie(oren_nayar,layers=3)",
+              "lambertian+rough_conductor+rough_conductor"]  # a sum that repeats a component
+    return tuple(dict.fromkeys(names))
+
+
+NAMES = _registry_models()
+
+# ----------------------------------------------------------------------------------------------
+# Hard-case parameters and directions
+# ----------------------------------------------------------------------------------------------
+
+
+def _clip(p, x):
+    return float(min(max(x, p.lower), p.upper))
+
+
+#: Each set maps a role to a value chooser (parameter -> value); other roles keep the default.
+PARAMETER_SETS = {
+    "default": {},
+    "smooth": {"roughness": lambda p: p.lower, "concentration": lambda p: p.upper,
+               "index": lambda p: _clip(p, 1.5)},
+    "rough": {"roughness": lambda p: p.upper, "concentration": lambda p: p.lower,
+              "albedo": lambda p: p.upper},
+    "index_near_1": {"index": lambda p: _clip(p, 1.0001), "roughness": lambda p: _clip(p, 1e-3),
+                     "concentration": lambda p: _clip(p, 2e6)},
+    "index_below_1": {"index": lambda p: _clip(p, 1 / 1.5)},
+    "index_bounds": {"index": lambda p: p.upper, "extinction": lambda p: p.upper,
+                     "roughness": lambda p: _clip(p, 0.05), "concentration": lambda p: _clip(p, 800.0)},
+    "thick_absorbing": {"optical_depth": lambda p: p.upper, "extinction": lambda p: p.upper,
+                        "albedo": lambda p: p.lower},
+    "anisotropic": {"roughness": None},  # alternating widths, see _values
+}
+
+
+def _values(model, set_name):
+    choose = PARAMETER_SETS[set_name]
+    out, k = {}, 0
+    for p in model.parameters:
+        if set_name == "anisotropic" and p.role == "roughness":
+            out[p.name] = _clip(p, (0.03, 0.6)[k % 2])
+            k += 1
+        elif p.role in choose and choose[p.role] is not None:
+            out[p.name] = choose[p.role](p)
+        else:
+            out[p.name] = p.default
+    return out
+
+
+def _dir(theta_deg, phi_deg=0.0):
+    t, f = np.radians(theta_deg), np.radians(phi_deg)
+    return np.array([np.sin(t) * np.cos(f), np.sin(t) * np.sin(f), np.cos(t)])
+
+
+#: θi (degrees; > 90: from below) and outgoing (θo, φo) relative to φi = 30°.
+THETA_I = (0.0, 30.0, 60.0, 89.0, 89.99, 120.0, 179.0)
+THETA_O = (0.0, 10.0, 45.0, 80.0, 89.99, 100.0, 135.0, 170.0, 180.0)
+PHI_O = (0.0, 75.0, 180.0, 210.0)
+
+
+def _pairs():
+    wi, wo = [], []
+    for ti in THETA_I:
+        i = _dir(ti, 30.0)
+        for to in THETA_O:
+            for po in PHI_O:
+                wi.append(i)
+                wo.append(_dir(to, 30.0 + po))
+        wi += [i, i]
+        wo += [i, i * np.array([-1.0, -1.0, 1.0])]  # wi == wo and the mirror direction
+    return np.array(wi), np.array(wo)
+
+
+WI, WO = _pairs()
+
+
+def _batch(model, dtype):
+    """Every parameter set × every direction pair, as arrays of one shape."""
+    sets = list(PARAMETER_SETS)
+    n = len(WI)
+    params = {p.name: np.repeat([_values(model, s)[p.name] for s in sets], n).astype(dtype)
+              for p in model.parameters}
+    wi = np.tile(WI, (len(sets), 1)).astype(dtype)
+    wo = np.tile(WO, (len(sets), 1)).astype(dtype)
+    return params, wi, wo
+
+
+@functools.lru_cache(maxsize=None)
+def _eval_and_grad(name):
+    model = get_model(name)
+
+    def total(params, wi, wo):
+        f = model.eval(params, wi, wo)
+        return jnp.sum(f), f
+
+    return jax.jit(jax.grad(total, has_aux=True))
+
+
+@functools.lru_cache(maxsize=None)
+def _jit(name, which, options=()):
+    return jax.jit(functools.partial(getattr(get_model(name), which), **dict(options)))
+
+
+CHUNK = 8192
+
+
+def _fn(name, which, options=()):
+    """``model.<which>`` over fixed-size padded chunks of float64 rows: one compilation per
+    (model, function, options) whatever the batch size."""
+    fn = _jit(name, which, tuple(sorted(dict(options).items())))
+
+    def call(params, a, b):
+        a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        n = len(a)
+        pad = (-n) % CHUNK
+        grow = lambda x: np.concatenate([x, np.repeat(x[-1:], pad, axis=0)])  # noqa: E731
+        params = {k: grow(np.broadcast_to(np.asarray(v, np.float64), (n,))) for k, v in params.items()}
+        a, b = grow(a), grow(b)
+        outs = [jax.tree.map(np.asarray, fn({k: v[s:s + CHUNK] for k, v in params.items()},
+                                            a[s:s + CHUNK], b[s:s + CHUNK]))
+                for s in range(0, n + pad, CHUNK)]
+        return jax.tree.map(lambda *x: np.concatenate(x)[:n], *outs)
+
+    return call
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. values and gradients
+# ----------------------------------------------------------------------------------------------
+
+
+#: Layered models in float32 compile a second copy of the costliest kernels: in the quick tier
+#: one of each constructor, all of them in the whole suite.
+QUICK_FLOAT32_LAYERED = {"coated(rough_conductor)", "weidlich_wilkie(rough_conductor)"}
+
+#: Models whose every contract case runs in the whole suite only: the thin layer's kernels (its
+#: masking integral in every crossing) take 10-20 s each to compile; tests/models/test_thin_layer.py
+#: keeps its quick checks.
+SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
+               # two-layer SpongeCake stacks: their one-layer siblings stay in the quick tier
+               "spongecake(fiber,surface)", "spongecake(fiber_z,surface_z)",
+               "spongecake(fiber,surface,multiple=learned)"}
+
+
+def _marks(name, slow=False):
+    return [pytest.mark.slow] if slow or name in SLOW_MODELS else []
+
+
+def _value_cases():
+    for name in NAMES:
+        for dtype in ("float32", "float64"):
+            slow = dtype == "float32" and "(" in name and name not in QUICK_FLOAT32_LAYERED
+            yield pytest.param(name, dtype, id=f"{name}-{dtype}", marks=_marks(name, slow))
+
+
+@pytest.mark.parametrize("name, dtype", list(_value_cases()))
+def test_values_and_gradients_finite_and_nonnegative(name, dtype):
+    model = get_model(name)
+    params, wi, wo = _batch(model, dtype)
+    grads, f = _eval_and_grad(name)({k: jnp.asarray(v) for k, v in params.items()},
+                                    jnp.asarray(wi), jnp.asarray(wo))
+    f = np.asarray(f)
+    assert f.dtype == np.dtype(dtype)
+    bad = ~np.isfinite(f) | (f < 0)
+    assert not bad.any(), (f"{name} {dtype}: {bad.sum()} non-finite or negative values, first at "
+                           f"wi={wi[bad][0]}, wo={wo[bad][0]}, "
+                           f"{ {k: v[bad][0] for k, v in params.items()} }")
+    for k, g in grads.items():
+        g = np.asarray(g)
+        assert np.all(np.isfinite(g)), f"{name} {dtype}: d f/d {k} not finite at " \
+            f"wi={wi[~np.isfinite(g)][0]}, wo={wo[~np.isfinite(g)][0]}"
+    # a one-sided model is zero for incidence from below and toward the other side
+    if not model.capabilities.transmission:
+        assert np.all(f[(wi[:, 2] * wo[:, 2]) < 0] == 0)
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. sampling consistency
+# ----------------------------------------------------------------------------------------------
+
+N_U = 256
+SAMPLE_SETS = ("default", "rough", "index_below_1", "anisotropic", "thick_absorbing")
+SAMPLE_THETAS = (0.0, 40.0, 85.0, 89.9, 130.0)
+
+
+def _sample_batch(model, seed=3):
+    rng = np.random.default_rng(seed)
+    rows = [(s, t) for s in SAMPLE_SETS for t in SAMPLE_THETAS]
+    params = {p.name: np.repeat([_values(model, s)[p.name] for s, _ in rows], N_U)
+              for p in model.parameters}
+    wi = np.repeat([_dir(t, 20.0) for _, t in rows], N_U, axis=0)
+    u = rng.random((len(rows) * N_U, 3))
+    return params, wi, u
+
+
+#: Models whose non-default options are tested on a sibling with the same option code (the
+#: thin layer's options do not depend on its bottom): their defaults only.
+DEFAULTS_ONLY = {"thin_layer(rough_dielectric)"}
+
+
+def _option_variants():
+    """Default options (fast), and each other choice of each option on its own (slow)."""
+    cases = []
+    for n in NAMES:
+        cases.append(pytest.param(n, {}, id=n, marks=_marks(n)))
+        for o in (() if n in DEFAULTS_ONLY else get_model(n).options):
+            for c in o.choices:
+                if c != o.default:
+                    cases.append(pytest.param(n, {o.name: c}, id=f"{n}-{o.name}={c}",
+                                              marks=pytest.mark.slow))
+    return cases
+
+
+@pytest.mark.parametrize("name, options", _option_variants())
+def test_sample_weight_is_f_cos_over_pdf_and_pdf_matches(name, options):
+    model = get_model(name)
+    params, wi, u = _sample_batch(model)
+    try:
+        sample = _fn(name, "sample", options)
+        wo, weight, pdf_s = sample(params, wi, u)
+    except ValueError as exc:  # a combination the model refuses, with a message
+        assert "option" in str(exc) or "isotropic" in str(exc), exc
+        return
+    assert np.all(np.isfinite(wo)) and np.all(np.isfinite(weight)) and np.all(np.isfinite(pdf_s))
+    assert np.all(weight >= 0) and np.all(pdf_s >= 0)
+    valid = pdf_s > 0
+    assert valid.any()
+    assert np.all(weight[~valid] == 0)
+    f = _fn(name, "eval", options)(params, wi, wo)
+    pdf_e = _fn(name, "pdf", options)(params, wi, wo)
+    # narrow lobes: the recomputed half-vector moves D by (δθ/α)²; compare where pdf is moderate
+    ok = valid & (pdf_s < 1e6)
+    np.testing.assert_allclose(pdf_e[ok], pdf_s[ok], rtol=2e-5, atol=1e-12,
+                               err_msg=f"{name}: pdf(wi, wo) != the pdf sample() returned")
+    expected = f[ok] * np.abs(wo[ok, 2]) / pdf_s[ok]
+    np.testing.assert_allclose(weight[ok], expected, rtol=2e-5, atol=1e-12,
+                               err_msg=f"{name}: weight != f |cos θo| / pdf")
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. reciprocity
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if get_model(n).capabilities.reciprocal])
+def test_reciprocity_where_declared(name):
+    model = get_model(name)
+    params, wi, wo = _batch(model, "float64")
+    f_io = _fn(name, "eval")(params, wi, wo)
+    f_oi = _fn(name, "eval")(params, wo, wi)
+    reflection = wi[:, 2] * wo[:, 2] > 0
+    np.testing.assert_allclose(f_io[reflection], f_oi[reflection], rtol=1e-7, atol=1e-300,
+                               err_msg=f"{name}: f(i, o) != f(o, i) on the reflection side")
+    index = model.parameters_with_role("index")
+    if model.capabilities.transmission and len(index) == 1:
+        # Walter eq. 21: f(i, o)/η_o² = f(o, i)/η_i², with η = n_inside/n_outside (inside = -z)
+        t = ~reflection & (wi[:, 2] > 0)
+        eta = params[index[0].name][t]
+        np.testing.assert_allclose(f_io[t] / eta**2, f_oi[t], rtol=1e-7, atol=1e-300,
+                                   err_msg=f"{name}: generalized reciprocity fails")
+
+
+# ----------------------------------------------------------------------------------------------
+# 4. white furnace
+# ----------------------------------------------------------------------------------------------
+
+N_FURNACE = 40_000
+FURNACE_SETS = ("default", "rough", "smooth", "anisotropic")
+FURNACE_THETAS = (0.0, 60.0, 85.0)
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_marks(n)) for n in NAMES
+                                  if get_model(n).capabilities.energy_conserving])
+def test_white_furnace_albedo_at_most_one(name):
+    """The mean sample weight estimates ∫ f |cos θo| dωo (the albedo); it is at most 1 (plus
+    four standard errors), with albedo parameters at their upper bound."""
+    model = get_model(name)
+    rng = np.random.default_rng(11)
+    rows = [(s, t) for s in FURNACE_SETS for t in FURNACE_THETAS]
+    base = {s: {**_values(model, s), **{p.name: p.upper for p in model.parameters_with_role("albedo")}}
+            for s in FURNACE_SETS}
+    params = {p.name: np.repeat([base[s][p.name] for s, _ in rows], N_FURNACE)
+              for p in model.parameters}
+    wi = np.repeat([_dir(t, 10.0) for _, t in rows], N_FURNACE, axis=0)
+    u = rng.random((len(rows) * N_FURNACE, 3))
+    _, weight, _ = _fn(name, "sample")(params, wi, u)
+    w = weight.reshape(len(rows), N_FURNACE)
+    mean = w.mean(axis=1)
+    err = w.std(axis=1) / np.sqrt(N_FURNACE)
+    over = mean > 1.0 + 4.0 * err + 1e-3
+    assert not over.any(), f"{name}: albedo > 1 at " + ", ".join(
+        f"{rows[i]}: {mean[i]:.4f} ± {err[i]:.4f}" for i in np.flatnonzero(over))
+
+
+# ----------------------------------------------------------------------------------------------
+# 4b. interchangeable lobes
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if get_model(n).exchangeable])
+def test_exchangeable_lobes_trade_places(name):
+    """Swapping the values of two interchangeable lobes (alternating widths 0.03 / 0.6 from the
+    'anisotropic' set, so the lobes differ) leaves f and the pdf unchanged."""
+    model = get_model(name)
+    params, wi, wo = _batch(model, "float64")
+    for ex in model.exchangeable:
+        a, b = ex.parameters[0], ex.parameters[1]
+        swapped = dict(params)
+        for x, y in zip(a, b):
+            swapped[x], swapped[y] = params[y], params[x]
+        assert any(np.any(params[x] != params[y]) for x, y in zip(a, b))
+        for which in ("eval", "pdf"):
+            np.testing.assert_allclose(_fn(name, which)(swapped, wi, wo),
+                                       _fn(name, which)(params, wi, wo), rtol=1e-12, atol=0,
+                                       err_msg=f"{name}: {which} changes when lobes {a} and "
+                                       f"{b} trade places")
+
+
+# ----------------------------------------------------------------------------------------------
+# 5. χ² sampling test (slow)
+# ----------------------------------------------------------------------------------------------
+
+CHI2_THETAS = (30.0, 80.0)
+CHI2_CASES = [pytest.param(n, t, id=f"{n}-{t:g}", marks=pytest.mark.slow)
+              for n in NAMES for t in CHI2_THETAS]
+CHI2_LEVEL = sidak_level(0.01, len(CHI2_CASES))
+CHI2_Z = sidak_z(0.01, len(CHI2_CASES))
+N_CHI2 = 100_000
+
+
+@pytest.mark.parametrize("name, theta", CHI2_CASES)
+def test_chi2_sampling_matches_pdf(name, theta, request):
+    model = get_model(name)
+    p = _values(model, "anisotropic")
+    wi = _dir(theta, 20.0)
+    sample_fn, pdf_fn = _fn(name, "sample"), _fn(name, "pdf")
+
+    def sample(u):
+        wo, _, pdf = sample_fn(p, np.broadcast_to(wi, np.shape(u)), u)
+        return wo, pdf
+
+    def density(wo):
+        return pdf_fn(p, np.broadcast_to(wi, np.shape(wo)), wo)
+
+    seed = zlib.crc32(request.node.callspec.id.encode())
+    res = chi2_test(sample, density, N_CHI2, seed)
+    print(res.report())
+    assert res.pdf_mass <= 1.0 + 1e-6, res.report()
+    assert abs(res.pdf_mass - res.valid_fraction) <= CHI2_Z * res.mass_sigma() + 1e-6, res.report()
+    assert res.p_value >= CHI2_LEVEL, f"rejected at Šidák level {CHI2_LEVEL:.3g}: {res.report()}"
