@@ -1,6 +1,6 @@
 """What LUT accuracy costs: for each table kind, resolution × axis mapping × half/float →
 max and RMS relative error of the table read as the shader reads it (bilinear lookup of the
-stored values, ``fitlab.lut.lookup``, identical to the generated GLSL per tests/test_lut_glsl.py)
+stored values, ``fitlab.lut.lookup``, identical to the generated GLSL per tests/lut/test_lut_glsl.py)
 against direct evaluation at random points, the EXR file size in bytes, and the bake time.
 All variants of a kind are measured at the same points: equal parts uniform in the texture
 coordinates of each mapping the study uses for that kind.
