@@ -110,7 +110,7 @@ MAX_EVENTS, RR_START, RR_MIN_Q = 512, 3, 0.05
 KIND_CODE = {"pass": 0, "smooth": 1, "ggx": 2}
 
 #: The engines fastest first (measured by ``main``; see the module's report): the test of
-#: tests/test_walk_engines.py checks the first one that is importable.
+#: tests/benchmarks/test_walk_engines.py checks the first one that is importable.
 BY_SPEED = ("drjit", "numba32", "numba64")
 #: Paths each Dr.Jit lane traces one after another (path regeneration; 1: one path per lane).
 #: Measured at 2^19 paths: 1 -> 38% of a packet's lanes busy, 56 ns of CPU per event; 8 -> 67%,
