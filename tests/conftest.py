@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import gc
+import json
 import os
 import shutil
 import sys
@@ -129,7 +130,8 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 # The suite's compilations, counted per test process and summed in the summary line
 # "XLA: ... compilations" (pytest-xdist hands each worker's counts to the controller): most of
 # the suite's time is XLA compiling, so this is the figure that changes with it.
-_COMPILES = {"backend_compiles": 0, "backend_seconds": 0.0, "traces": 0, "cache_hits": 0}
+_COMPILES = {"backend_compiles": 0, "backend_seconds": 0.0, "traces": 0, "trace_seconds": 0.0,
+             "lowering_seconds": 0.0, "cache_hits": 0}
 
 
 def _count_duration(event, seconds, **_):
@@ -138,6 +140,9 @@ def _count_duration(event, seconds, **_):
         _COMPILES["backend_seconds"] += seconds
     elif event == "/jax/core/compile/jaxpr_trace_duration":
         _COMPILES["traces"] += 1
+        _COMPILES["trace_seconds"] += seconds
+    elif event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
+        _COMPILES["lowering_seconds"] += seconds
 
 
 def _count_event(event, **_):
@@ -154,6 +159,10 @@ def pytest_sessionfinish(session):
     workeroutput = getattr(session.config, "workeroutput", None)
     if workeroutput is not None:  # a pytest-xdist worker: report to the controller
         workeroutput["fitlab_compiles"] = dict(_COMPILES)
+    elif os.environ.get(RECORD_ENV) and _RECORDED:
+        with open(MODULE_SECONDS, "w", encoding="utf-8") as fh:
+            json.dump({k: round(v, 1) for k, v in sorted(_RECORDED.items())}, fh, indent=1)
+            fh.write("\n")
 
 
 def pytest_testnodedown(node, error):
@@ -167,7 +176,8 @@ def pytest_terminal_summary(terminalreporter):
     total = {k: sum(p[k] for p in parts) for k in _COMPILES}
     terminalreporter.write_line(
         f"XLA: {total['backend_compiles']} compilations ({total['backend_seconds']:.0f} s), "
-        f"{total['cache_hits']} loaded from the session cache, {total['traces']} traces, "
+        f"{total['cache_hits']} loaded from the session cache, {total['traces']} traces "
+        f"({total['trace_seconds']:.0f} s), lowering {total['lowering_seconds']:.0f} s, "
         f"in {len(parts)} process(es)")
 
 
@@ -201,9 +211,15 @@ def _release_compiled_code(test_module=None) -> None:
         pass
 
 
-#: A test process whose resident memory is above this after a test releases its compiled code
-#: there and then (a module that compiles many models would otherwise hold them all).
+#: A test process whose resident memory is above this after a test, and has grown by
+#: RELEASE_GROWTH_BYTES since its last release, releases its compiled code there and then (a
+#: module that compiles many models would otherwise hold them all). The growth condition matters:
+#: what a release cannot free (libraries, the allocator's arenas) kept a worker above the
+#: threshold for good, and a release after every test then compiled every eager operation again
+#: in every test (14,220 reloads from the session cache in one quick tier).
 RELEASE_ABOVE_BYTES = 768 * 2**20
+RELEASE_GROWTH_BYTES = 384 * 2**20
+_AFTER_RELEASE = {"bytes": 0}
 
 
 def _resident_bytes() -> int:
@@ -220,6 +236,7 @@ def _release_after_module(request):
     kernel any test had compiled (5.7 GB by the end of the quick tier)."""
     yield
     _release_compiled_code(request.module)
+    _AFTER_RELEASE["bytes"] = _resident_bytes()
 
 
 #: The modules whose quick cases tests/project/test_compiler_settings.py runs in a child session under
@@ -229,20 +246,58 @@ DEFAULTS_CHECKED_MODULES = ("tests/models/test_model_contract.py",
 DEFAULTS_SESSION_TEST = "test_compiler_settings.py::test_contract_holds_under_xla_default_settings"
 
 
+#: Each test module's measured seconds in the whole suite (FITLAB_RECORD_DURATIONS=1 rewrites it
+#: from a run): modules run heaviest first, so that the two workers of ``--dist loadfile`` end
+#: together (pyproject.toml turns xdist's own ordering, by number of tests, off).
+MODULE_SECONDS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "module_seconds.json")
+RECORD_ENV = "FITLAB_RECORD_DURATIONS"
+_RECORDED: dict[str, float] = {}
+
+
+def _heaviest_first(items) -> None:
+    try:
+        with open(MODULE_SECONDS, encoding="utf-8") as fh:
+            seconds = json.load(fh)
+    except (OSError, ValueError):
+        return
+    unknown = sorted(seconds.values())[len(seconds) // 2] if seconds else 0.0
+    first = {}
+    for k, item in enumerate(items):
+        first.setdefault(item.nodeid.split("::")[0], k)
+    items.sort(key=lambda i: (-seconds.get(i.nodeid.split("::")[0], unknown),
+                              first[i.nodeid.split("::")[0]]))
+
+
+def pytest_runtest_logreport(report):
+    if os.environ.get(RECORD_ENV):
+        module = report.nodeid.split("::")[0]
+        _RECORDED[module] = _RECORDED.get(module, 0.0) + report.duration
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(config, items):
-    """A session that runs the child session under XLA's defaults (the whole suite) runs the
-    quick cases of DEFAULTS_CHECKED_MODULES there only, under the settings users get, and not a
-    second time at the tests' fast-compile settings: the same checks, compiled once. Their slow
-    cases, and every case in a session without the child (the quick tier), run here."""
+    """Modules run heaviest first (MODULE_SECONDS). A session that runs slow tests leaves out
+    their quick-tier samples (marked
+    ``sample_of_slow``). A session that runs the child session under XLA's defaults (the whole
+    suite) runs the quick cases of DEFAULTS_CHECKED_MODULES there only, under the settings users
+    get, and not a second time at the tests' fast-compile settings: the same checks, compiled
+    once. Their slow cases, and every case in a session without the child (the quick tier), run
+    here."""
+    _heaviest_first(items)
+    if any(i.get_closest_marker("slow") is not None for i in items):
+        _deselect(config, items, [i for i in items if i.get_closest_marker("sample_of_slow")])
     if not FAST_COMPILE or not any(i.nodeid.endswith(DEFAULTS_SESSION_TEST) for i in items):
         return
     root = str(config.rootpath)
     again = [i for i in items if i.get_closest_marker("slow") is None
              and os.path.relpath(str(i.path), root) in DEFAULTS_CHECKED_MODULES]
-    if again:
-        config.hook.pytest_deselected(items=again)
-        keep = set(map(id, again))
+    _deselect(config, items, again)
+
+
+def _deselect(config, items, drop) -> None:
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        keep = set(map(id, drop))
         items[:] = [i for i in items if id(i) not in keep]
 
 
@@ -273,8 +328,9 @@ def _optimization_of_marked_tests(request):
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_teardown(item, nextitem):
     yield
-    if _resident_bytes() > RELEASE_ABOVE_BYTES:
+    if _resident_bytes() > max(RELEASE_ABOVE_BYTES, _AFTER_RELEASE["bytes"] + RELEASE_GROWTH_BYTES):
         _release_compiled_code(item.module)
+        _AFTER_RELEASE["bytes"] = _resident_bytes()
 
 
 #: Set by .ci/run: a test that would skip for a missing system package fails instead.

@@ -256,7 +256,8 @@ def _params():
     for fmt, (_, _, _, commands) in FORMATS.items():
         for cmd in commands:
             for tier in ("quick", "all"):
-                marks = [pytest.mark.slow] if tier == "all" else []
+                # the quick sample is a subset of the whole run's cases: not run beside it
+                marks = [pytest.mark.slow] if tier == "all" else [pytest.mark.sample_of_slow]
                 if tier == "quick" and (fmt in SLOW_FORMATS or cmd in SLOW_COMMANDS):
                     continue
                 yield pytest.param(fmt, cmd, tier, marks=marks, id=f"{fmt}-{cmd}-{tier}")
