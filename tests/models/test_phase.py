@@ -4,6 +4,8 @@ gradients."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -97,19 +99,25 @@ def test_phase_reciprocity(case):
 @pytest.mark.parametrize("case", CASES)
 def test_phase_float32_values_and_gradients_finite(case):
     name, params = _params(case, jnp.float32)
-    ev, sample = phase.PHASE_FUNCTIONS[name]
     rng = np.random.default_rng(2)
     wi = rng.normal(size=(256, 3)).astype(np.float32)
     wi[:4] = [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, 1, 1e-7]]
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     u = jax.random.uniform(jax.random.PRNGKey(0), (256, 2), dtype=jnp.float32)
-    wo, pdf = sample(params, jnp.asarray(wi), u)
+    wo, pdf, p, g = _phase_values_and_gradients(name, params, jnp.asarray(wi), u)
     assert wo.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(wo))) and bool(jnp.all(pdf >= 0))
-    wo_back = jnp.asarray(-wi)  # backscatter exactly: h = 0 for SGGX
-    p = ev(params, jnp.asarray(wi), jnp.concatenate([wo[:128], wo_back[128:]]))
     assert p.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(p)))
-    g = jax.grad(lambda x: jnp.sum(ev(params, x, wo)))(jnp.asarray(wi))
     assert bool(jnp.all(jnp.isfinite(g)))
+
+
+@functools.partial(jax.jit, static_argnums=0)  # one compilation per phase function
+def _phase_values_and_gradients(name, params, wi, u):
+    ev, sample = phase.PHASE_FUNCTIONS[name]
+    wo, pdf = sample(params, wi, u)
+    wo_back = -wi  # backscatter exactly: h = 0 for SGGX
+    p = ev(params, wi, jnp.concatenate([wo[:128], wo_back[128:]]))
+    g = jax.grad(lambda x: jnp.sum(ev(params, x, wo)))(wi)
+    return wo, pdf, p, g
 
 
 # --------------------------------------------------------------------------------------------
@@ -156,19 +164,23 @@ def test_vmf_matches_paper_density_and_masking():
     assert get_distribution("vmf").name == "vmf"
 
 
+@jax.jit  # one compilation for every α (op by op, every operation compiled on its own)
+def _vmf_values_and_gradients(m, a, u):
+    values = [(f(m, a), jax.grad(lambda x: jnp.sum(f(x, a)))(m),
+               jax.grad(lambda s: jnp.sum(f(m, s)))(a)) for f in (D_vMF, G1_vMF)]
+    return values, sample_m_vMF(u, u, a)
+
+
 @pytest.mark.parametrize("alpha", ALPHAS)
 def test_vmf_float32_values_and_gradients_finite(alpha):
     th = np.radians([0.0, 1e-3, 30.0, 89.0, 89.99, 90.0])
     m = np.stack([np.sin(th), 0 * th, np.cos(th)], -1).astype(np.float32) * 3.0
     a = jnp.asarray(alpha, dtype=jnp.float32)
-    for f in (D_vMF, G1_vMF):
-        v = f(jnp.asarray(m), a)
-        assert v.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(v)))
-        g = jax.grad(lambda x: jnp.sum(f(x, a)))(jnp.asarray(m))
-        assert bool(jnp.all(jnp.isfinite(g)))
-        ga = jax.grad(lambda s: jnp.sum(f(jnp.asarray(m), s)))(a)
-        assert bool(jnp.isfinite(ga))
     u = jnp.asarray([0.0, 1e-7, 0.5, 0.999999], dtype=jnp.float32)
-    ms = sample_m_vMF(u, u, a)
+    values, ms = _vmf_values_and_gradients(jnp.asarray(m), a, u)
+    for v, g, ga in values:
+        assert v.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(v)))
+        assert bool(jnp.all(jnp.isfinite(g)))
+        assert bool(jnp.isfinite(ga))
     assert ms.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(ms)))
     assert bool(jnp.all(ms[:, 2] > 0))

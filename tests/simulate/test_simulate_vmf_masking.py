@@ -76,15 +76,19 @@ def test_vmf_family_values_and_gradients_finite(name, dtype):
     fam = microfacet.REGISTRY[name]
     m = jnp.asarray(_unit([0.0, 1e-3, 30.0, 89.0, 89.99, 90.0]) * 3.0, dtype=dtype)
     a = jnp.asarray([*ALPHAS, np.sqrt(2.0 / 1e-2)], dtype=dtype)[:, None]  # (α, θ) pairs
-    for f in (fam.D, fam.G1):
-        val = f(m, a)
+    u = jnp.asarray([0.0, 1e-7, 0.5, 0.999999], dtype=dtype)
+
+    @jax.jit  # one compiled call (op by op, every operation compiled on its own)
+    def everything(m, a, u):
+        out = [(f(m, a), jax.grad(lambda x: jnp.sum(f(x, a)))(m),
+                jax.grad(lambda s: jnp.sum(f(m, s)))(a)) for f in (fam.D, fam.G1)]
+        return out, fam.sample_m(u, u, a)
+
+    values, ms = everything(m, a, u)
+    for f, (val, gm, ga) in zip((fam.D, fam.G1), values):
         assert val.dtype == dtype and val.shape == (a.size, len(m)), f
         assert bool(jnp.all(jnp.isfinite(val))) and bool(jnp.all(val >= 0)), (f, val)
-        gm = jax.grad(lambda x: jnp.sum(f(x, a)))(m)
-        ga = jax.grad(lambda s: jnp.sum(f(m, s)))(a)
         assert bool(jnp.all(jnp.isfinite(gm))) and bool(jnp.all(jnp.isfinite(ga))), (f, gm, ga)
-    u = jnp.asarray([0.0, 1e-7, 0.5, 0.999999], dtype=dtype)
-    ms = fam.sample_m(u, u, a)
     assert ms.dtype == dtype and bool(jnp.all(jnp.isfinite(ms))) and bool(jnp.all(ms[..., 2] > 0))
 
 
