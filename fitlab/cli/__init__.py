@@ -33,7 +33,9 @@ def build_parser():
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:  # answered by the subcommand that was given them, with its usage
+        parser.subcommand(getattr(args, "command", None)).unrecognized(extras)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -17,9 +17,60 @@ RGB = PRESET_CHANNELS
 
 
 class Parser(argparse.ArgumentParser):
+    """fitlab's argument parser: no abbreviated options (``--mcmc-step`` is not taken for
+    ``--mcmc-steps``), usage errors with exit status 2 under the (sub)command's name."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._seen = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
     def error(self, message):  # argparse's own usage errors keep exit status 2
+        import difflib
+        import re
+
+        choice = re.match(r"argument .*: invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+        if choice:
+            close = difflib.get_close_matches(
+                choice.group(1), re.findall(r"'([^']*)'", choice.group(2)), n=1, cutoff=0.5)
+            message += f"; did you mean {close[0]}?" if close else ""
+        elif message.startswith("the following arguments are required"):
+            hints = self._hints(getattr(self, "_seen", ()))
+            message += f" ({'; '.join(hints)})" if hints else ""
         self.print_usage(sys.stderr)
-        self.exit(2, f"fitlab: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def _hints(self, args) -> list[str]:
+        """'--modle: did you mean --model?' for each option in ``args`` this parser does not
+        have but has one close to."""
+        import difflib
+
+        known = [s for action in self._actions for s in action.option_strings]
+        hints = []
+        for arg in args:
+            name = arg.split("=", 1)[0]
+            if name.startswith("-") and name not in known:
+                close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+                if close:
+                    hints.append(f"{name}: did you mean {close[0]}?")
+        return hints
+
+    def subcommand(self, name) -> "Parser":
+        """The parser of subcommand ``name`` (this one when there is none of that name)."""
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction) and name in action.choices:
+                return action.choices[name]
+        return self
+
+    def unrecognized(self, extras):
+        """Arguments this (sub)command does not take: its usage, and for each unknown option
+        the closest one it has."""
+        hints = self._hints(extras)
+        self.error(f"unrecognized arguments: {' '.join(extras)}"
+                   + (f" ({'; '.join(hints)})" if hints else f" (see `{self.prog} --help`)"))
 
 
 # --------------------------------------------------------------------------------------------

@@ -235,3 +235,28 @@ def test_info_of_a_parameter_file(capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["format"] == "fit-json" and info["channels"] == ["Y"]
     assert set(info["parameters"]["Y"]) == {"alpha", "eta", "scale"}
+
+
+@pytest.mark.parametrize("argv, says", [
+    # no abbreviations: a prefix of an option is not that option
+    (["fit", "x.csv", "--model", "lambertian", "--mcmc-step", "100"],
+     "fitlab fit: error: unrecognized arguments: --mcmc-step 100 (--mcmc-step: did you mean "
+     "--mcmc-steps?)"),
+    (["fit", "x.csv", "--model", "lambertian", "--lm-maxiterr=3"],
+     "(--lm-maxiterr: did you mean --lm-maxiter?)"),
+    (["fit", "x.csv", "--modle", "lambertian"],
+     "fitlab fit: error: the following arguments are required: --model (--modle: did you mean "
+     "--model?)"),
+    (["info", "x.csv", "--bogus"],
+     "fitlab info: error: unrecognized arguments: --bogus (see `fitlab info --help`)"),
+    (["fti", "x.csv"], "; did you mean fit?"),
+])
+def test_unknown_options_answer_with_the_subcommands_usage_and_a_suggestion(argv, says, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert says in err, err
+    # the usage printed is the subcommand's own
+    command = argv[0] if argv[0] != "fti" else None
+    assert err.startswith(f"usage: fitlab {command} " if command else "usage: fitlab ["), err
