@@ -31,6 +31,7 @@ class InputFileError(FitlabError, ValueError):
     def __init__(self, path, message: str, *, line: int | None = None,
                  column: str | None = None, hint: str | None = None):
         self.path, self.line, self.column, self.hint = str(path), line, column, hint
+        self.message = message
         where = self.path if line is None else f"{self.path}:{line}"
         text = f"{where}: "
         if column is not None:  # column names may come from the file

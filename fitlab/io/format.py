@@ -16,3 +16,8 @@ class Format(NamedTuple):
     #: describe(path) -> dict of what the file holds (format, angles, channels, units, checks)
     describe: Callable
     spec: str  # the data_formats/ document
+    #: file name endings the format's files usually have (lower case, with the dot): when no
+    #: format recognizes a file, the one its ending names is tried, to say what is wrong
+    suffixes: tuple = ()
+    #: whether its files are binary (where two formats share an ending, a file's bytes tell)
+    binary: bool = False

@@ -15,6 +15,7 @@ from fitlab.errors import InputFileError
 from fitlab.io.format import Format
 from fitlab.registry import Registry
 from fitlab.io.files import read_bytes
+from fitlab.io.validate import quote
 
 #: Bytes read from the start of a file for detection.
 HEAD_BYTES = 4096
@@ -52,10 +53,48 @@ def detect_format(path, name: str | None = None) -> Format:
     for fmt in known.values():
         if fmt.detect(head, path):
             return fmt
-    raise InputFileError(
-        path, "is in no format fitlab recognizes",
-        hint=f"formats: {', '.join(known)}; see data_formats/ (or force one with --format)",
-    )
+    raise unrecognized(path, head, known)
+
+
+def closest_format(path, head: bytes, known) -> tuple[Format, str] | None:
+    """The format an unrecognized file most likely meant, and why: the one its name's ending
+    belongs to (text or binary as the file is, where endings are shared), else fitlab's CSV
+    for a text file; None for a binary file with an unknown ending."""
+    text = b"\0" not in head
+    by_suffix = [f for f in known.values() if Path(path).suffix.lower() in f.suffixes]
+    if len(by_suffix) > 1:  # .bsdf: Zemax's text or RGL's binary
+        by_suffix = [f for f in by_suffix if f.binary != text] or by_suffix
+    if by_suffix:
+        return by_suffix[0], f"by its ending {Path(path).suffix}"
+    if text and head.strip():
+        return known["csv"], "a text file"
+    return None
+
+
+def unrecognized(path, head: bytes, known) -> InputFileError:
+    """Why no format recognizes ``path``: an empty file says so; otherwise the closest format
+    (:func:`closest_format`) reads it and its first error is named."""
+    formats_hint = (f"formats: {', '.join(known)}; see data_formats/ (or force one with "
+                    "--format)")
+    if not head.strip():
+        return InputFileError(path, "is empty" if not head else "holds only white space",
+                              hint="give a measurement file; " + formats_hint)
+    closest = closest_format(path, head, known)
+    if closest is not None:
+        fmt, why = closest
+        try:
+            fmt.read(path)
+        except InputFileError as exc:
+            where = "".join(
+                [f"line {exc.line}: " if exc.line is not None else "",
+                 f"column {quote(exc.column)}: " if exc.column is not None else ""])
+            return InputFileError(
+                path, f"is in no format fitlab recognizes; read as the closest, {fmt.name} "
+                f"({fmt.description}; {why}), it fails at {where}{exc.message}"
+                + (f" ({exc.hint})" if exc.hint else ""), hint=formats_hint)
+        except (ValueError, OSError):
+            pass
+    return InputFileError(path, "is in no format fitlab recognizes", hint=formats_hint)
 
 
 def read_any(path, format: str | None = None, **options):

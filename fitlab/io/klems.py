@@ -574,4 +574,4 @@ def _detect(head: bytes, path) -> bool:
 
 
 FORMAT = Format("klems", "LBNL WINDOW / Radiance BSDF XML (Klems angle basis matrices)", _detect,
-                read_klems, describe_klems, "data_formats/klems_xml.md")
+                read_klems, describe_klems, "data_formats/klems_xml.md", suffixes=(".xml",))

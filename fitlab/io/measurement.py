@@ -639,4 +639,4 @@ def aperture_summary(m: Measurement) -> dict:
 
 
 FORMAT = Format("csv", "fitlab measurement CSV", _detect, lambda p, **kw: read_measurement(p),
-                describe_measurement, "data_formats/measurement_csv.md")
+                describe_measurement, "data_formats/measurement_csv.md", suffixes=(".csv",))

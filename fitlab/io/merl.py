@@ -324,4 +324,5 @@ def describe_merl(path) -> dict:
 
 
 FORMAT = Format("merl", "MERL BRDF database binary (90×90×180 RGB half/difference table)",
-                _detect, read_merl, describe_merl, "data_formats/merl_binary.md")
+                _detect, read_merl, describe_merl, "data_formats/merl_binary.md",
+                suffixes=(".binary",), binary=True)

@@ -344,4 +344,4 @@ def _detect(head: bytes, path) -> bool:
 
 
 FORMAT = Format("pgii", "pab pgII goniophotometer text scan (one incident direction)", _detect,
-                read_pgii, describe_pgii, "data_formats/pgii_text.md")
+                read_pgii, describe_pgii, "data_formats/pgii_text.md", suffixes=(".txt",))

@@ -704,4 +704,5 @@ def describe_rgl(path) -> dict:
 
 
 FORMAT = Format("rgl", "RGL-EPFL material database tensor file (.bsdf, Dupuy & Jakob 2018)",
-                _detect, read_rgl, describe_rgl, "data_formats/rgl_bsdf.md")
+                _detect, read_rgl, describe_rgl, "data_formats/rgl_bsdf.md", suffixes=(".bsdf",),
+                binary=True)

@@ -675,7 +675,7 @@ def _detect(head: bytes, path) -> bool:
 
 
 FORMAT = Format("zemax", "Zemax / Radiant Imaging tabular BSDF (.bsdf)", _detect, read_zemax,
-                describe_zemax, SPEC)
+                describe_zemax, SPEC, suffixes=(".bsdf", ".txt"))
 
 
 # --------------------------------------------------------------------------------------------
