@@ -81,8 +81,10 @@ def fit(measurement, model, *, throw: bool = False, **settings):
     expr, _ = rows_of(request.subset, m)
     try:
         result = fit_measurement(m, request, warn=False)
-    except ValueError as exc:
-        raise FitlabError(str(exc)) from None
+    except ValueError as exc:  # every message names the file it is about
+        text = str(exc)
+        raise FitlabError(text if text.startswith(f"{m.path}:") else f"{m.path}: {text}") \
+            from None
     result["notes"] = list(result["notes"]) + sanity_warnings(m)
     record = build_record(result, m, subset_expr=expr)
     if request.walter_diagnostics:

@@ -144,3 +144,14 @@ def test_the_cross_validation_folds_use_the_requests_step_limit(monkeypatch):
     rows = np.isin(m.theta_i, np.unique(m.theta_i)[:2])
     crossval.cross_validate(m, cand, "relative", rows, 0, starts=0)
     assert seen and set(seen) == {7}
+
+
+def test_a_fit_error_names_the_file(tmp_path, capsys):
+    """A data file too small for the model: the message names the file (it named only the
+    channel)."""
+    one = tmp_path / "one.csv"
+    one.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n0,0,10,0,0.3\n")
+    with pytest.raises(FitlabError, match=r"one\.csv: channel Y: 1 rows cannot constrain"):
+        fitlab.fit(one, "lambertian")
+    assert main(["fit", str(one), "--model", "lambertian"]) == 2
+    assert f"{one}: channel Y: 1 rows cannot constrain" in capsys.readouterr().err
