@@ -129,6 +129,14 @@ class FitRequest:
         set_ = object.__setattr__
         set_(self, "_spelling", spelling)
         name = (lambda f: _name(f, spelling))
+        for f in ("fix", "options", "start"):
+            if getattr(self, f) is not None and not isinstance(getattr(self, f), Mapping):
+                raise FitlabError(f"{name(f)} must be a mapping of names to values, got "
+                                  f"{getattr(self, f)!r}")
+        if self.channels is not None and not isinstance(self.channels, str) and (
+                not isinstance(self.channels, (list, tuple))
+                or not all(isinstance(c, str) for c in self.channels)):
+            raise FitlabError(f"{name('channels')} must be channel names, got {self.channels!r}")
         from fitlab.api import resolve_options
         from fitlab.models import get_model
 
@@ -180,10 +188,11 @@ class FitRequest:
         if self.sampler not in SAMPLERS:
             raise FitlabError(f"{name('sampler')}: {SAMPLERS.unknown(self.sampler)}")
         set_(self, "mcmc", bool(self.mcmc))
-        if self.mcmc and (isinstance(self.mcmc_steps, bool) or not isinstance(
-                self.mcmc_steps, (int, np.integer)) or self.mcmc_steps < MIN_MCMC_STEPS):
+        steps = self.mcmc_steps
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or (
+                self.mcmc and steps < MIN_MCMC_STEPS):
             raise FitlabError(f"{name('mcmc_steps')} must be at least {MIN_MCMC_STEPS}, got "
-                              f"{self.mcmc_steps!r}")
+                              f"{steps!r}")
         set_(self, "mcmc_steps", int(self.mcmc_steps))
         if self.walkers is not None:
             set_(self, "walkers", _integer(self.walkers, name("walkers"), 2))
