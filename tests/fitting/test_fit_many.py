@@ -174,14 +174,11 @@ def test_batched_posteriors_by_nuts(synthetic):
 
 
 @pytest.mark.slow
-def test_dataset_column_one_fit_per_dataset(tmp_path):
+def test_dataset_column_one_fit_per_dataset(tmp_path, capsys):
     """A file with a dataset column: fit_many and `fitlab fit FILE --out-dir` fit each dataset
     on its own (α of the three synthetic samples back within 3 standard errors), name the
     parameter files STEM.LABEL.json and the table's sources FILE#LABEL; a single fit of the
     file is refused with that advice; a report of one dataset's fit takes its rows."""
-    import subprocess
-    import sys
-
     data = ROOT / "data_formats" / "examples" / "measurement_datasets.csv"
     res = fitlab.fit_many(data, "rough_dielectric")
     assert [m.metadata["dataset"] for m in res.measurements] == ["frosted_a", "frosted_b",
@@ -195,10 +192,8 @@ def test_dataset_column_one_fit_per_dataset(tmp_path):
     single = fitlab.fit(fitlab.read(data).dataset_named("frosted_b"), "rough_dielectric")
     assert single.parameters["Y"]["alpha"] == pytest.approx(res.parameters(1)["alpha"], rel=1e-6)
     out = tmp_path / "fits"
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
-                        "rough_dielectric", "--out-dir", str(out), "--table",
-                        str(out / "t.csv"), "--quiet"], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    assert main(["fit", str(data), "--model", "rough_dielectric", "--out-dir", str(out),
+                 "--table", str(out / "t.csv"), "--quiet"]) == 0
     assert sorted(p.name for p in out.glob("*.json")) == [
         f"measurement_datasets.{x}.json" for x in ("frosted_a", "frosted_b", "frosted_c")]
     rows = (out / "t.csv").read_text().splitlines()[2:]
@@ -207,9 +202,10 @@ def test_dataset_column_one_fit_per_dataset(tmp_path):
     rec = fitlab.load_fit(out / "measurement_datasets.frosted_c.json")
     assert rec.record["data"]["metadata"]["dataset"] == "frosted_c"
     assert rec.record["data"]["rows"] == fitlab.read(data).dataset_named("frosted_c").n
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "fit", str(data), "--model",
-                        "rough_dielectric"], capture_output=True, text=True)
-    assert r.returncode == 2 and "holds 3 datasets" in r.stderr and "--out-dir" in r.stderr
+    capsys.readouterr()
+    assert main(["fit", str(data), "--model", "rough_dielectric"]) == 2
+    err = capsys.readouterr().err
+    assert "holds 3 datasets" in err and "--out-dir" in err
     from fitlab.report.inputs import load_data
 
     m, _ = load_data(rec.record, out / "measurement_datasets.frosted_c.json")

@@ -334,29 +334,25 @@ def test_preset_scene_files_are_the_presets(name):
         (b.media, b.theta_i, b.detector.theta_o, b.effects)
 
 
-def test_presets_evaluate_and_tabulate_through_the_cli(tmp_path):
-    import subprocess
-    import sys
+def test_presets_evaluate_and_tabulate_through_the_cli(tmp_path, capsys):
+    """In this process (the console script itself is tests/cli/test_cli.py's)."""
+    from fitlab.cli import main
 
     d = tmp_path / "dirs.csv"
     d.write_text("theta_i,phi_i,theta_o,phi_o\n30,0,30,180\n30,0,140,180\n60,0,20,90\n")
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "eval", "--preset", "fabric",
-                        "--channel", "R", "--directions", str(d)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    rows = [line for line in r.stdout.strip().splitlines() if not line.startswith("#")]
+    assert main(["eval", "--preset", "fabric", "--channel", "R", "--directions", str(d)]) == 0
+    rows = [line for line in capsys.readouterr().out.strip().splitlines()
+            if not line.startswith("#")]
     values = [float(line.split(",")[-1]) for line in rows[1:]]
     assert len(values) == 3 and all(v > 0 and np.isfinite(v) for v in values)
     out = tmp_path / "leaf.exr"
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "lut", "model", "--preset", "plant_leaf",
-                        "--size", "16x16", "--check-points", "64", "--out", str(out)],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    assert out.exists() and "3 channel(s) (R, G, B)" in r.stderr
+    assert main(["lut", "model", "--preset", "plant_leaf", "--size", "16x16", "--check-points",
+                 "64", "--out", str(out)]) == 0
+    assert out.exists() and "3 channel(s) (R, G, B)" in capsys.readouterr().err
     # an anisotropic preset cannot go into the isotropic (θh, θd) table: exit 2, with the reason
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "lut", "model", "--preset", "fabric",
-                        "--size", "16x16", "--out", str(tmp_path / "f.exr")],
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "anisotropic" in r.stderr and not (tmp_path / "f.exr").exists()
+    assert main(["lut", "model", "--preset", "fabric", "--size", "16x16", "--out",
+                 str(tmp_path / "f.exr")]) == 2
+    assert "anisotropic" in capsys.readouterr().err and not (tmp_path / "f.exr").exists()
 
 
 @pytest.mark.slow
