@@ -6,8 +6,6 @@ outputs, recommendations and refusals."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -112,13 +110,15 @@ def test_beckmann_g1_knob_and_pareto_front():
 
 
 @pytest.mark.slow
-def test_cli_on_the_walter_fit_writes_the_report(tmp_path):
+def test_cli_on_the_walter_fit_writes_the_report(tmp_path, capsys):
+    """In this process (the console script itself is tests/cli/test_cli.py's)."""
+    from fitlab.cli import main
+
     out = tmp_path / "tr"
-    r = subprocess.run([sys.executable, "-m", "fitlab.cli", "tradeoffs",
-                        str(ROOT / "fits" / "walter_rough_glass.json"), "--out", str(out),
-                        "--quick"], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    assert "offline render:" in r.stderr and "fitting:" in r.stderr and "[1/" in r.stderr
+    assert main(["tradeoffs", str(ROOT / "fits" / "walter_rough_glass.json"), "--out",
+                 str(out), "--quick"]) == 0
+    err = capsys.readouterr().err
+    assert "offline render:" in err and "fitting:" in err and "[1/" in err
     doc = json.loads((out / "tradeoffs.json").read_text())
     assert doc["format"] == "fitlab-tradeoffs" and doc["material"]["model"] == "rough_dielectric"
     assert doc["directions"].startswith("the 276 measured direction pairs")
@@ -134,7 +134,7 @@ def test_cli_on_the_walter_fit_writes_the_report(tmp_path):
                       (["--model", "lambertian", "--param", "albedo=2"], "albedo"),
                       (["--model", "lambertian", "--param", "albedo=0.5", "--knob", "x"],
                        "unknown knob")]:
-        r = subprocess.run([sys.executable, "-m", "fitlab.cli", "tradeoffs", *args, "--out",
-                            str(tmp_path / "bad")], capture_output=True, text=True)
-        assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert main(["tradeoffs", *args, "--out", str(tmp_path / "bad")]) == 2
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err, err
         assert not (tmp_path / "bad").exists()
