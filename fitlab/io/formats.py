@@ -90,8 +90,8 @@ def unrecognized(path, head: bytes, known) -> InputFileError:
                  f"column {quote(exc.column)}: " if exc.column is not None else ""])
             return InputFileError(
                 path, f"is in no format fitlab recognizes; read as the closest, {fmt.name} "
-                f"({fmt.description}; {why}), it fails at {where}{exc.message}"
-                + (f" ({exc.hint})" if exc.hint else ""), hint=formats_hint)
+                f"({why}), it fails at {where}{exc.message}",
+                hint=(exc.hint + "; or " if exc.hint else "") + "force a format with --format")
         except (ValueError, OSError):
             pass
     return InputFileError(path, "is in no format fitlab recognizes", hint=formats_hint)
