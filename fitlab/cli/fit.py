@@ -114,15 +114,12 @@ def add_parser(sub):
     return p
 
 
-#: Options of a single fit that a batched fit of several files does not offer, and why.
+#: Outputs of a single fit that a batched fit of several files does not write, and why (the
+#: fit settings it does not offer are fitlab.fitting.many.check_batch's).
 _SINGLE_ONLY = {"out": "--out (give --out-dir DIR: one file per dataset, or --table)",
                 "chain": "--chain (the table and the parameter files hold the posteriors' "
                          "summaries)",
-                "report": "--report (run fitlab report on a file of --out-dir)",
-                "share": "--share (a joint fit over channels is one problem per file)",
-                "bootstrap": "--bootstrap", "walter_diagnostics": "--walter-diagnostics",
-                "aperture_order": "--aperture-order", "start": "--start",
-                "channel": "--channel (every channel of every file is fitted)"}
+                "report": "--report (run fitlab report on a file of --out-dir)"}
 
 
 def _run_many(args):
@@ -139,25 +136,21 @@ def _run_many(args):
     if used:
         raise FitlabError(f"several data files are fitted at once (batched least squares); "
                           f"not with {', '.join(used)}")
-    if args.mcmc and args.sampler != "nuts":
-        raise FitlabError("several data files: --mcmc samples the posteriors batched with "
-                          "--sampler nuts; emcee (the default) runs one file at a time (fit the "
-                          "files one by one)")
     if not (args.out_dir or args.table):
         raise FitlabError("several data files: give --out-dir DIR (a parameter file per "
                           "file) and/or --table FILE.csv (one row per file and channel)")
-    if args.chunk is not None and args.chunk < 1:
-        raise FitlabError("--chunk must be at least 1")
-    request = request_of(args, walkers=args.walkers or 4)
+    from fitlab.fitting.batch import CHUNK
+    from fitlab.fitting.many import check_batch
+
+    chunk = CHUNK if args.chunk is None else args.chunk
+    request = check_batch(request_of(args, walkers=args.walkers or 4), chunk=chunk)
     ms = [d for path in args.data for d in read(path, args.format).datasets()]
     names = [output_name(m) for m in ms]
     if args.out_dir and len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise FitlabError(f"--out-dir: several data files are named {', '.join(dup)}; "
                           "rename them (each gets DIR/NAME.json)")
-    from fitlab.fitting.batch import CHUNK
-
-    result = fit_many(ms, request, chunk=args.chunk or CHUNK)
+    result = fit_many(ms, request, chunk=chunk)
     written = 0
     if args.out_dir:
         out = Path(args.out_dir)
@@ -195,17 +188,11 @@ def _run_distributed(args):
     if not args.out_dir:
         raise FitlabError("--workers/--scheduler need --out-dir DIR (the workers write the "
                           "parameter files there)")
-    if args.mcmc and args.sampler != "nuts":
-        raise FitlabError("--mcmc on workers samples with --sampler nuts (batched)")
-    request = request_of(args, walkers=args.walkers or 4)
-    summary = fit_files(args.data, request.model.name, args.out_dir, workers=args.workers or 2,
+    request = request_of(args, walkers=args.walkers or 4)  # fit_files checks it as a batch
+    summary = fit_files(args.data, request, args.out_dir, workers=args.workers or 2,
                         scheduler=args.scheduler,
                         files_per_chunk=args.files_per_chunk or FILES_PER_CHUNK,
-                        progress=not args.quiet, fix=dict(request.fix),
-                        free=list(request.free), options=dict(request.options),
-                        loss=request.loss, subset=request.subset, starts=request.starts,
-                        seed=request.seed, lm_maxiter=request.lm_maxiter, mcmc=request.mcmc,
-                        mcmc_steps=request.mcmc_steps, walkers=request.walkers)
+                        progress=not args.quiet)
     if not args.quiet:
         print(f"{summary['files']} files in {summary['chunks']} chunks: {summary['fitted']} "
               f"fitted now, {summary['done_before']} done before; wrote {summary['table']} and "

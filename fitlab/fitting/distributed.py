@@ -56,21 +56,22 @@ def _fit_chunk(files: list[str], settings: dict, out_dir: str, cid: str) -> str:
     return cid
 
 
-def fit_files(files, model: str, out_dir, *, workers: int = 2, scheduler: str | None = None,
+def fit_files(files, model, out_dir, *, workers: int = 2, scheduler: str | None = None,
               files_per_chunk: int = FILES_PER_CHUNK, progress: bool = True,
               retries: int = 3, **fit_kwargs) -> dict:
     """Fit every file with ``model`` on a Dask cluster (module text); returns a summary:
     ``chunks``, ``done_before`` (skipped: already fitted), ``fitted`` (this run), ``files``,
-    ``table``, ``index``. ``fit_kwargs``: fitlab.fit_many's settings (plain values: they are
-    hashed into each chunk's identity and sent to the workers), checked here as one
-    FitRequest before any worker starts."""
-    from fitlab.fitting.many import MANY_DEFAULTS
-    from fitlab.fitting.request import FitRequest
+    ``table``, ``index``. ``model`` is a registry name or a whole FitRequest, ``fit_kwargs``
+    fitlab.fit_many's settings: checked once, here, before any worker starts; the workers get
+    the request's settings as plain values (:func:`plain_settings`, also hashed into each
+    chunk's identity)."""
+    from fitlab.fitting.many import MANY_DEFAULTS, check_batch
+    from fitlab.fitting.request import FitRequest, as_request
     from fitlab.io.atomic import atomic_write_text
 
-    FitRequest(model, **{**MANY_DEFAULTS, **{k: v for k, v in fit_kwargs.items()
-                                             if k not in ("scan", "chunk")}})
-
+    request = check_batch(as_request(model, fit_kwargs if isinstance(model, FitRequest)
+                                     else {**MANY_DEFAULTS, **fit_kwargs}))
+    model = request.model.name
     files = [str(f) for f in files]
     names = [Path(f).stem for f in files]
     if len(set(names)) != len(names):
@@ -83,7 +84,7 @@ def fit_files(files, model: str, out_dir, *, workers: int = 2, scheduler: str | 
     if files_per_chunk < 1 or (scheduler is None and workers < 1):
         raise FitlabError("--workers and --files-per-chunk must be at least 1")
     out = Path(out_dir)
-    settings = {"model": model, **{k: v for k, v in fit_kwargs.items()}}
+    settings = {"model": model, **plain_settings(request)}
     chunks = []
     for a in range(0, len(files), files_per_chunk):
         part = [str(Path(f).resolve()) for f in files[a:a + files_per_chunk]]
@@ -108,4 +109,16 @@ def fit_files(files, model: str, out_dir, *, workers: int = 2, scheduler: str | 
             "index": str(out / "index.json")}
 
 
-__all__ = ["FILES_PER_CHUNK", "chunk_id", "fit_files"]
+def plain_settings(request) -> dict:
+    """What the workers' fit_many needs of ``request``, as plain values (JSON and hashing): a
+    registered model's name and settings; a row mask is refused (give an expression)."""
+    if request.subset is not None and not isinstance(request.subset, str):
+        raise FitlabError("the Dask runner takes the subset as an expression (e.g. 'theta_i == "
+                          "0'), not a row mask: the files' rows are known only to the workers")
+    return {"fix": dict(request.fix), "free": list(request.free),
+            "options": dict(request.options), "loss": request.loss, "subset": request.subset,
+            "starts": request.starts, "seed": request.seed, "lm_maxiter": request.lm_maxiter,
+            "mcmc": request.mcmc, "mcmc_steps": request.mcmc_steps, "walkers": request.walkers}
+
+
+__all__ = ["FILES_PER_CHUNK", "chunk_id", "fit_files", "plain_settings"]

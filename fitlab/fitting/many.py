@@ -24,7 +24,7 @@ import numpy as np
 from fitlab.errors import FitlabError
 from fitlab.fitting.batch import CHUNK, SCAN, STARTS, BatchResult, Problem, chunks, fit_chunk, group
 from fitlab.fitting.least_squares import LeastSquaresResult, lm_record
-from fitlab.fitting.status import Status, channel_statuses
+from fitlab.fitting.status import Status, channel_statuses, trusted
 
 #: Columns of the table before the per-parameter ones.
 TABLE_COLUMNS = ("dataset", "source", "channel", "rows_fitted", "cost", "dof", "noise_scale",
@@ -90,9 +90,10 @@ class ManyResult(NamedTuple):
                 return _statuses_of(f)
         raise KeyError((dataset, channel))
 
-    def _untrusted(self) -> list[tuple[Fitted, Status]]:
-        """(fit, status) of every status that is not ``ok``."""
-        return [(f, s) for f in self.fits for s in _statuses_of(f) if not s.ok]
+    def _untrusted(self) -> list[tuple[str, Status]]:
+        """(which fit, status) of every status that is not ``ok``."""
+        return [(f"dataset {f.dataset} channel {f.channel}", s) for f in self.fits
+                for s in _statuses_of(f) if not s.ok]
 
     @property
     def ok(self) -> bool:
@@ -101,12 +102,7 @@ class ManyResult(NamedTuple):
 
     def raise_for_status(self) -> "ManyResult":
         """This result if it is :attr:`ok`, else a FitlabError naming each fit's statuses."""
-        bad = self._untrusted()
-        if bad:
-            raise FitlabError("fits not to be trusted as they stand: " + "; ".join(
-                f"dataset {f.dataset} channel {f.channel}: {s.value} ({s.advice})"
-                for f, s in bad))
-        return self
+        return trusted(self, "fits not to be trusted as they stand", self._untrusted())
 
     def table(self, out=None) -> str:
         """Every fit as CSV text (data_formats/fit_table_csv.md): one row per dataset and
@@ -282,6 +278,25 @@ def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):
 MANY_DEFAULTS = {"starts": STARTS, "mcmc_steps": 1000, "walkers": 4, "sampler": "nuts"}
 
 
+def check_batch(request, *, scan: int = SCAN, chunk: int = CHUNK):
+    """``request`` if a batched fit can do it (fit_many and the Dask runner; the CLI asks before
+    reading the data): what only a single fit offers is refused, the posteriors are NUTS's, and
+    ``scan`` and ``chunk`` are positive integers."""
+    for name, v in (("scan", scan), ("chunk", chunk)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise FitlabError(f"{request.name_of(name)} must be an integer of at least 1, got "
+                              f"{v!r}")
+    single = [request.name_of(f) for f in request.single_only()]
+    if single:
+        raise FitlabError(f"several datasets are fitted at once (batched least squares); not "
+                          f"with {', '.join(single)}: fit the files one at a time for those")
+    if request.mcmc and request.sampler != "nuts":
+        raise FitlabError(f"a batched fit samples its posteriors with NUTS "
+                          f"({request.name_of('sampler')} nuts), not {request.sampler}: emcee "
+                          "runs one file at a time")
+    return request
+
+
 def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
              throw: bool = False, **settings) -> ManyResult:
     """Fit ``model`` to every channel of every measurement (Measurements or paths; a file with
@@ -306,18 +321,8 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
     from fitlab.fitting.request import FitRequest, as_request
 
     t0 = time.perf_counter()
-    request = as_request(model, settings if isinstance(model, FitRequest)
-                         else {**MANY_DEFAULTS, **settings})
-    for name, v, lo in (("scan", scan, 1), ("chunk", chunk, 1)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise FitlabError(f"{name} must be an integer of at least {lo}, got {v!r}")
-    single = request.single_only()
-    if single:
-        raise FitlabError(f"a batched fit of many datasets does not offer {', '.join(single)}; "
-                          "fit the files one at a time (fitlab.fit) for those")
-    if request.mcmc and request.sampler != "nuts":
-        raise FitlabError(f"a batched fit samples its posteriors with NUTS (sampler='nuts'), "
-                          f"not {request.sampler}: emcee runs one file at a time (fitlab.fit)")
+    request = check_batch(as_request(model, settings if isinstance(model, FitRequest)
+                                     else {**MANY_DEFAULTS, **settings}), scan=scan, chunk=chunk)
     if isinstance(measurements, (str, bytes, os.PathLike)) or hasattr(measurements, "value"):
         measurements = [measurements]
     ms = [d for m in measurements
@@ -369,4 +374,4 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
     return out.raise_for_status() if throw else out
 
 
-__all__ = ["fit_many", "ManyResult", "Fitted", "TABLE_COLUMNS", "output_name"]
+__all__ = ["fit_many", "check_batch", "MANY_DEFAULTS", "ManyResult", "Fitted", "TABLE_COLUMNS", "output_name"]

@@ -227,6 +227,10 @@ class FitRequest:
         """A variant with ``changes``, checked again (messages spelt as this one's)."""
         return dataclasses.replace(self, spelling=self._spelling, **changes)
 
+    def name_of(self, field_name: str) -> str:
+        """A setting as this request's messages name it (``lm_maxiter`` or ``--lm-maxiter``)."""
+        return _name(field_name, self._spelling)
+
     def single_only(self) -> list[str]:
         """The settings set here that only a single fit offers (a batched fit of many datasets
         does not): ``share``, ``bootstrap``, ``aperture_order``, ``start``, ``channels``,

@@ -14,7 +14,7 @@ from types import MappingProxyType
 import numpy as np
 
 from fitlab.fitting.space import SCALE
-from fitlab.fitting.status import Status, channel_statuses
+from fitlab.fitting.status import Status, channel_statuses, trusted
 
 
 def _freeze(obj):
@@ -197,7 +197,7 @@ class FitResult:
 
     def _untrusted(self) -> list[tuple[str, Status]]:
         """(channel, status) of every status that is not ``ok``."""
-        return [(f["channel"], s) for f in self.record["fits"]
+        return [(f"channel {f['channel']}", s) for f in self.record["fits"]
                 for s in channel_statuses(thaw(f)) if not s.ok]
 
     @property
@@ -208,13 +208,7 @@ class FitResult:
     def raise_for_status(self) -> "FitResult":
         """This result if it is :attr:`ok`, else a :class:`fitlab.errors.FitlabError` naming
         each channel's statuses and what to do about each."""
-        from fitlab.errors import FitlabError
-
-        bad = self._untrusted()
-        if bad:
-            raise FitlabError("the fit is not to be trusted as it stands: " + "; ".join(
-                f"channel {ch}: {s.value} ({s.advice})" for ch, s in bad))
-        return self
+        return trusted(self, "the fit is not to be trusted as it stands", self._untrusted())
 
     @property
     def notes(self) -> tuple[str, ...]:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from enum import StrEnum
 
+from fitlab.errors import FitlabError
+
 
 class Status(StrEnum):
     """Why a solver or a sampler stopped, or what limits a fit's trust (value: the string files
@@ -104,3 +106,14 @@ def channel_statuses(fit: dict) -> tuple[Status, ...]:
     if err and err.get("within_tolerance") is False:
         out.append(Status.APERTURE_INACCURATE)
     return tuple(out) or (Status.CONVERGED,)
+
+
+def trusted(result, headline: str, bad):
+    """``result`` when ``bad`` (``(where, Status)`` pairs: what is not ``ok``) is empty, else a
+    FitlabError that starts with ``headline`` and names each status and what to do about it:
+    every result type's ``raise_for_status``."""
+    if bad:
+        raise FitlabError(f"{headline}: " + "; ".join(
+            f"{where}: {s.value} ({s.advice})" for where, s in bad))
+    return result
+

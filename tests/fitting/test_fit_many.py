@@ -131,7 +131,9 @@ def test_cli_several_files(tmp_path, capsys):
     (["--chain", "x.json", "--out-dir", "D"], "not with --chain"),
     (["--out", "x.json", "--table", "t.csv"], "not with --out"),
     ([], "give --out-dir"),
-    (["--out-dir", "D", "--chunk", "0"], "--chunk must be at least 1"),
+    (["--out-dir", "D", "--chunk", "0"], "--chunk must be an integer of at least 1"),
+    (["--share", "alpha", "--out-dir", "D"], "not with --share"),
+    (["--bootstrap", "20", "--table", "t.csv"], "not with --bootstrap"),
 ])
 def test_cli_refusals(tmp_path, capsys, extra, needle):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"

@@ -99,7 +99,7 @@ def test_fit_many_refuses_what_only_a_single_fit_offers():
     for settings in ({"share": ["alpha"]}, {"bootstrap": 20}, {"start": {"alpha": 0.1}},
                      {"channels": ["Y"]}, {"aperture_order": 2},
                      {"walter_diagnostics": True}):
-        with pytest.raises(FitlabError, match="does not offer " + next(iter(settings))):
+        with pytest.raises(FitlabError, match="not with " + next(iter(settings))):
             fitlab.fit_many([m], "rough_dielectric", **settings)
     with pytest.raises(FitlabError, match="samples its posteriors with NUTS"):
         fitlab.fit_many([m], FitRequest("rough_dielectric", mcmc=True, mcmc_steps=100))
@@ -159,3 +159,19 @@ def test_a_fit_error_names_the_file(tmp_path, capsys):
         fitlab.fit(one, "lambertian")
     assert main(["fit", str(one), "--model", "lambertian"]) == 2
     assert f"{one}: channel Y: 1 rows cannot constrain" in capsys.readouterr().err
+
+
+def test_the_dask_runner_takes_one_checked_request(tmp_path):
+    """fit_files checks its request as a batch before any worker starts, and hands the workers
+    plain values; a row mask cannot travel to them (the rows are the workers' to read)."""
+    from fitlab.fitting.distributed import fit_files, plain_settings
+
+    req = FitRequest("rough_dielectric", subset="theta_i == 0", starts=2, walkers=4)
+    plain = plain_settings(req)
+    assert plain["subset"] == "theta_i == 0" and plain["starts"] == 2
+    assert plain["options"] == dict(req.options) and plain["fix"] == {}
+    with pytest.raises(FitlabError, match="not with share"):
+        fit_files([WALTER], FitRequest("rough_dielectric", share="alpha"), tmp_path / "o")
+    with pytest.raises(FitlabError, match="subset as an expression"):
+        fit_files([WALTER], FitRequest("rough_dielectric", subset=[True] * 276), tmp_path / "o")
+    assert not (tmp_path / "o").exists()

@@ -15,7 +15,7 @@ from fitlab.errors import FitlabError
 from fitlab.fitting.compare.common import READABLE_VERSIONS, SCHEMA, SCHEMA_VERSION
 from fitlab.fitting.compare.record import _fmt
 from fitlab.fitting.result import _freeze, thaw
-from fitlab.fitting.status import Status
+from fitlab.fitting.status import Status, trusted
 
 #: The files ``CompareResult.save`` writes into the output folder (the report adds index.html).
 TABLE_JSON, TABLE_CSV, INCIDENCE_CSV, FITS_DIR = ("compare.json", "compare.csv",
@@ -131,11 +131,11 @@ class CompareResult:
                              "fitlab compare")
         return tuple(Status(s) for s in mod["statuses"])
 
-    def _untrusted(self) -> list[tuple[str, str, Status]]:
+    def _untrusted(self) -> list[tuple[str, Status]]:
         """(label, channel, status) of every status that undermines the comparison: any but
         ``converged`` and ``misfit`` (a candidate that does not describe the data is what a
         comparison finds, not a failure of it)."""
-        return [(lab, ch, s) for ch in self.channels for lab in self.labels
+        return [(f"{lab} channel {ch}", s) for ch in self.channels for lab in self.labels
                 for s in self.statuses(lab, ch) if s not in (Status.CONVERGED, Status.MISFIT)]
 
     @property
@@ -147,11 +147,8 @@ class CompareResult:
     def raise_for_status(self) -> "CompareResult":
         """This result if it is :attr:`ok`, else a FitlabError naming each candidate's statuses
         and what to do about each."""
-        bad = self._untrusted()
-        if bad:
-            raise FitlabError("the comparison is not to be trusted as it stands: " + "; ".join(
-                f"{lab} channel {ch}: {s.value} ({s.advice})" for lab, ch, s in bad))
-        return self
+        return trusted(self, "the comparison is not to be trusted as it stands",
+                       self._untrusted())
 
     # ---- tables -----------------------------------------------------------------------
 
@@ -255,8 +252,8 @@ class CompareResult:
         for w in self.record["warnings"]:
             lines.append(f"warning: {w}")
         if all("statuses" in mod for ch in self.record["channels"] for mod in ch["models"]):
-            lines += [f"status: {lab} channel {ch}: {s.value}: {s.advice}"
-                      for lab, ch, s in self._untrusted()]
+            lines += [f"status: {where}: {s.value}: {s.advice}"
+                      for where, s in self._untrusted()]
         return "\n".join(lines) + "\n"
 
     # ---- files ------------------------------------------------------------------------
