@@ -14,7 +14,10 @@
 
 An embedded ``LocalCluster`` of ``workers`` processes (one thread each) runs by default; with
 ``scheduler`` the tasks go to a running Dask scheduler, whose workers must have fitlab
-installed and see ``OUT`` at the same path (a shared file system).
+installed and see ``OUT`` at the same path (a shared file system). One worker and no scheduler
+runs the chunks in the calling process, one after another, with the same markers, outputs and
+progress: a cluster of one worker process would only add its start (a few seconds of importing
+fitlab in a new process) and nothing in parallel.
 """
 
 from __future__ import annotations
@@ -90,7 +93,9 @@ def run_chunks(task, chunks, out_dir, *, workers: int = 2, scheduler: str | None
     if len(set(ids)) != len(ids):
         raise FitlabError("two chunks of this run have the same inputs; remove the duplicates")
     todo = [(cid, args) for cid, args in chunks if not marker_path(out, cid).exists()]
-    if todo:
+    if todo and scheduler is None and workers == 1:
+        _run_here(task, todo, out, len(chunks), progress, desc)
+    elif todo:
         from distributed import as_completed
 
         client, cluster = client_for(workers, scheduler)
@@ -118,6 +123,25 @@ def run_chunks(task, chunks, out_dir, *, workers: int = 2, scheduler: str | None
     remove_orphan_temporaries(out / "chunks")
     return {"chunks": len(chunks), "done_before": len(chunks) - len(todo),
             "done_now": len(todo), "records": [read_marker(out, cid) for cid in ids]}
+
+
+def _run_here(task, todo, out: Path, total: int, progress: bool, desc: str) -> None:
+    """The chunks ``todo`` in this process, in order (one worker, no scheduler)."""
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, initial=total - len(todo), desc=desc, unit="chunk",
+                   file=sys.stderr, dynamic_ncols=True)
+    try:
+        root = str(out.resolve())
+        for cid, args in todo:
+            task(*args, root, cid)
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def remove_orphan_temporaries(folder: Path) -> None:

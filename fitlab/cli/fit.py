@@ -91,7 +91,8 @@ def add_parser(sub):
                    "parameter and its standard error (data_formats/fit_table_csv.md)")
     p.add_argument("--workers", type=int, metavar="N",
                    help="several DATA files: fit them on N local Dask worker processes "
-                   "(Dask.distributed; resumable: a rerun skips the chunks already done); "
+                   "(Dask.distributed; 1 runs the chunks in this process; resumable: a rerun "
+                   "skips the chunks already done); "
                    "writes --out-dir DIR/NAME.json, DIR/table.csv and DIR/index.json")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="several DATA files: send the chunks to a running Dask scheduler "

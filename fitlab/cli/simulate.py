@@ -60,7 +60,7 @@ def add_parser(sub):
     g.add_argument("--out-dir", metavar="DIR", help="with --sweep: the output folder")
     g.add_argument("--workers", type=int, metavar="N",
                    help="with --sweep: worker processes of an embedded Dask LocalCluster "
-                   "(default 2)")
+                   "(default 2; 1 runs the chunks in this process)")
     g.add_argument("--scheduler", metavar="ADDRESS",
                    help="with --sweep: send the chunks to a running Dask scheduler "
                    "(tcp://HOST:8786; its workers need fitlab and the same --out-dir path)")
