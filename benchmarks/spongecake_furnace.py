@@ -82,7 +82,7 @@ def main():
         fit, _ = fit_lobe(name, {"Y": params}, seed=7)
         lobe = lobe_parameters(fit, {"Y": params})["Y"]
         st = fit.statistics("Y")
-        fits.append((name, st["chi2_per_dof"], st["rms_relative_error_fit"], fit.parameters["Y"]))
+        fits.append((name, st["chi2_per_dof"], st["fit_error"]["rms_relative_error"], fit.parameters["Y"]))
         rows = [model_albedo(name, params, th, kinds) for th in THETA_I]
         with_lobe = [model_albedo(lobe_model_name(name, "lobe"), lobe, th, kinds)
                      for th in THETA_I]

@@ -8,28 +8,35 @@ glTF 2.0), :func:`write_report` (the HTML report of a fit or of a comparison), a
 :func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in
 ``data_formats/CONVENTIONS.md``.
+
+``import fitlab`` is quick: each name below is imported at its first use (PEP 562), so the
+command line's ``--help`` and ``fitlab models`` never load JAX. A first use of a name loads JAX
+with fitlab's settings (float64, no asynchronous dispatch on the CPU: fitlab/_jax.py), as
+``import fitlab`` used to; subpackages (``fitlab.models``, ``fitlab.io`` ...) are imported on
+first use too.
 """
 
-import jax as _jax
+import importlib as _importlib
+import sys as _sys
+import types as _types
 
-# fitlab fits in float64; float32 inputs still evaluate in float32 (see data_formats/CONVENTIONS.md).
-_jax.config.update("jax_enable_x64", True)
-# Run CPU computations on the calling thread: fitlab's fits make thousands of small calls whose
-# results are needed at once, and the hand-off to a worker thread cost more than the work
-# (about 50 us a call on a 2-core VM). Large evaluations still use every core. Takes effect only
-# if fitlab is imported before JAX's CPU backend starts.
-_jax.config.update("jax_cpu_enable_async_dispatch", False)
+from fitlab import _jax  # noqa: F401  (JAX_ENABLE_X64 before anything imports JAX)
+from fitlab.version import __version__
 
-from fitlab.version import __version__  # noqa: E402
-from fitlab.api import eval_bsdf, pdf_bsdf, sample_bsdf  # noqa: E402
-from fitlab.models import MODELS, get_model, register_model  # noqa: E402
-from fitlab.fitting.api import fit, read  # noqa: E402
-from fitlab.fitting.request import FitRequest  # noqa: E402
-from fitlab.fitting.result import FitResult, load_fit  # noqa: E402
-from fitlab.fitting.compare import Candidate, CompareResult, compare  # noqa: E402
-from fitlab.export.renderers import export_material  # noqa: E402
-from fitlab.fitting.many import ManyResult, fit_many  # noqa: E402
-from fitlab.tradeoffs import Tradeoffs, tradeoffs  # noqa: E402
+#: Public name -> the module that defines it.
+_SOURCES = {
+    "read": "fitlab.fitting.api", "fit": "fitlab.fitting.api",
+    "FitRequest": "fitlab.fitting.request",
+    "load_fit": "fitlab.fitting.result", "FitResult": "fitlab.fitting.result",
+    "compare": "fitlab.fitting.compare", "CompareResult": "fitlab.fitting.compare",
+    "Candidate": "fitlab.fitting.compare",
+    "export_material": "fitlab.export.renderers",
+    "fit_many": "fitlab.fitting.many", "ManyResult": "fitlab.fitting.many",
+    "eval_bsdf": "fitlab.api", "sample_bsdf": "fitlab.api", "pdf_bsdf": "fitlab.api",
+    "MODELS": "fitlab.models", "get_model": "fitlab.models", "register_model": "fitlab.models",
+    "tradeoffs": "fitlab.tradeoffs", "Tradeoffs": "fitlab.tradeoffs",
+    "write_report": "fitlab.report.api",  # matplotlib: only when a report is written
+}
 
 __all__ = ["__version__", "read", "fit", "FitRequest", "load_fit", "FitResult", "compare", "CompareResult",
            "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
@@ -38,9 +45,32 @@ __all__ = ["__version__", "read", "fit", "FitRequest", "load_fit", "FitResult", 
 
 
 def __getattr__(name):
-    # write_report loads the report package (matplotlib): on first use, not with `import fitlab`
-    if name == "write_report":
-        from fitlab.report.api import write_report
+    if name in _SOURCES:
+        _jax.load()  # fitlab's JAX settings before the library's first computation
+        value = getattr(_importlib.import_module(_SOURCES[name]), name)
+        globals()[name] = value  # the next use is a plain attribute
+        return value
+    if not name.startswith("_"):  # a subpackage or module: fitlab.models, fitlab.io ...
+        try:
+            return _importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-        return write_report
-    raise AttributeError(f"module 'fitlab' has no attribute {name!r}")
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+class _Package(_types.ModuleType):
+    """The package root: importing a subpackage named like a public name (``fitlab.tradeoffs``,
+    the package, and ``fitlab.tradeoffs``, the function) leaves the public name as it is."""
+
+    def __setattr__(self, name, value):
+        if name in _SOURCES and isinstance(value, _types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+_sys.modules[__name__].__class__ = _Package

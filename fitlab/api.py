@@ -11,10 +11,9 @@ from __future__ import annotations
 import functools
 import numbers
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.models import Model, get_model
 
 

@@ -7,8 +7,7 @@ is the transmission side), φ from +x. Radians in code; degrees only at the file
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import fresnel_dielectric
 from fitlab.numerics import safe_rsqrt, sign_nonzero
 

@@ -7,8 +7,7 @@ Variants are named after their source and dispatched through :data:`FRESNEL_METH
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.numerics import safe_div, safe_sqrt
 
 

@@ -12,8 +12,7 @@ index below the interface over the index above it.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import cos_theta_critical, fresnel_dielectric
 from fitlab.numerics import safe_div
 from fitlab.quadrature import gauss_legendre

@@ -34,10 +34,7 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-import jax
-import jax.numpy as jnp
-from jax.scipy.special import erf, erfc, erfinv
-
+from fitlab._jax import jax, jnp, jsp_special
 from fitlab import vmf
 from fitlab.frame import dot
 from fitlab.numerics import clamp_alpha, safe_div, safe_rsqrt, safe_sqrt
@@ -207,14 +204,14 @@ def G1_Beckmann(v, alpha, alpha_y=None):
 
     Rewritten as 2a / (a (2 - erfc a) + exp(-a²)/√π): no division by a, no erf cancellation."""
     a = _beckmann_a(v, alpha, alpha_y)
-    return 2.0 * a / (a * (2.0 - erfc(a)) + jnp.exp(-a * a) * _INV_SQRT_PI)
+    return 2.0 * a / (a * (2.0 - jsp_special.erfc(a)) + jnp.exp(-a * a) * _INV_SQRT_PI)
 
 
 def Lambda_Beckmann(v, alpha, alpha_y=None):
     """Beckmann Smith Λ = (erfc(a) - ... )/2 = (exp(-a²)/(a√π) - erfc(a))/2 (Heitz 2014 eq. 83),
     0 where a reaches the cap."""
     a = _beckmann_a(v, alpha, alpha_y)
-    return 0.5 * (jnp.exp(-a * a) * _INV_SQRT_PI / a - erfc(a))
+    return 0.5 * (jnp.exp(-a * a) * _INV_SQRT_PI / a - jsp_special.erfc(a))
 
 
 def G1_Beckmann_rational(v, alpha, alpha_y=None):
@@ -347,22 +344,23 @@ def _beckmann_visible_slopes(cos_theta, u1, u2):
     cot_t = jnp.where(normal, 1e30, c_t / jnp.where(normal, 1.0, sin_t))
     x = jnp.clip(u1, 1e-6, 1.0 - 1e-6)
     lo = jnp.full_like(c_t, -1.0)
-    hi = erf(jnp.minimum(cot_t, 30.0))
+    hi = jsp_special.erf(jnp.minimum(cot_t, 30.0))
     theta = jnp.arccos(c_t)
     fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta))
     b = hi - (1.0 + hi) * jnp.power(1.0 - x, fit)
     norm = 1.0 / (1.0 + hi + _INV_SQRT_PI * tan_t * jnp.exp(-jnp.minimum(cot_t, 30.0) ** 2))
     for _ in range(16):
         b = jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi))  # bisection safeguard
-        s = erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
+        s = jsp_special.erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
         value = norm * (1.0 + b + _INV_SQRT_PI * tan_t * jnp.exp(-s * s)) - x
         derivative = norm * (1.0 - s * tan_t)
         lo = jnp.where(value > 0, lo, b)
         hi = jnp.where(value > 0, b, hi)
         b = b - value / jnp.where(derivative != 0, derivative, 1.0)
     b = jnp.where((b >= lo) & (b <= hi), b, 0.5 * (lo + hi))
-    slope_x = erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
-    slope_y = erfinv(jnp.clip(2.0 * jnp.clip(u2, 1e-6, 1.0 - 1e-6) - 1.0, -1.0 + eps, 1.0 - eps))
+    slope_x = jsp_special.erfinv(jnp.clip(b, -1.0 + eps, 1.0 - eps))
+    slope_y = jsp_special.erfinv(jnp.clip(2.0 * jnp.clip(u2, 1e-6, 1.0 - 1e-6) - 1.0,
+                                          -1.0 + eps, 1.0 - eps))
     # normal incidence: the visible normals are the normals (Walter eq. 28 in slope form)
     r = jnp.sqrt(-jnp.log1p(-jnp.clip(u1, 0.0, 1.0 - 1e-16)))
     phi = 2.0 * jnp.pi * u2

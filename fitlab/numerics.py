@@ -9,7 +9,7 @@ the gradient. Every guarded operation here uses the double-where pattern::
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+from fitlab._jax import jnp
 
 #: Smallest microfacet width α any model evaluates with (pbrt and Mitsuba clamp in one place too).
 #: Widths below this are treated as this value; the lower bound of every α parameter is this.

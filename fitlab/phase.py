@@ -18,15 +18,15 @@ to σ(ω) (SpongeCake eq. 3): ``sggx_sigma`` gives that factor to the random wal
 
 from __future__ import annotations
 
+import math
 from typing import Callable, NamedTuple
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.frame import dot, normalize, reflect
 from fitlab.numerics import safe_div, safe_rsqrt, safe_sqrt
 from fitlab.registry import Registry
 
-_INV_4PI = 0.25 / jnp.pi
+_INV_4PI = 0.25 / math.pi
 
 
 def orthonormal_basis(n):

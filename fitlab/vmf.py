@@ -22,11 +22,10 @@ The microfacet registry's ``vmf`` and ``vmf_exact`` families (fitlab.microfacet,
 
 from __future__ import annotations
 
+import functools
 import math
 
-import jax
-import jax.numpy as jnp
-
+from fitlab._jax import jax, jnp
 from fitlab.numerics import ALPHA_MIN, safe_div, safe_sqrt
 from fitlab.quadrature import gauss_legendre
 
@@ -120,22 +119,33 @@ def _kappa_newton(R):
     return kappa
 
 
-@jax.custom_jvp
 def nu_of_log_A3(L):
-    """Dispersion ν = 1/κ of the vMF lobe whose log A3 is L ≤ 0 (A3⁻¹ of eq. 18)."""
+    """Dispersion ν = 1/κ of the vMF lobe whose log A3 is L ≤ 0 (A3⁻¹ of eq. 18), differentiated
+    as the inverse function (not through its Newton steps)."""
+    return _nu_of_log_A3()(L)
+
+
+def _nu_of_log_A3_value(L):
     B = -jnp.expm1(L)  # 1 - A3
     broad = B >= 1.0 / _LARGE
     kappa = _kappa_newton(jnp.exp(jnp.where(broad, L, -1.0)))
     return jnp.where(broad, 1.0 / kappa, B)
 
 
-@nu_of_log_A3.defjvp
 def _nu_of_log_A3_jvp(primals, tangents):
     (L,), (dL,) = primals, tangents
     nu = nu_of_log_A3(L)
     # A3(κ) = e^L: dκ = e^L dL / A3'(κ), dν = -ν² dκ = -e^L dL / (κ² A3'(κ))
     kappa = 1.0 / jnp.maximum(nu, 1e-30)
     return nu, -jnp.exp(L) * dL / kappa2_dA3(kappa)
+
+
+@functools.cache
+def _nu_of_log_A3():
+    """The jax.custom_jvp of nu_of_log_A3, made at its first use (making it needs JAX)."""
+    f = jax.custom_jvp(_nu_of_log_A3_value)
+    f.defjvp(_nu_of_log_A3_jvp)
+    return f
 
 
 def convolve_nu(*nus):

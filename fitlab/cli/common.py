@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import fitlab
 from fitlab.assignments import parse_assignments
 from fitlab.errors import FitlabError
 from fitlab.models.presets import CHANNELS as PRESET_CHANNELS
@@ -98,6 +97,12 @@ def add_quiet(p, help="no progress or summary on the terminal"):
     p.add_argument("--quiet", action="store_true", help=help)
 
 
+def add_verbose(p, help="the whole account on the terminal: every progress line, the "
+                "per-incidence errors, every warning with its advice (by default a few lines "
+                "per channel; the output files hold everything either way)"):
+    p.add_argument("-v", "--verbose", action="store_true", help=help)
+
+
 def add_json(p):
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
@@ -109,6 +114,40 @@ def add_format(p, help="input format"):
                    help=f"{help}: {', '.join(formats())} (default: detected from the content)")
 
 
+def add_read_options(p):
+    """--angles, --accept and --quantity: how a command reads a measurement file (the sanity
+    gates of fitlab.io.gates; data_formats/measurement_csv.md, "Sanity gates"). One definition
+    for every command that reads measurements; :func:`read_kwargs` turns them into the keyword
+    arguments of fitlab.read."""
+    from fitlab.io.gates import ANGLES, GATES, QUANTITIES
+
+    p.add_argument("--angles", choices=ANGLES,
+                   help="the unit of the file's angles (fitlab's CSV): radians are converted to "
+                   "degrees on reading (default degrees; a file whose angles look like radians "
+                   "is refused)")
+    p.add_argument("--accept", action="append", choices=list(GATES), metavar="GATE",
+                   help="read the file although this sanity gate trips (repeatable): "
+                   + "; ".join(f"{g.name}: {g.title}" for g in GATES.values())
+                   + " (`fitlab info FILE` shows what each finds)")
+    p.add_argument("--quantity", choices=QUANTITIES,
+                   help="what the values are, replacing the file's '# quantity:' line "
+                   "(fitlab's CSV): bsdf (f, 1/sr), bsdf_cos (f|cos theta_o|), radiance_factor "
+                   "(pi f), relative (f up to a scale)")
+
+
+def read_kwargs(args) -> dict:
+    """The keyword arguments of fitlab.read (and fitlab.fit, compare, fit_many from a path)
+    of the options :func:`add_read_options` declared: only those given."""
+    out = {}
+    if getattr(args, "angles", None):
+        out["angles"] = args.angles
+    if getattr(args, "accept", None):
+        out["accept"] = tuple(dict.fromkeys(args.accept))
+    if getattr(args, "quantity", None):
+        out["quantity"] = args.quantity
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # From arguments to a model, its parameters and options
 # --------------------------------------------------------------------------------------------
@@ -116,8 +155,10 @@ def add_format(p, help="input format"):
 
 def get_model(name: str):
     """The registry model ``name`` (sums and layered models too)."""
+    from fitlab.models import get_model as get_registry_model
+
     try:
-        return fitlab.get_model(name)
+        return get_registry_model(name)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
 
@@ -141,10 +182,12 @@ def param_values(items, *, rgb: bool = False) -> dict[str, list[float]]:
 def model_params(model, items, base=None) -> dict:
     """--param items of ``model``, checked against its registry entry (``base``: values they
     override, e.g. a preset's)."""
+    from fitlab.api import check_params
+
     params = dict(base or {})
     params.update({name: v[0] for name, v in param_values(items).items()})
     try:
-        fitlab.api.check_params(model, params)
+        check_params(model, params)
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
     return params
@@ -178,8 +221,10 @@ def material_arguments(args, sources=("fit", "model")) -> tuple[dict | None, dic
 
 def model_options(model, items, base=None) -> dict:
     """--option items of ``model`` with its defaults filled in (``base``: options they override)."""
+    from fitlab.api import resolve_options
+
     try:
-        return fitlab.api.resolve_options(model, {**(base or {}),
+        return resolve_options(model, {**(base or {}),
                                                   **parse_assignments(items, "option")})
     except ValueError as exc:
         raise FitlabError(f"{exc} (see `fitlab models {model.name}`)") from None
@@ -213,5 +258,7 @@ def model_from_args(args):
 
 
 __all__ = ["Parser", "RGB", "add_model", "add_param", "add_option", "add_channel", "add_quiet",
-           "add_json", "add_format", "get_model", "param_values", "model_params",
+           "add_verbose",
+           "add_json", "add_format", "add_read_options", "read_kwargs", "get_model",
+           "param_values", "model_params",
            "channel_params", "material_arguments", "model_options", "model_from_args"]

@@ -7,7 +7,8 @@ from __future__ import annotations
 import sys
 
 from fitlab.assignments import parse_assignments
-from fitlab.cli.common import add_channel, add_format, add_option, add_quiet
+from fitlab.cli.common import (add_channel, add_format, add_option, add_quiet, add_read_options,
+                               add_verbose, read_kwargs)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
 
@@ -70,7 +71,11 @@ def add_parser(sub):
     p.add_argument("--no-fits", action="store_true",
                    help="with --out: no parameter files of the candidates (fits/)")
     add_quiet(p, help="no progress bar or summary on the terminal")
+    add_verbose(p, help="every verdict (CV, PSIS-LOO, WAIC), warning and status with its advice "
+                "on the terminal (by default the ranking tables, each channel's first verdict and "
+                "a count of the warnings; compare.json keeps everything)")
     add_format(p)
+    add_read_options(p)
     return p
 
 
@@ -94,7 +99,7 @@ def run(args):
         raise FitlabError(f"--out {args.out}: is a file, not a folder; give a folder")
     cands = [parse_candidate(text) for text in args.model]
     # the settings are checked once, by the candidates' FitRequests inside compare
-    m = fitlab.read(args.data, args.format)
+    m = fitlab.read(args.data, args.format, **read_kwargs(args))
     result = compare(m, cands, fix=parse_assignments(args.fix, "fix"), options=parse_assignments(args.option, "option"),
                      free=args.free or (), loss=args.loss, subset=args.fit_subset,
                      channels=[args.channel] if args.channel else None, cv=not args.no_cv,
@@ -107,7 +112,7 @@ def run(args):
 
             write_report(result, args.out)
     if not args.quiet:
-        print(result.summary(), end="", file=sys.stderr)
+        print(result.summary(verbose=args.verbose), end="", file=sys.stderr)
         if args.out:
             print(f"wrote {args.out}: compare.csv, compare_incidences.csv, compare.json"
                   + ("" if args.no_fits else ", fits/")

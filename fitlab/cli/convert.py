@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 
 from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_param,
-                               model_from_args)
+                               add_read_options, model_from_args, read_kwargs)
 from fitlab.errors import FitlabError
 
 #: Flags that describe the model to tabulate (read by writers that tabulate models).
@@ -57,6 +57,7 @@ def add_parser(sub):
     p.add_argument("paths", nargs="+", metavar="FILE",
                    help="INPUT OUTPUT, or only OUTPUT with --model")
     add_format(p)
+    add_read_options(p)
     p.add_argument("--to", choices=list(writers),
                    help="output type (default: from the suffix, "
                    + ", ".join(f"{w.name} for {_suffix_text([w])}" for w in writers.values()
@@ -121,6 +122,9 @@ def run(args):
     writer = writer_for(output, args.to)
     _check_flags(args, writer, writers)
     settings = {k: getattr(args, k) for k in writer.settings if getattr(args, k) is not None}
+    if read_kwargs(args) and (args.model or is_fit_file(source)):
+        raise FitlabError("--angles, --accept and --quantity apply to a measurement file read "
+                          "as INPUT, not to a fit or --model")
     if args.model:
         model, params, options = model_from_args(args)
         summary = writer.write_model(output, model.name, params, options, **settings)
@@ -135,11 +139,11 @@ def run(args):
                           "fit)")
     else:
         from fitlab.io.formats import read_any
-        from fitlab.io.measurement import sanity_warnings
+        from fitlab.io.gates import notes
 
-        m = read_any(source, args.format)
-        for w in sanity_warnings(m):
-            print(f"warning: {w}", file=sys.stderr)
+        m = read_any(source, args.format, **read_kwargs(args))
+        for w in notes(m):
+            print(f"note: {w}", file=sys.stderr)
         summary = writer.write_data(output, m, source)
     print(writer.describe(summary), file=sys.stderr)
     for note in summary.get("notes", []):

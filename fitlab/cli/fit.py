@@ -6,7 +6,8 @@ from __future__ import annotations
 import sys
 
 from fitlab.assignments import parse_assignments
-from fitlab.cli.common import add_channel, add_format, add_model, add_option, add_quiet
+from fitlab.cli.common import (add_channel, add_format, add_model, add_option, add_quiet,
+                               add_read_options, add_verbose, read_kwargs)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
 from fitlab.fitting.status import Status, channel_statuses
@@ -78,8 +79,11 @@ def add_parser(sub):
                    "than 0.1 standard errors")
     p.add_argument("--bootstrap", type=int, metavar="N",
                    help="refits of the block bootstrap over incidence directions, an "
-                   "uncertainty that accounts for misfit (parameters.*.bootstrap; default: "
-                   "100 on channels with at least 3 fitted incidences, else none; 0: off)")
+                   "uncertainty that accounts for misfit (parameters.*.bootstrap; default: on "
+                   "channels with at least 3 fitted incidences, until each 68%% bound moves by "
+                   "less than 5%% of its interval's width over 20 refits, at most 100; skipped "
+                   "when least squares ended at a bound or its iteration limit; N: exactly N; "
+                   "0: off)")
     p.add_argument("--walter-diagnostics", action="store_true",
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
@@ -111,7 +115,9 @@ def add_parser(sub):
                    help="then write an HTML report of the fit into DIR (as `fitlab report`; "
                    "needs --out; with --chain it shows posterior bands and MCMC plots)")
     add_quiet(p)
+    add_verbose(p)
     add_format(p)
+    add_read_options(p)
     return p
 
 
@@ -145,7 +151,7 @@ def _run_many(args):
 
     chunk = CHUNK if args.chunk is None else args.chunk
     request = check_batch(request_of(args, walkers=args.walkers or 4), chunk=chunk)
-    ms = [d for path in args.data for d in read(path, args.format).datasets()]
+    ms = [d for path in args.data for d in read(path, args.format, **read_kwargs(args)).datasets()]
     names = [output_name(m) for m in ms]
     if args.out_dir and len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -193,7 +199,7 @@ def _run_distributed(args):
     summary = fit_files(args.data, request, args.out_dir, workers=args.workers or 2,
                         scheduler=args.scheduler,
                         files_per_chunk=args.files_per_chunk or FILES_PER_CHUNK,
-                        progress=not args.quiet)
+                        progress=not args.quiet, **read_kwargs(args))
     if not args.quiet:
         print(f"{summary['files']} files in {summary['chunks']} chunks: {summary['fitted']} "
               f"fitted now, {summary['done_before']} done before; wrote {summary['table']} and "
@@ -225,7 +231,53 @@ def _share_names(items):
                                if n.strip()))
 
 
+def _print_brief(record):
+    """The fit in two or three lines per channel (``-v``: :func:`_print_summary`): the free
+    parameters, the fit error and the goodness verdict, and what limits trust (the statuses;
+    the warnings are counted here, kept whole in the parameter file and the report)."""
+    from fitlab.metrics import fit_error_of, fit_error_text
+
+    joint = record.get("joint")
+    if joint:
+        print(f"joint fit of channels {', '.join(joint['channels'])}: "
+              f"{', '.join(joint['shared'])} shared", file=sys.stderr)
+    for fit in record["fits"]:
+        values = []
+        for name, p in fit["parameters"].items():
+            if p["fixed"]:
+                continue
+            text = f"{name} = {p['value']:.6g} ± {p['stderr'] or float('nan'):.2g}"
+            post = p.get("posterior")
+            if post:
+                text += f" (posterior 68% [{post['p16']:.4g}, {post['p84']:.4g}])"
+            values.append(text)
+        print(f"channel {fit['channel']}: {', '.join(values) or 'every parameter fixed'}",
+              file=sys.stderr)
+        st = fit["statistics"]
+        parts = [fit_error_text(fit_error_of(st))]
+        if st.get("chi2_per_dof") is not None:
+            parts.append(f"chi2/dof {st['chi2_per_dof']:.3g}")
+        g = fit.get("goodness")
+        if g:
+            parts.append("goodness of fit passes" if g["describes_data"] else
+                         f"goodness of fit FAILS ({', '.join(g['failed'])})")
+        print("  " + "; ".join(parts), file=sys.stderr)
+        if st.get("prediction_error"):
+            print(f"  predicted (not fitted): {fit_error_text(st['prediction_error'], 'rows')}",
+                  file=sys.stderr)
+        trouble = [s.value for s in channel_statuses(fit) if not s.ok]
+        n_warn = len(fit.get("warnings", []))
+        if trouble or n_warn:
+            print(f"  status {', '.join(trouble) or 'converged'}"
+                  + (f"; {n_warn} warning{'s' if n_warn > 1 else ''} (-v prints "
+                     f"{'them' if n_warn > 1 else 'it'} with advice; kept in the parameter file)"
+                     if n_warn else ""), file=sys.stderr)
+
+
 def _print_summary(record):
+    """The fit's whole account (``fitlab fit -v``)."""
+    from fitlab.metrics import fit_error_of, fit_error_text
+
     joint = record.get("joint")
     if joint:
         print(f"joint fit of channels {', '.join(joint['channels'])}: "
@@ -252,8 +304,13 @@ def _print_summary(record):
         st = fit["statistics"]
         if st.get("chi2_per_dof") is not None:
             print(f"  chi2/dof = {st['chi2_per_dof']:.3f}", file=sys.stderr)
-        print(f"  RMS relative error (fitted rows) = {st['rms_relative_error_fit']:.4f}",
-              file=sys.stderr)
+        fe = fit_error_of(st)
+        print(f"  {fit_error_text(fe)}", file=sys.stderr)
+        if st.get("prediction_error"):
+            print(f"  predicted (not fitted): {fit_error_text(st['prediction_error'], 'rows')}",
+                  file=sys.stderr)
+        fitted_at = {(r["theta_i"], r["phi_i"]): r["rms_relative_error"]
+                     for r in (fe or {}).get("per_incidence", ())}
         ap = fit.get("aperture")
         if ap:
             err = ap["quadrature_error"]
@@ -268,8 +325,9 @@ def _print_summary(record):
             line = (f"    theta_i = {row['theta_i']:6.2f}  phi_i = {row['phi_i']:6.2f}  "
                     f"{row['role']:>10}  n = {row['n']:4d}  RMS rel. error = "
                     f"{'n/a' if err is None else f'{err:.4f}'}")
-            if row["role"] == "partly fit" and row["rms_relative_error_fitted_rows"] is not None:
-                line += f" (fitted rows {row['rms_relative_error_fitted_rows']:.4f})"
+            part = fitted_at.get((row["theta_i"], row["phi_i"]))
+            if row["role"] == "partly fit" and part is not None:
+                line += f" (fitted rows {part:.4f})"
             print(line, file=sys.stderr)
         for w in fit.get("warnings", []):
             print(f"warning: channel {fit['channel']}: {w}", file=sys.stderr)
@@ -311,6 +369,7 @@ def _print_goodness(fit):
     boot = fit.get("bootstrap")
     if boot and boot.get("replicates"):
         print(f"  bootstrap: {boot['replicates']} refits over {boot['blocks']} incidences"
+              + (f"; {boot['stop_reason']}" if boot.get("stop_reason") else "")
               + (f" ({boot['note']})" if boot.get("note") else ""), file=sys.stderr)
 
 
@@ -342,9 +401,13 @@ def run(args):
         raise FitlabError("--report needs --out FILE.json: the report is built from the "
                           "parameter file")
     request = request_of(args)
-    m = read(args.data, args.format)
+    m = read(args.data, args.format, **read_kwargs(args))
     t_read = time.perf_counter() - t0
-    result = fit(m, request)
+    from fitlab.fitting.progress import brief
+
+    with brief(not args.verbose):  # progress: one transient status line unless -v
+        result = fit(m, request)
+    summary = _print_summary if args.verbose else _print_brief
     for note in result.notes:
         if not args.quiet:
             print(f"note: {note}", file=sys.stderr)
@@ -354,10 +417,11 @@ def run(args):
     if args.out:
         result = result.save(args.out, chain=args.chain)
         if not args.quiet:
-            _print_summary(thaw(result.record))
-            _print_timings(timings)
-            print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else ""),
-                  file=sys.stderr)
+            summary(thaw(result.record))
+            if args.verbose:
+                _print_timings(timings)
+            print(f"wrote {args.out}" + (f" and {args.chain}" if args.chain else "")
+                  + ("" if args.verbose else f" ({timings['total']:.1f} s)"), file=sys.stderr)
         if args.report:
             from fitlab.report.api import write_report
 
@@ -373,7 +437,8 @@ def run(args):
             with atomic_open(args.chain, "wb") as fh:
                 fh.write(chain_bytes(dict(result.chains)))
         if not args.quiet:
-            _print_summary(thaw(result.record))
-            _print_timings(timings)
+            summary(thaw(result.record))
+            if args.verbose:
+                _print_timings(timings)
         print(result.to_json(), end="")
     return 0

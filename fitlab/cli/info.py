@@ -4,15 +4,22 @@ from __future__ import annotations
 
 import json
 
-from fitlab.cli.common import add_format, add_json
+from fitlab.errors import FitlabError
+
+from fitlab.cli.common import add_format, add_json, add_read_options, read_kwargs
 
 
 def add_parser(sub):
     p = sub.add_parser("info", help="show what a data, parameter or table file holds",
                        description="Describe a file fitlab reads: format, angles, channels, units, "
-                       "value ranges and format-specific checks.")
+                       "value ranges and format-specific checks. For a measurement it reports "
+                       "what every sanity gate finds (sanity_gates) and lists under warnings "
+                       "each gate the file trips, which the commands that read it (fit, "
+                       "convert, compare, report) refuse unless --accept names it; info itself "
+                       "does not refuse a file for a gate.")
     p.add_argument("file")
     add_format(p, help="force a format instead of detecting it")
+    add_read_options(p)
     add_json(p)
     return p
 
@@ -22,6 +29,10 @@ def _print_info(info, indent=""):
         if isinstance(value, dict):
             print(f"{indent}{key}:")
             _print_info(value, indent + "  ")
+        elif key == "warnings" and value:  # one sentence a line
+            print(f"{indent}{key}:")
+            for w in value:
+                print(f"{indent}  - {w}")
         elif isinstance(value, list) and len(value) > 12:
             shown = ", ".join(str(v) for v in value[:12])
             print(f"{indent}{key}: [{shown}, ... ({len(value)} values)]")
@@ -33,6 +44,10 @@ def run(args):
     from fitlab.export.exr import describe_exr, is_exr
     from fitlab.io.fitfile import is_fit_file
 
+    read = read_kwargs(args)
+    if read and (is_exr(args.file) or is_fit_file(args.file)) and not args.format:
+        raise FitlabError(f"{args.file}: --angles, --accept and --quantity apply to measurement "
+                          "files, not to a lookup table or a parameter file")
     if is_exr(args.file) and not args.format:
         info = describe_exr(args.file)  # a fitlab LUT (data_formats/lut_exr.md)
     elif is_fit_file(args.file) and not args.format:
@@ -43,7 +58,7 @@ def run(args):
     else:
         from fitlab.io.formats import describe_any
 
-        info = describe_any(args.file, args.format)
+        info = describe_any(args.file, args.format, **read)
     if args.json:
         print(json.dumps(info, indent=2, default=str))
     else:

@@ -40,9 +40,12 @@ def add_parser(sub):
         "model --from-fit fits/walter_rough_glass.json --out glass_brdf.exr; fitlab lut model "
         "--model rough_conductor --param alpha=0.2 --param n=0.2,1.0,1.2 --param k=3.9,2.6,2.4 "
         "--out metal.exr; fitlab lut model --from-fit "
-        "fits/brown_vinyl_weidlich_wilkie_lambert.json --phi-d auto --out vinyl.exr (a phi_d "
-        "axis if the 2D table misses the target); fitlab lut model --model oren_nayar --param "
-        "albedo=0.5 --param sigma=0.3 --size 128x128x16 --out on.exr (3D); fitlab lut thin_layer "
+        "fits/brown_vinyl_weidlich_wilkie_lambert.json --out vinyl.exr (256x256x16: the 2D "
+        "table misses the target); fitlab lut model --from-fit "
+        "fits/brown_vinyl_weidlich_wilkie_lambert.json --phi-d slice --out vinyl2d.exr (the 2D "
+        "table, its error printed); fitlab lut model --model oren_nayar --param "
+        "albedo=0.5 --param sigma=0.3 --phi-d axis --size 128x128x16 --out on.exr (3D); "
+        "fitlab lut thin_layer "
         "--model 'thin_layer(rough_conductor)' --param eta=1.5 --param tau=0.2 --param "
         "n2=0.2,1.0,1.2 --param k2=3.9,2.6,2.4 --out film.exr (the subsurface lobe's mean, "
         "kappa and albedo over (mu, kappa1, kappa2) for a pre-filtered environment map)",
@@ -63,17 +66,19 @@ def add_parser(sub):
                    "(`fitlab models` lists them), all three channels")
     p.add_argument("--size", metavar="NxN[xN]",
                    help=f"samples per axis, {lut.SIZE_MIN}..{lut.SIZE_MAX} (one number: every "
-                   "axis); default per kind; model: a third number adds the phi_d axis "
-                   "(e.g. 256x256x16)")
+                   "axis); default per kind; model: a third number is the phi_d axis's "
+                   "(e.g. 256x256x16; see --phi-d)")
     target = lut.PHI_D_TARGET
     p.add_argument("--phi-d", choices=PHI_D_CHOICES,
-                   help="model only: slice = the 2D table at phi_d = 90 deg (the default "
-                   "unless --size gives a third number); auto = bake the 2D table, measure its "
-                   "parameterization error at random direction pairs and, if it misses the "
-                   f"target (RMS relative <= {target['rms_rel']:g}, max <= "
-                   f"{target['max_rel']:g}), bake the 3D table too (phi_d samples: the third "
-                   f"--size number, default {lut.PHI_D_SIZE}) and keep it unless it measures "
-                   "worse; both errors and the reason go into the header")
+                   help="model only: auto (the default) = bake the 2D (cos theta_h, "
+                   "cos theta_d) table at phi_d = 90 deg, measure its error against the model "
+                   "at random direction pairs and, if it misses the target (RMS relative <= "
+                   f"{target['rms_rel']:g}, max <= {target['max_rel']:g}), bake the 3D table "
+                   "with a phi_d axis (phi_d samples: the third --size number, default "
+                   f"{lut.PHI_D_SIZE}); write the table that meets the target, or nothing "
+                   "(exit status 2, with both figures and what to try) when neither does; "
+                   "slice = the 2D table whatever its error (measured and printed); axis = "
+                   "the 3D table whatever its error")
     p.add_argument("--mapping", action="append", metavar="AXIS=MAPPING",
                    help="axis mapping: " + ", ".join(f"{m.name} ({m.formula})"
                                                      for m in lut.MAPPINGS.values())
@@ -128,8 +133,8 @@ def _print_summary(table, written):
         miss = "" if p.get("meets_target", True) else (
             f" (misses the target RMS <= {p['target']['rms_rel']:g}, max <= "
             f"{p['target']['max_rel']:g}"
-            + (": --phi-d auto or a third --size number adds a phi_d axis)"
-               if len(table.axes) == 2 else ")"))
+            + (": --phi-d auto, the default, adds a phi_d axis)" if len(table.axes) == 2
+               else ": more samples in --size lower it)"))
         print(f"  lookup vs the model at random direction pairs ({how}): max rel "
               f"{p['max_rel']:.3g}, RMS rel {p['rms_rel']:.3g}{miss}", file=sys.stderr)
     if "vmf_lobe" in acc:

@@ -1,11 +1,12 @@
 """fitlab models: the registry's models with their parameters, bounds, units, options, presets
-and sources, and the conventions they share."""
+and sources, and the conventions they share. The models are built without JAX (their JAX is
+imported when they first compute: fitlab/_jax.py), so this listing starts in a fraction of a
+second."""
 
 from __future__ import annotations
 
 import json
 
-import fitlab
 from fitlab.cli.common import add_json, get_model
 from fitlab.io.conventions import conventions_text
 from fitlab.models.presets import CHANNELS, presets_of
@@ -45,7 +46,9 @@ def _capabilities_text(c) -> str:
 
 
 def run(args):
-    names = [args.name] if args.name else list(fitlab.MODELS)
+    from fitlab.models import MODELS
+
+    names = [args.name] if args.name else list(MODELS)
     models = [get_model(n) for n in names]
     if args.json:
         print(json.dumps({"conventions": conventions_text(),

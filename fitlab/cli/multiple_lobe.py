@@ -12,10 +12,10 @@ from fitlab.errors import FitlabError
 
 
 def add_parser(sub):
-    from fitlab.models.presets import PRESETS
+    from fitlab.models.presets import spongecake_presets
     from fitlab.learn.lobe import PHI_BINS, SAMPLES, THETA_BINS, THETA_I
 
-    sponge = [n for n, p in PRESETS.items() if get_model(p.model).argument("kinds")]
+    sponge = list(spongecake_presets())
     p = sub.add_parser(
         "multiple-lobe", help="fit a SpongeCake stack's multiple-scattering lobe to the simulator",
         description="Simulate a SpongeCake stack (no substrate) on a hemisphere grid of both "
@@ -138,7 +138,7 @@ def run(args):
             w2t = f", W2T {p['W2T']:.4g}" if "W2T" in p else ""
             print(f"  {cname}: multiple scattering {100 * share:.1f}% of the simulated f; lobe "
                   f"chi2/dof {st['chi2_per_dof']:.3g}, RMS relative error "
-                  f"{st['rms_relative_error_fit']:.3g}; W1 {p['W1']:.4g}, W2 {p['W2']:.4g}{w2t}",
+                  f"{st['fit_error']['rms_relative_error']:.3g}; W1 {p['W1']:.4g}, W2 {p['W2']:.4g}{w2t}",
                   file=sys.stderr)
         print(f"wrote {args.out}" + (f" and {args.data_out}" if args.data_out else ""),
               file=sys.stderr)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from fitlab.cli.common import add_quiet
+from fitlab.cli.common import add_quiet, add_read_options, read_kwargs
 
 
 def add_parser(sub):
@@ -43,6 +43,7 @@ def add_parser(sub):
                    "error (Mitsuba exports rendered on a virtual goniometer) and a Mitsuba 3 "
                    "render of the material on a sphere (needs Mitsuba 3: pip install "
                    "'fitlab[mitsuba]')")
+    add_read_options(p)  # for the data file; default: as the fit read it (data.read_options)
     add_quiet(p, help="no progress on the terminal")
     return p
 
@@ -53,7 +54,7 @@ def run(args):
     summary = build_report(args.fit, args.out, data_path=args.data, chain_path=args.chain,
                            luts=args.lut or (), discover_luts=not args.no_lut_discovery,
                            renderers=args.renderers,
-                           progress=not args.quiet)
+                           progress=not args.quiet, read_options=read_kwargs(args) or None)
     if not args.quiet:
         print(f"open {summary['index']} in a browser (self-contained; "
               f"{len(summary['figures'])} figures also as PNG and SVG beside it)", file=sys.stderr)

@@ -6,7 +6,7 @@ import sys
 
 from fitlab.cli.common import add_quiet
 from fitlab.errors import FitlabError
-from fitlab.simulate.simulator import BATCH_SIZE, DEVICES
+from fitlab.simulate.protocol import DEVICES, LAUNCH_PATHS as BATCH_SIZE
 
 
 def add_parser(sub):

@@ -66,6 +66,8 @@ def run(args):
     except ExportError as exc:
         raise FitlabError(str(exc)) from None
     if not args.quiet:
+        for ch, fe in (res.material.get("fit_error") or {}).items():
+            print(f"the fit's own error, channel {ch}: {fe['text']}", file=sys.stderr)
         for use, line in res.recommendations.items():
             print(f"{use}: {line}", file=sys.stderr)
         print(f"wrote {args.out}/index.html and tradeoffs.json", file=sys.stderr)

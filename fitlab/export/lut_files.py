@@ -61,8 +61,8 @@ def parse_mappings(items, kind: lut.Kind) -> tuple:
     return tuple(mappings)
 
 
-#: --phi-d choices: the model table's φd axis (see build_table).
-PHI_D_CHOICES = ("slice", "auto")
+#: --phi-d choices: the model table's φd axis (see build_table); the first is the default.
+PHI_D_CHOICES = ("auto", "slice", "axis")
 
 
 def parse_range(text, what):
@@ -97,10 +97,15 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
     registry name, ``params`` {channel: {name: value}} and ``options`` the model's options
     (the command line parses them: fitlab.cli.common); ``fit`` a parameter file instead.
 
-    ``phi_d`` (model tables, the kind's optional axis): None or ``"slice"``: the axes the sizes
-    give (two: the φd = 90° slice; three: with the φd axis); ``"auto"``: bake the 2D table and,
-    if its measured parameterization error misses fitlab.lut.PHI_D_TARGET, the 3D one too (φd
-    samples: the third size, or the kind's default) and keep the better (fitlab.lut.bake_auto).
+    ``phi_d`` (model tables, the kind's optional axis; None is ``"auto"`` for them):
+
+    - ``"auto"`` (the default): bake the 2D (θh, θd) table and measure its parameterization
+      error; if it misses fitlab.lut.PHI_D_TARGET, bake the table with the φd axis (φd
+      samples: the third size, else the kind's default) and keep it if it meets the target
+      (fitlab.lut.bake_auto). When no table meets the target a :class:`FitlabError` gives both
+      measured figures and what to try: nothing is returned, so nothing is written.
+    - ``"slice"``: the 2D table at φd = 90° whatever its error (measured and stored).
+    - ``"axis"``: the table with the φd axis whatever its error.
     """
     try:
         kind = lut.get_kind(kind_name)
@@ -111,15 +116,20 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
     optional = [e[0] for e in kind.extra_axes]
     if phi_d is not None:
         if phi_d not in PHI_D_CHOICES:
-            raise FitlabError(f"--phi-d {phi_d!r}: choose {' or '.join(PHI_D_CHOICES)}")
+            raise FitlabError(f"--phi-d {phi_d!r}: choose {', '.join(PHI_D_CHOICES)}")
         if lut.PHI_D not in optional:
             with_phi = [k.name for k in lut.KINDS.values()
                         if lut.PHI_D in (e[0] for e in k.extra_axes)]
             raise FitlabError(f"--phi-d applies to {' and '.join(with_phi)} tables only")
+    elif lut.PHI_D in optional:
+        phi_d = PHI_D_CHOICES[0]
     sizes = parse_size(size, kind) if size else None
     if phi_d == "slice" and sizes and len(sizes) > kind.n_axes:
         raise FitlabError(f"--phi-d slice asks for the 2D φd = 90° table, but --size {size!r} "
                           "gives a φd size; drop one of them")
+    if phi_d == "axis" and (sizes is None or len(sizes) == kind.n_axes):
+        # the φd axis always, of the kind's default size unless --size gives one
+        sizes = (sizes or tuple(kind.default_size)) + tuple(e[1] for e in kind.extra_axes)
     mappings = parse_mappings(mapping_items, kind)
     n_axes = len(sizes) if sizes else kind.n_axes
     if phi_d != "auto":
@@ -127,12 +137,13 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
         unused = [a for a in kind.all_axis_names[n_axes:] if a in given]
         if unused:
             raise FitlabError(f"--mapping {unused[0]}=...: this {kind.name} table has no "
-                              f"{unused[0]} axis; give its size (--size "
-                              f"{'x'.join(map(str, kind.default_size))}x16) or --phi-d auto")
+                              f"{unused[0]} axis (--phi-d slice); drop the mapping or give "
+                              "--phi-d auto or axis")
         mappings = mappings[:n_axes]
     if check_points == 0 and phi_d == "auto":
-        raise FitlabError("--phi-d auto chooses by the measured error: it needs the accuracy "
-                          "check (--check-points > 0)")
+        raise FitlabError("--phi-d auto (the default) chooses the table by its measured error: "
+                          "it needs the accuracy check (--check-points > 0); to skip the check "
+                          "choose the table yourself: --phi-d slice (2D) or --phi-d axis (3D)")
     if fit:
         model, options, params = from_fit(fit, channel)
     else:
@@ -156,14 +167,34 @@ def build_table(kind_name, *, fit=None, channel=None, model=None, params=None, o
                          kappa_range=parse_range(kappa_range, "kappa"))
         source = str(fit) if fit else None
         if phi_d == "auto":
-            return lut.bake_auto(kind.name, size=sizes, mappings=mappings, dtype=dtype,
-                                 check_points=check_points, source_fit=source,
-                                 progress=progress, **spec_args)
+            table = lut.bake_auto(kind.name, size=sizes, mappings=mappings, dtype=dtype,
+                                  check_points=check_points, source_fit=source,
+                                  progress=progress, **spec_args)
+            if not table.accuracy["auto"]["meets_target"]:
+                raise FitlabError(missed_target_text(table.accuracy["auto"]))
+            return table
         spec = lut.make_spec(kind.name, size=sizes, mappings=mappings, **spec_args)
         return lut.bake(spec, dtype, check_points=check_points, source_fit=source,
                         progress=progress)
     except ValueError as exc:
         raise FitlabError(str(exc)) from None
+
+
+def missed_target_text(auto: dict) -> str:
+    """Why `fitlab lut model` (``--phi-d auto``) wrote nothing: every table it baked, its
+    measured error and what to try (``auto``: a table's ``accuracy["auto"]`` record)."""
+    t = auto["target"]
+    tried = "; ".join(f"{c['size']} RMS {c['rms_rel']:.2g}, max {c['max_rel']:.2g}"
+                      for c in auto["candidates"])
+    last = [int(n) for n in auto["candidates"][-1]["size"].split("x")]
+    if len(last) == 2:
+        last.append(lut.PHI_D_SIZE)
+    more = "x".join(str(min(2 * n, lut.SIZE_MAX)) for n in last)
+    return (f"no table meets the target (lookup vs the model at random direction pairs: RMS "
+            f"relative <= {t['rms_rel']:g} and max <= {t['max_rel']:g}); measured {tried}; "
+            f"nothing written. Try more samples (e.g. --size {more}), or write a table that "
+            "misses the target knowingly: --phi-d axis (with phi_d) or --phi-d slice (2D, "
+            "phi_d = 90 deg)")
 
 
 def _model_preset(name, model, options, params):
@@ -205,4 +236,4 @@ def write_outputs(table, out, *, shader=True, hlsl=False):
 
 
 __all__ = ["build_table", "write_outputs", "parse_size", "parse_mappings", "parse_range",
-           "from_fit", "PHI_D_CHOICES"]
+           "from_fit", "missed_target_text", "PHI_D_CHOICES"]

@@ -107,8 +107,7 @@ class Kernels:
     density of sampling ``wo`` from ``wi``, ``sample(wi, u)`` → (wo, pdf)."""
 
     def __init__(self, material):
-        import jax
-        import jax.numpy as jnp
+        from fitlab._jax import jax, jnp
 
         from fitlab.api import check_params, resolve_options
         from fitlab.models import get_model
@@ -162,7 +161,7 @@ def _kernels_of(key: tuple) -> Kernels:
 def _to_jax(vec, n_pad: int, fill: tuple):
     """(n_pad, len(vec)) float32 JAX array of the Dr.Jit vector ``vec`` (its components moved
     by DLPack), padded with the constant row ``fill``."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     cols = [jnp.asarray(c.jax() if hasattr(c, "jax") else np.asarray(c), dtype=jnp.float32)
             .reshape(-1) for c in vec]

@@ -141,7 +141,10 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
         "data": {"path": m.path, "sha256": m.sha256, "rows": m.n,
                  "rows_fitted": int(np.sum(result["subset_rows"])), "fit_subset": subset_expr,
                  "file_quantity": m.file_quantity, "quantity": m.quantity,
-                 "channels": list(m.channel_names), "metadata": m.metadata},
+                 "channels": list(m.channel_names), "metadata": m.metadata,
+                 # how the file was read, where not by default (--angles, --accept,
+                 # --quantity): the report reads it the same way
+                 **({"read_options": dict(m.read_options)} if m.read_options else {})},
         "fits": [_channel_record(ch, model, result["fixed"]) for ch in result["channels"]],
         "software": software_versions(),
     }

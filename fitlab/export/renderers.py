@@ -156,16 +156,29 @@ def material_of(fit=None, *, model: str | None = None, params: dict | None = Non
 def export_material(fit=None, to: str | None = None, out=None, *, model: str | None = None,
                     params: dict | None = None, options: dict | None = None,
                     channel: str | None = None, preview: bool = False,
-                    check: bool = False, progress: bool = False) -> Exported:
+                    check: bool | str = False, progress: bool = False) -> Exported:
     """Export a fit (or ``model`` with ``params``/``options``) for a renderer: format ``to``
     (:data:`EXPORTERS`; else from ``out``'s suffix). With ``out`` the file is written
     atomically; the :class:`Exported` holds its text, the object (Mitsuba dict, glTF document)
     and the conversion figures. ``preview``: a Mitsuba scene around the material (a sphere,
-    an environment and a sun). ``check``: render the Mitsuba export on a virtual goniometer
-    (fitlab.export.mitsuba_plugin, needs Mitsuba 3) and add its difference from fitlab to ``conversion``."""
+    an environment and a sun).
+
+    ``check``: a renderer evaluates the export on 120 fixed goniometer pairs and
+    ``conversion["check"]`` holds how far its values are from the material's (relative RMS,
+    largest relative difference, what was compared and what the figure means:
+    fitlab.export.check). Mitsuba 3 checks the Mitsuba exports; three.js (headless Chromium)
+    checks a glTF file, else Mitsuba with glTF's specified BRDF of the file's values. ``True``
+    (or ``"auto"``) takes the first that can run, ``"three"`` or ``"mitsuba"`` names one. When
+    none can, ExportError says what to install, before anything is built or written; the file
+    is written only after its check ran."""
     from fitlab.io.atomic import atomic_write_text
 
     exporter, suffix = exporter_for(to, None if out is None else str(out))
+    renderer = None
+    if check:
+        from fitlab.export.check import renderer_for
+
+        renderer = renderer_for(exporter.name, "auto" if check is True else str(check))
     material = material_of(fit, model=model, params=params, options=options, channel=channel)
     if material.source != "model":  # how the file names its source: never an absolute path
         from fitlab.io.files import path_for_record
@@ -173,11 +186,11 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
         material = material._replace(source=path_for_record(material.source, out)
                                      if out is not None else Path(material.source).name)
     made = exporter.build(material, suffix, {"preview": preview, "progress": progress})
-    if check and exporter.name.startswith("mitsuba"):
-        from fitlab.export import mitsuba_plugin as fm
+    if renderer is not None:
+        from fitlab.export.check import run_check
 
-        fm.ensure_variant()
-        made.conversion["goniometer"] = fm.conversion_error(material, made.value)
+        made = made._replace(conversion={**made.conversion, "check": run_check(
+            exporter.name, renderer, material, made)})
     if out is not None:
         atomic_write_text(out, made.text)
     return made

@@ -47,7 +47,7 @@ def nodes(m, rows, order: int):
 
 def with_nodes(data: FitData, m, rows, order: int) -> FitData:
     """``data`` (the fitted ``rows`` of ``m``) with the aperture nodes of ``order``."""
-    import jax
+    from fitlab._jax import jax
 
     wi, wo, w = nodes(m, rows, order)
     return data._replace(wi=jax.device_put(wi), wo=jax.device_put(wo),

@@ -26,15 +26,41 @@ from __future__ import annotations
 from fitlab.errors import FitlabError
 
 
-def read(path, format: str | None = None):
+def read(path, format: str | None = None, *, angles: str | None = None, accept=(),
+         quantity: str | None = None):
     """Read any measurement file fitlab knows (format detected from the content unless given:
-    see ``fitlab info``) into a validated :class:`fitlab.io.measurement.Measurement`."""
+    see ``fitlab info``) into a validated :class:`fitlab.io.measurement.Measurement`.
+
+    The sanity gates (:mod:`fitlab.io.gates`) refuse a valid but implausible file with an
+    InputFileError naming the fix: angles that look like radians, values that look like another
+    quantity, negative values beyond detector noise, a stored total integrated scatter the data
+    disagree with. ``accept``: gate names (``"radians"``, ``"quantity"``, ``"negative"``,
+    ``"tis"``) to read the file anyway (each accepted finding is kept in ``m.accepted`` and a
+    fit's notes); ``angles="radians"``: the file's angles are radians, converted to degrees;
+    ``quantity``: what the values are (``bsdf``, ``bsdf_cos``, ``radiance_factor``,
+    ``relative``), replacing the file's ``# quantity:`` line. ``angles`` and ``quantity`` apply to
+    fitlab's measurement CSV (data_formats/measurement_csv.md, "Sanity gates")."""
     from fitlab.io.formats import read_any
 
-    return read_any(path, format)
+    return read_any(path, format, angles=angles, accept=accept, quantity=quantity)
 
 
-def fit(measurement, model, *, throw: bool = False, **settings):
+def measurement_of(measurement, what: str = "measurement", **read_options):
+    """``measurement`` if it is a Measurement, else the file it names read with
+    ``read_options`` (:func:`read`'s ``format``, ``angles``, ``accept``, ``quantity``); options
+    given with a Measurement are refused (it was read already)."""
+    given = {k: v for k, v in read_options.items() if v not in (None, (), [])}
+    if hasattr(measurement, "value"):
+        if given:
+            raise FitlabError(f"{', '.join(sorted(given))}: options of reading a file; this "
+                              f"{what} is a Measurement read already (pass them to "
+                              "fitlab.read, or give the path)")
+        return measurement
+    return read(measurement, **given)
+
+
+def fit(measurement, model, *, throw: bool = False, angles: str | None = None, accept=(),
+        quantity: str | None = None, **settings):
     """Fit ``model`` (a registry name such as ``"rough_dielectric"``, ``"lambertian+
     rough_conductor"`` or ``"coated(lambertian)"``, a Model, or a whole
     :class:`~fitlab.fitting.request.FitRequest`) to ``measurement`` (a Measurement or a path) and
@@ -56,7 +82,9 @@ def fit(measurement, model, *, throw: bool = False, **settings):
     to choose it from the measured quadrature error (see ``fitlab.fitting.aperture``; the order
     and the error are in the result's ``diagnostics()["aperture"]``); bootstrap: refits of the
     block bootstrap over incidence directions, an uncertainty that accounts for misfit
-    (``result.bootstrap()``; None: 100 on channels with at least 3 fitted incidences, 0: off);
+    (``result.bootstrap()``; None: on channels with at least 3 fitted incidences, until its
+    intervals settle, at most 100; N: exactly N; 0: off; skipped where least squares ended at a
+    bound or its iteration limit);
     lm_maxiter: each Levenberg–Marquardt run's step limit (None: 200; raise it when a fit warns
     that its run stopped at the limit); start: {parameter: value} for one more
     Levenberg–Marquardt start, at these values and the model's defaults elsewhere (a basin the
@@ -64,6 +92,7 @@ def fit(measurement, model, *, throw: bool = False, **settings):
     start is in ``result.record["fits"][c]["starts"]``); sampler: the posterior sampler with
     ``mcmc`` (``fitlab.fitting.samplers.SAMPLERS``: ``emcee``, the default and reference, or
     ``nuts``, blackjax's NUTS with ``walkers`` chains).
+    angles, accept, quantity: how a path is read (:func:`read`; not with a Measurement).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning). What limits trust in the fit is ``result.statuses(channel)`` (a
     :class:`fitlab.fitting.status.Status` each, with its advice); throw: raise a
@@ -74,10 +103,12 @@ def fit(measurement, model, *, throw: bool = False, **settings):
     from fitlab.fitting.request import as_request
     from fitlab.fitting.result import FitResult
     from fitlab.fitting.subset import rows_of
-    from fitlab.io.measurement import one_dataset, sanity_warnings
+    from fitlab.io.gates import notes
+    from fitlab.io.measurement import one_dataset
 
     request = as_request(model, settings)
-    m = one_dataset(read(measurement) if not hasattr(measurement, "value") else measurement)
+    m = one_dataset(measurement_of(measurement, angles=angles, accept=accept,
+                                   quantity=quantity))
     expr, _ = rows_of(request.subset, m)
     try:
         result = fit_measurement(m, request, warn=False)
@@ -85,7 +116,7 @@ def fit(measurement, model, *, throw: bool = False, **settings):
         text = str(exc)
         raise FitlabError(text if text.startswith(f"{m.path}:") else f"{m.path}: {text}") \
             from None
-    result["notes"] = list(result["notes"]) + sanity_warnings(m)
+    result["notes"] = list(result["notes"]) + notes(m)
     record = build_record(result, m, subset_expr=expr)
     if request.walter_diagnostics:
         from fitlab.fitting.walter import add_empirical_D
@@ -99,4 +130,4 @@ def fit(measurement, model, *, throw: bool = False, **settings):
     return out
 
 
-__all__ = ["read", "fit"]
+__all__ = ["read", "fit", "measurement_of"]

@@ -25,9 +25,9 @@ import functools
 import math
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
+from fitlab._jax import jax
 from fitlab.fitting.least_squares import (LM_MAXITER, FitData, cost_unit, halton, kernels,
                                           lm_stop_reason, pad_to, padded_size)
 from fitlab.fitting.losses import has_absolute_noise

@@ -42,7 +42,7 @@ def enable_compilation_cache() -> str | None:
             return None
     except OSError:
         return None
-    import jax
+    from fitlab._jax import jax
 
     jax.config.update("jax_compilation_cache_dir", str(path))
     # Cache every kernel: the fit's kernels compile in well under JAX's default 1 s threshold

@@ -7,20 +7,21 @@ from __future__ import annotations
 import sys
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
+from fitlab._jax import jax
 from fitlab.api import check_params
 from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData
+from fitlab.fitting import progress
 from fitlab.fitting.losses import loss_weights
 from fitlab.fitting.space import SCALE, make_space, model_values
 from fitlab.fitting.status import Status
-from fitlab.metrics import REL_ERR_FLOOR, relative_errors
+from fitlab.metrics import fit_error, incidence_keys
 from fitlab.models import Model
 
-#: Rows whose |value| is below REL_ERR_FLOOR of the channel's maximum are left out of relative
-#: error statistics (fitlab/metrics.py: the one rule).
+#: The fit error (statistics.fit_error) is fitlab.metrics.fit_error: rows below 1% of their
+#: incidence's peak are left out (data_formats/fit_json.md, "The fit error").
 
 
 class FitWarning(UserWarning):
@@ -59,9 +60,40 @@ def least_squares_warnings(ls) -> list[str]:
     return out
 
 
+def least_squares_alerts(ls, names=None) -> list[str]:
+    """What to say the moment least squares ends, before the bootstrap and MCMC run: that its
+    Levenberg–Marquardt run stopped at its iteration limit, or that parameters ended at a bound
+    of their range, each with what to try (the Status's advice). ``names``: the coordinates'
+    names (default ``ls``'s start records')."""
+    out = []
+    if ls.solver["stopped"] == Status.MAX_ITERATIONS:
+        out.append(f"least squares stopped at its iteration limit ({ls.solver['max_iterations']} "
+                   f"Levenberg-Marquardt steps) before converging: "
+                   f"{Status.MAX_ITERATIONS.advice}")
+    if ls.at_bound:
+        names = list(names if names is not None else ls.starts[0]["start"])
+        at = ", ".join(f"{p} = {ls.native[names.index(p)]:.6g}" if p in names else p
+                       for p in ls.at_bound)
+        out.append(f"least squares ended at a bound of the range: {at}; try: "
+                   f"{Status.AT_BOUND.advice}")
+    if out:
+        out[-1] += " (the bootstrap is skipped for this fit)"
+    return out
+
+
 def log_line(quiet, msg):
     if not quiet:
-        print(msg, file=sys.stderr, flush=True)
+        progress.line(msg)
+
+
+def alert_line(quiet, msg):
+    """A warning said the moment it is known (least_squares_alerts): its own line on stderr,
+    also where progress lines are brief (a status line on the terminal is cleared first)."""
+    if quiet:
+        return
+    if sys.stderr.isatty():
+        sys.stderr.write("\r\x1b[K")
+    print(msg, file=sys.stderr, flush=True)
 
 
 def _scale_reference(model, options, start, m, rows, in_chan):
@@ -79,13 +111,14 @@ def _scale_reference(model, options, start, m, rows, in_chan):
     return max(s, 1e-300)
 
 
-def _rms(x):
-    return float(np.sqrt(np.mean(x**2))) if x.size else None
-
-
 def statistics(m, rows_fit, pred, ls, data_sigma, loss):
-    """Fit statistics over the fitted rows and per incidence direction over all rows."""
-    rel_fit, _ = relative_errors(pred[rows_fit], m.value[rows_fit])
+    """Fit statistics of one channel: the fit error over the fitted rows (``fit_error``, the one
+    definition: fitlab.metrics.fit_error), the same over the rows not fitted
+    (``prediction_error``, None when every row was fitted) and per incidence direction over all
+    rows (``per_incidence``, each incidence's floor from its own rows)."""
+    fit_err = fit_error(pred[rows_fit], m.value[rows_fit], m.theta_i[rows_fit],
+                        m.phi_i[rows_fit])
+    rest = ~rows_fit
     stats = {
         "loss": loss,
         "n_fit": int(rows_fit.sum()),
@@ -93,26 +126,26 @@ def statistics(m, rows_fit, pred, ls, data_sigma, loss):
         "cost": ls.cost,
         "dof": ls.dof,
         "residual_noise_scale": ls.noise_scale,
-        "rms_relative_error_fit": float(np.sqrt(np.mean(rel_fit**2))) if rel_fit.size else None,
-        "relative_error_floor": REL_ERR_FLOOR,
+        "fit_error": fit_err,
+        "prediction_error": (fit_error(pred[rest], m.value[rest], m.theta_i[rest], m.phi_i[rest])
+                             if rest.any() else None),
     }
     if data_sigma is not None:
         chi2 = float(np.sum(((pred[rows_fit] - m.value[rows_fit]) / data_sigma[rows_fit]) ** 2))
         stats["chi2"] = chi2
         stats["chi2_per_dof"] = chi2 / ls.dof
+    every = fit_error(pred, m.value, m.theta_i, m.phi_i)["per_incidence"]
+    keys = incidence_keys(m.theta_i, m.phi_i)
     per = []
-    keys = np.stack([m.theta_i, np.mod(m.phi_i, 360.0)], axis=1)
-    for ti, pi in np.unique(keys, axis=0):
-        sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
-        rel, keep = relative_errors(pred[sel], m.value[sel])
+    for row in every:
+        sel = (keys[:, 0] == row["theta_i"]) & (keys[:, 1] == row["phi_i"])
         in_fit = rows_fit[sel]
         per.append({
-            "theta_i": float(ti), "phi_i": float(pi), "n": int(sel.sum()),
+            "theta_i": row["theta_i"], "phi_i": row["phi_i"], "n": row["rows"],
             "n_fitted": int(in_fit.sum()),
             "role": "fit" if in_fit.all() else ("prediction" if not in_fit.any() else "partly fit"),
-            "rms_relative_error": float(np.sqrt(np.mean(rel**2))) if rel.size else None,
-            "max_abs_relative_error": float(np.max(np.abs(rel))) if rel.size else None,
-            "rms_relative_error_fitted_rows": _rms(rel[in_fit[keep]]),
+            "rms_relative_error": row["rms_relative_error"],
+            "max_abs_relative_error": row["max_abs_relative_error"],
         })
     stats["per_incidence"] = per
     return stats

@@ -58,13 +58,17 @@ def _fit_chunk(files: list[str], settings: dict, out_dir: str, cid: str) -> str:
 
 def fit_files(files, model, out_dir, *, workers: int = 2, scheduler: str | None = None,
               files_per_chunk: int = FILES_PER_CHUNK, progress: bool = True,
-              retries: int = 3, **fit_kwargs) -> dict:
+              retries: int = 3, angles: str | None = None, accept=(),
+              quantity: str | None = None, **fit_kwargs) -> dict:
     """Fit every file with ``model`` on a Dask cluster (module text); returns a summary:
     ``chunks``, ``done_before`` (skipped: already fitted), ``fitted`` (this run), ``files``,
     ``table``, ``index``. ``model`` is a registry name or a whole FitRequest, ``fit_kwargs``
     fitlab.fit_many's settings: checked once, here, before any worker starts; the workers get
     the request's settings as plain values (:func:`plain_settings`, also hashed into each
-    chunk's identity)."""
+    chunk's identity). ``angles``, ``accept``, ``quantity``: how the workers read the files
+    (:func:`fitlab.read`; part of the settings, so a change refits)."""
+    from fitlab.io.gates import read_options
+
     from fitlab.fitting.many import MANY_DEFAULTS, check_batch
     from fitlab.fitting.request import FitRequest, as_request
     from fitlab.io.atomic import atomic_write_text
@@ -84,7 +88,8 @@ def fit_files(files, model, out_dir, *, workers: int = 2, scheduler: str | None 
     if files_per_chunk < 1 or (scheduler is None and workers < 1):
         raise FitlabError("--workers and --files-per-chunk must be at least 1")
     out = Path(out_dir)
-    settings = {"model": model, **plain_settings(request)}
+    settings = {"model": model, **plain_settings(request),
+                **read_options(angles, accept, quantity).record()}
     chunks = []
     for a in range(0, len(files), files_per_chunk):
         part = [str(Path(f).resolve()) for f in files[a:a + files_per_chunk]]

@@ -19,8 +19,10 @@ import warnings as _warnings
 
 import numpy as np
 
-from fitlab.fitting.channel import (FitWarning, channel_problem, fitted_rows, least_squares_warnings,
-                                    log_line, non_finite_fit, resolve_fit, statistics)
+from fitlab.fitting.channel import (FitWarning, channel_problem, fitted_rows,
+                                    alert_line, least_squares_alerts, least_squares_warnings,
+                                    log_line,
+                                    non_finite_fit, resolve_fit, statistics)
 from fitlab.fitting.least_squares import fit_least_squares
 from fitlab.fitting.request import FitRequest
 from fitlab.fitting.status import Status
@@ -34,8 +36,10 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
     Each channel's entry has ``warnings``, the sentences of what did not go as planned (see the
     module text); with ``warn`` (the default) each is also issued as a :class:`FitWarning`
     (the CLI, which prints the list itself, turns this off). ``request.bootstrap``: refits of
-    the block bootstrap over incidences (None: :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP`
-    where a channel has at least 3 fitted incidences, else none; 0: none). Rows with an aperture
+    the block bootstrap over incidences (None: until its intervals settle, at most
+    :data:`fitlab.fitting.resampling.DEFAULT_BOOTSTRAP`, where a channel has at least 3 fitted
+    incidences, else none; 0: none; skipped where least squares ended at a bound or its
+    iteration limit). Rows with an aperture
     (``m.has_aperture``) are fitted by the aperture-averaged model, of quadrature order
     ``request.aperture_order`` (None: chosen automatically, fitlab.fitting.aperture)."""
     setup = resolve_fit(m, request)
@@ -96,6 +100,8 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
             order = aperture["order"]
             channel_warnings = least_squares_warnings(ls) + more
             t_ls = time.perf_counter() - t0
+        for alert in least_squares_alerts(ls, space.names):  # now, before MCMC and bootstrap
+            alert_line(quiet, f"warning: channel {name}: {alert}")
         chain = None
         if request.mcmc:
             from fitlab.fitting.samplers import sample_posterior  # the samplers load only here

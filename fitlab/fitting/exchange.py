@@ -31,8 +31,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax.numpy as jnp
 import numpy as np
+
+from fitlab._jax import jnp
 
 
 class Swap(NamedTuple):

@@ -31,16 +31,15 @@ joint problem itself (its coordinates, full covariance, cost and dof) is the res
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from fitlab.fitting.channel import (channel_problem, fitted_rows, least_squares_warnings,
-                                    statistics)
+from fitlab._jax import jax, jnp
+from fitlab.fitting.channel import (alert_line, channel_problem, fitted_rows, least_squares_alerts,
+                                    least_squares_warnings, statistics)
+from fitlab.fitting import progress
 from fitlab.fitting.least_squares import FitData, fit_least_squares
 from fitlab.fitting.space import SCALE, FitSpace
 from fitlab.fitting.status import Status
@@ -212,7 +211,7 @@ def fit_joint(m, request, setup, rows_fit, chan_ids):
         from fitlab.fitting import aperture as _aperture
 
         order, auto = _aperture.start_order(request.aperture_order)
-    log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    log = (lambda msg: None) if quiet else progress.line
     t0 = time.perf_counter()
 
     names, spaces, datas, starts, masks = [], [], [], [], []
@@ -250,6 +249,8 @@ def fit_joint(m, request, setup, rows_fit, chan_ids):
     log("  least squares: " + ", ".join(f"{k} = {v:.6g} ± {s:.2g}" for k, v, s in
                                         zip(joint.names, ls.native, ls.stderr))
         + f"  ({t_ls:.2f} s)")
+    for alert in least_squares_alerts(ls, joint.names):  # now, before MCMC and bootstrap
+        alert_line(quiet, f"warning: joint fit of channels {', '.join(names)}: {alert}")
     chain = None
     if request.mcmc:
         from fitlab.fitting.samplers import sample_posterior
@@ -303,7 +304,8 @@ def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, requ
     fewer than 3 incidences); {"skipped": ...} when asked
     for with too few incidences."""
     from fitlab.fitting import goodness as gof
-    from fitlab.fitting.resampling import DEFAULT_BOOTSTRAP, MIN_BLOCKS, block_bootstrap
+    from fitlab.fitting.resampling import (DEFAULT_BOOTSTRAP, MIN_BLOCKS, block_bootstrap,
+                                           skip_reason, skipped_record)
 
     rows = np.concatenate([np.flatnonzero(r) for r in rows_list])
     keys, block = gof.incidence_blocks(m.theta_i[rows], m.phi_i[rows])
@@ -316,10 +318,19 @@ def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, requ
         return {"requested": int(n), "blocks": len(keys),
                 "skipped": f"{len(keys)} fitted incidence direction(s): the bootstrap resamples "
                            f"whole incidences and needs at least {MIN_BLOCKS}"}
-    log(f"  bootstrap: refitting {n} resamples of {len(keys)} incidences (all channels jointly)")
-    return block_bootstrap(joint, data, loss, ls, block, replicates=int(n), seed=request.seed,
-                           batch=len(ls.starts), progress=request.progress,
-                           lm_maxiter=request.lm_maxiter)
+    skip = skip_reason(ls)
+    if skip is not None:
+        log(f"  bootstrap skipped: {skip[1]}")
+        rec = skipped_record(skip, int(n), len(keys))
+        return {k: rec[k] for k in ("requested", "blocks", "skipped", "skipped_status")}
+    adaptive = bootstrap is None
+    log("  bootstrap: refitting " + (f"up to {n}" if adaptive else f"{n}")
+        + f" resamples of {len(keys)} incidences (all channels jointly)")
+    res = block_bootstrap(joint, data, loss, ls, block, replicates=int(n), seed=request.seed,
+                          batch=len(ls.starts), progress=request.progress,
+                          lm_maxiter=request.lm_maxiter, adaptive=adaptive)
+    log(f"  bootstrap: {res['stop_reason']}")
+    return res
 
 
 def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, idx, *, seed):
@@ -328,7 +339,7 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
     bootstrap record or None, warnings with the failure sentence, if any, first)."""
     from fitlab.fitting import goodness as gof
     from fitlab.fitting.losses import has_absolute_noise
-    from fitlab.fitting.resampling import bootstrap_caveats, predictive_check
+    from fitlab.fitting.resampling import bootstrap_caveats, predictive_check, run_record
 
     keys, block = gof.incidence_blocks(m.theta_i[rows_c], m.phi_i[rows_c])
     predictive = None if mc_c is None else predictive_check(space_c, data_c, loss, mc_c, block,
@@ -344,9 +355,7 @@ def channel_misfit(m, rows_c, space_c, data_c, loss, ls_c, mc_c, boot, joint, id
         rec = {"method": "block bootstrap over incidence directions, all channels at once (whole "
                          "incidences resampled with replacement in every channel, each replicate "
                          "refitted jointly from the least-squares optimum)",
-               "requested": boot["requested"], "replicates": boot["replicates"],
-               "blocks": boot["blocks"], "non_finite": boot["non_finite"],
-               "max_iterations": boot["max_iterations"], "seed": int(seed)}
+               **run_record(boot), "seed": int(seed)}
         if "at_bound" in boot:
             rec["at_bound"] = {n: boot["at_bound"][joint.names[i]]
                                for n, i in zip(space_c.names, idx)

@@ -18,14 +18,14 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import jaxopt
 import nlopt
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.fitting.exchange import canonical_runs
 from fitlab.fitting.losses import has_absolute_noise, residuals
+from fitlab.fitting.progress import bars_shown, line as progress_line
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
 
@@ -277,8 +277,9 @@ def halton(n, d, skip=1):
 
 
 def progress_bar(enabled: bool, total: int, desc: str, unit: str):
-    """A tqdm bar on stderr (rate and time left), or None when progress is off."""
-    if not enabled:
+    """A tqdm bar on stderr (rate and time left), or None when progress is off (or brief and
+    stderr is no terminal: fitlab.fitting.progress)."""
+    if not enabled or not bars_shown():
         return None
     from tqdm import tqdm
 
@@ -368,15 +369,28 @@ def local_fits(k, problem, starts_u, weights=None):
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
                       n_starts: int = 8, seed: int = 0,
                       global_maxeval: int | None = None,
-                      lm_maxiter: int = LM_MAXITER, progress: bool = False) -> LeastSquaresResult:
+                      lm_maxiter: int = LM_MAXITER, progress: bool = False,
+                      local_starts=None) -> LeastSquaresResult:
     """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start;
     ``lm_maxiter`` is each LM run's step limit; ``progress`` shows a bar with an estimate of the
-    time left for the global search, then the Levenberg–Marquardt stage, on stderr."""
+    time left for the global search, then the Levenberg–Marquardt stage, on stderr.
+
+    ``local_starts`` (native vectors): Levenberg–Marquardt from exactly these, no global search
+    and no low-discrepancy starts (a cross-validation fold refitted from the ends of the full
+    fit's starts, fitlab.fitting.compare: as many starts as the full fit had, so its compiled
+    stage is reused)."""
     k = kernels(space.static, loss, int(lm_maxiter))
     n_rows = int(data.value.shape[0])
     data = pad_rows(space.static, data)
     problem = problem_of(space, data)
     d = space.ndim
+    if local_starts is not None:
+        starts_u = [np.clip(space.to_unit(np.asarray(x, dtype=float)), 1e-9, 1 - 1e-9)
+                    for x in local_starts]
+        glob_info = {"algorithm": "none (Levenberg-Marquardt from given starts)",
+                     "evaluations": 0, "non_finite": 0, "status": "skipped", "best_cost": None}
+        return _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter,
+                            progress)
     n_local = 1 + n_starts + (start_native is not None)
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
@@ -396,15 +410,23 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                 bar.close()
         if warm is not None:
             if progress and not warm.done():
-                print("  compiling the Levenberg-Marquardt stage for this data shape (once per "
-                      "shape; cached on disk)...", file=sys.stderr)
+                progress_line("  compiling the Levenberg-Marquardt stage for this data shape "
+                              "(once per shape; cached on disk)...")
             warm.result()
             _compiled_local.add(key)
     starts_u = [u_glob] + list(halton(n_starts, d))
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
+    return _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter,
+                        progress)
+
+
+def _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter, progress):
+    """Levenberg–Marquardt from every start (unit box) in one call, the best end, its
+    covariance and the starts' record: fit_least_squares' second stage."""
+    d = space.ndim
     if progress:
-        print(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...", file=sys.stderr)
+        progress_line(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...")
     loc = canonical_runs(space, local_fits(k, problem, starts_u))  # one labelling of
     # interchangeable lobes (a sum that repeats a component: fitlab/fitting/exchange.py)
     runs = [{"u0": np.asarray(u0), "u": loc["u"][i],

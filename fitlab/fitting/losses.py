@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jnp
 from fitlab.registry import Registry
 
 

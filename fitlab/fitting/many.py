@@ -221,6 +221,7 @@ def _problems(measurements, request):
     """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
     from fitlab.fitting.channel import channel_problem, fitted_rows, resolve_fit
     from fitlab.fitting.subset import rows_of
+    from fitlab.io.gates import notes as read_notes
 
     problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
     for i, m in enumerate(measurements):
@@ -231,7 +232,7 @@ def _problems(measurements, request):
         _, mask = rows_of(request.subset, m)
         rows.append(mask)
         fixed_all.append(fixed)
-        notes_all.append(notes)
+        notes_all.append(list(notes) + read_notes(m))  # how the file was read, if not by default
         losses[i] = lss
         if m.has_aperture:
             raise FitlabError(f"{m.path}: data with an aperture are fitted one at a time "
@@ -298,7 +299,8 @@ def check_batch(request, *, scan: int = SCAN, chunk: int = CHUNK):
 
 
 def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
-             throw: bool = False, **settings) -> ManyResult:
+             throw: bool = False, angles: str | None = None, accept=(),
+             quantity: str | None = None, **settings) -> ManyResult:
     """Fit ``model`` to every channel of every measurement (Measurements or paths; a file with
     a ``dataset`` column is one measurement per dataset, ``ManyResult.measurements``) with
     batched least squares (fitlab/fitting/batch.py); returns a :class:`ManyResult` (its
@@ -316,7 +318,8 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
     ``start``, ``channels``, ``walter_diagnostics``) is refused. ``scan``: Halton points of the
     global stage; ``chunk``: datasets per compiled call (memory grows with it). ``throw``: raise
     a FitlabError naming the fits that are not ``ok`` (``ManyResult.statuses``) instead of
-    returning them."""
+    returning them. ``angles``, ``accept``, ``quantity``: how the paths among ``measurements`` are
+    read (:func:`fitlab.read`)."""
     from fitlab.fitting.api import read
     from fitlab.fitting.request import FitRequest, as_request
 
@@ -326,7 +329,8 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
     if isinstance(measurements, (str, bytes, os.PathLike)) or hasattr(measurements, "value"):
         measurements = [measurements]
     ms = [d for m in measurements
-          for d in (read(m) if not hasattr(m, "value") else m).datasets()]
+          for d in (read(m, angles=angles, accept=accept, quantity=quantity)
+                    if not hasattr(m, "value") else m).datasets()]
     if not ms:
         raise FitlabError("fit_many needs at least one measurement")
     starts, seed, lm_maxiter = request.starts, request.seed, request.lm_maxiter

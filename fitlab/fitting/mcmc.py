@@ -15,21 +15,20 @@ problem of the data, never a rejected move: like emcee, fitlab stops there, and 
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from typing import NamedTuple
 
 import emcee
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import functools
 
+from fitlab._jax import jax, jnp
 from fitlab.errors import FitlabError
 from fitlab.fitting.exchange import canonical, order_keys, ordered
 from fitlab.fitting.least_squares import ROW_MASK, FitData, pad_rows, problem_of, residuals_unit
 from fitlab.fitting.losses import has_absolute_noise
+from fitlab.fitting.progress import line as progress_line
 from fitlab.fitting.space import FitSpace, StaticSpace
 
 #: emcee's rule: a chain shorter than this many autocorrelation times is not trusted.
@@ -162,8 +161,8 @@ def run_mcmc(space: FitSpace, data: FitData, loss: str, ls, *, seed: int, nsteps
     for i, _ in enumerate(sampler.sample(p0, iterations=nsteps), start=1):
         if progress and (i % report_every == 0 or i == nsteps):
             frac = sampler.acceptance_fraction.mean()
-            print(f"  MCMC {100 * i // nsteps:3d}%  step {i}/{nsteps}  "
-                  f"acceptance {frac:.2f}", file=sys.stderr, flush=True)
+            progress_line(f"  MCMC {100 * i // nsteps:3d}%  step {i}/{nsteps}  "
+                          f"acceptance {frac:.2f}")
     chain = sampler.get_chain()
     warnings = []
     logging.getLogger("emcee").setLevel(logging.ERROR)  # fitlab words its own warning below

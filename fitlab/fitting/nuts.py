@@ -17,10 +17,9 @@ from __future__ import annotations
 import functools
 import time
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.fitting.mcmc import MCMCResult, log_posterior_fn, unit_stderr
 from fitlab.fitting.least_squares import pad_rows, problem_of
 from fitlab.fitting.exchange import canonical, order_keys
@@ -85,10 +84,10 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
     starts = _starts(space, ls, nuisance, nchains, np.random.default_rng(seed))
     keys = jax.random.split(jax.random.PRNGKey(int(seed)), nchains)
     if progress:
-        import sys
+        from fitlab.fitting.progress import line
 
-        print(f"  NUTS: {nchains} chains × ({warmup} adaptation + {nsteps} draws) in one "
-              "compiled call...", file=sys.stderr, flush=True)
+        line(f"  NUTS: {nchains} chains × ({warmup} adaptation + {nsteps} draws) in one "
+             "compiled call...")
     run = _sampler(space.static, loss, order_keys(space), space.ndim, int(nsteps), int(warmup))
     imm = jnp.asarray(_inverse_mass(space, ls, nuisance))
     with jax.numpy_dtype_promotion("standard"):  # blackjax mixes bool and int internally

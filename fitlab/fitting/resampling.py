@@ -18,9 +18,9 @@ from __future__ import annotations
 import functools
 import time
 
-import jax
 import numpy as np
 
+from fitlab._jax import jax
 from fitlab.fitting import goodness as gof
 from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_stop_reason,
                                           pad_rows, problem_of, progress_bar, residuals_native)
@@ -29,13 +29,21 @@ from fitlab.fitting.status import Status
 
 #: The bootstrap needs at least this many fitted incidence directions (blocks).
 MIN_BLOCKS = 3
-#: Refits when the bootstrap is not asked for explicitly (``bootstrap=None``), on channels with
-#: at least MIN_BLOCKS fitted incidences. 100 is enough: the Monte Carlo error of a standard
-#: error from B refits is about 1/√(2B) = 7%, below the bootstrap's own roughness with ~10
-#: blocks (about 1/√(2K) = 22%). It costs the order of the least-squares fit, since batches of
-#: refits run in the fit's compiled stage (brown vinyl, 3,863 rows: 3-5 s with 2 free
-#: parameters against 7-15 s of least squares; 19 s with 4 against 6 s, and 157 s of MCMC).
+#: The most refits when the bootstrap is not asked for explicitly (``bootstrap=None``), on
+#: channels with at least MIN_BLOCKS fitted incidences; the refits stop earlier when the
+#: intervals have settled (:data:`SETTLE_REFITS`, :data:`SETTLE_FRACTION`). At 100 the Monte
+#: Carlo error of a standard error is about 1/√(2B) = 7%, below the bootstrap's own roughness
+#: with ~10 blocks (about 1/√(2K) = 22%).
 DEFAULT_BOOTSTRAP = 100
+#: The stopping rule (data_formats/fit_json.md, *the number of refits*): the refits stop when
+#: each 68% bound (p16, p84) of every free parameter has moved by less than SETTLE_FRACTION of
+#: the interval's width over the last SETTLE_REFITS refits (bounds and widths in the parameter's
+#: unit-box coordinate, where percentiles are those of the native values); checked after each
+#: batch of refits once 2 × SETTLE_REFITS have run.
+SETTLE_REFITS = 20
+SETTLE_FRACTION = 0.05
+#: Widths below this (unit box) count as this: a parameter pinned to one value has settled.
+SETTLE_MIN_WIDTH = 1e-6
 #: Fewest refits one may ask for (a 68% interval from fewer is mostly noise).
 MIN_REFITS = 10
 #: Fewer blocks than this: the bootstrap's spread is itself rough (``note`` in the record).
@@ -82,13 +90,52 @@ def bootstrap_caveats(blocks, replicates, requested, non_finite, at_bound):
     return note, warnings
 
 
+def settled(u, n_back: int = SETTLE_REFITS, fraction: float = SETTLE_FRACTION) -> bool:
+    """Whether the 68% intervals of the refits ``u`` (finite refits in drawing order, unit-box
+    coordinates, (refits, ndim)) have settled: each bound of every coordinate moved by less
+    than ``fraction`` of the interval's width between the first len(u) − ``n_back`` refits
+    and all of them. Needs 2 × ``n_back`` refits."""
+    u = np.asarray(u, float)
+    if u.shape[0] < 2 * n_back:
+        return False
+    now = np.percentile(u, [16, 84], axis=0)
+    before = np.percentile(u[:-n_back], [16, 84], axis=0)
+    width = np.maximum(now[1] - now[0], SETTLE_MIN_WIDTH)
+    return bool(np.all(np.abs(now - before) < fraction * width))
+
+
+def skip_reason(ls) -> tuple[Status, str] | None:
+    """(status, sentence) when the bootstrap is not to run on this least-squares result: its
+    Levenberg–Marquardt run stopped at its iteration limit or at a non-finite cost, or a
+    parameter ended at a bound of its range (refits from a point that is not an interior
+    optimum measure the solver, not the data; at a bound they creep along it for hundreds of
+    iterations). None: run it."""
+    stopped = (getattr(ls, "solver", None) or {}).get("stopped")
+    if stopped in (Status.MAX_ITERATIONS, Status.NON_FINITE):
+        return Status(stopped), (f"least squares did not converge ({stopped}): refits from its "
+                                 f"end would measure the solver, not the data; "
+                                 f"{Status(stopped).advice}")
+    at = tuple(getattr(ls, "at_bound", ()) or ())
+    if at:
+        return Status.AT_BOUND, (f"least squares ended with {', '.join(at)} at a bound of its "
+                                 "range: the resampled fits would pile up at the bound. Fix it "
+                                 "there (--fix NAME=BOUND, fix= in Python) and refit to get "
+                                 "bootstrap intervals of the others, or widen its range if the "
+                                 "model allows it")
+    return None
+
+
 def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int, batch: int,
-                    lm_maxiter: int = LM_MAXITER, progress: bool = False) -> dict:
-    """``replicates`` refits of the channel on incidence-resampled data (``block``: the block
-    index of each fitted row), ``batch`` at a time (the fit's number of Levenberg–Marquardt
-    starts, so that the fit's compiled stage is reused). Returns {samples (ok, ndim) native,
-    requested, replicates, non_finite, max_iterations, blocks, at_bound ({name: refits that
-    ended at a bound}), seconds}."""
+                    lm_maxiter: int = LM_MAXITER, progress: bool = False,
+                    adaptive: bool = True) -> dict:
+    """At most ``replicates`` refits of the channel on incidence-resampled data (``block``: the
+    block index of each fitted row), ``batch`` at a time (the fit's number of
+    Levenberg–Marquardt starts, so that the fit's compiled stage is reused); with ``adaptive``
+    they stop once the 68% intervals have :func:`settled` (checked after each batch). Returns
+    {samples (ok, ndim) native, requested, refits (run), replicates (finite), non_finite,
+    max_iterations, blocks, at_bound ({name: refits that ended at a bound}), stopped
+    (Status.CONVERGED: the intervals settled; Status.MAX_ITERATIONS: the cap came first; None
+    without ``adaptive``), stop_reason (a sentence), seconds}."""
     t0 = time.perf_counter()
     k = kernels(space.static, loss, int(lm_maxiter))
     padded = pad_rows(space.static, data)  # the fit's own padded rows (and compilation)
@@ -99,8 +146,10 @@ def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int,
     weights = np.sqrt(counts[:, block].astype(float))  # (replicates, rows)
     weights = np.pad(weights, ((0, 0), (0, padded.value.shape[0] - weights.shape[1])))
     u0 = space.to_unit(np.asarray(ls.native, float))
-    bar = progress_bar(progress, replicates, "  bootstrap", "refit")
+    bar = progress_bar(progress, replicates, "  bootstrap" + (" (stops when its intervals "
+                       "settle)" if adaptive else ""), "refit")
     natives, stops = [], []
+    stopped = Status.MAX_ITERATIONS if adaptive else None
     try:
         for start in range(0, replicates, batch):
             w = weights[start:start + batch]
@@ -115,16 +164,37 @@ def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int,
                 natives.append(loc["native"][i])
             if bar is not None:
                 bar.update(n)
+            if adaptive and start + n < replicates:
+                ok = np.asarray(stops) != Status.NON_FINITE
+                if settled(space.to_unit(np.asarray(natives, float)[ok]) if ok.any()
+                           else np.zeros((0, space.ndim))):
+                    stopped = Status.CONVERGED
+                    break
     finally:
         if bar is not None:
             bar.close()
+    run = len(stops)
+    if stopped == Status.CONVERGED:
+        reason = (f"the 68% intervals settled after {run} refits (every bound moved by less "
+                  f"than {SETTLE_FRACTION:.0%} of its interval's width over the last "
+                  f"{SETTLE_REFITS})")
+    elif adaptive and run >= 2 * SETTLE_REFITS:
+        reason = (f"the cap of {replicates} refits came before the 68% intervals settled (a "
+                  f"bound still moved by {SETTLE_FRACTION:.0%} of its interval's width or more "
+                  f"over the last {SETTLE_REFITS}): their Monte Carlo error is larger than that")
+    else:
+        reason = (f"{replicates} refits, as asked (a number given: no stopping rule)"
+                  if not adaptive else
+                  f"{replicates} refits, the cap, too few to check the stopping rule (it needs "
+                  f"{2 * SETTLE_REFITS})")
     stops = np.asarray(stops)
     ok = stops != Status.NON_FINITE
     samples = np.asarray(natives, float)[ok]
     u = space.to_unit(samples) if samples.size else np.zeros((0, space.ndim))
     edge = (u < 1e-6) | (u > 1 - 1e-6)  # as the fit's at_bound
     at_bound = {name: int(c) for name, c in zip(space.names, edge.sum(axis=0)) if c}
-    return {"samples": samples, "requested": int(replicates),
+    return {"samples": samples, "requested": int(replicates), "refits": int(run),
+            "stopped": stopped, "stop_reason": reason,
             "replicates": int(ok.sum()), "non_finite": int((~ok).sum()),
             "max_iterations": int(np.sum(stops == Status.MAX_ITERATIONS)), "blocks": n_blocks,
             "at_bound": at_bound, "seconds": time.perf_counter() - t0}
@@ -164,6 +234,24 @@ def predictive_check(space, data, loss, chain, block, *, seed: int,
     return gof.posterior_predictive(R, sigma, block)
 
 
+def skipped_record(skip, requested: int, blocks: int) -> dict:
+    """The bootstrap record of a run not made because least squares failed or ended at a bound
+    (:func:`skip_reason`): ``skipped`` (the sentence) and ``skipped_status`` (the Status)."""
+    status, sentence = skip
+    return {"method": "block bootstrap over incidence directions", "requested": int(requested),
+            "replicates": 0, "refits": 0, "blocks": int(blocks), "skipped": sentence,
+            "skipped_status": status.value}
+
+
+def run_record(res) -> dict:
+    """The fields of a bootstrap record that describe its run (data_formats/fit_json.md)."""
+    return {"requested": res["requested"], "refits": res["refits"],
+            "replicates": res["replicates"],
+            **({} if res["stopped"] is None else {"stopped": Status(res["stopped"]).value}),
+            "stop_reason": res["stop_reason"], "blocks": res["blocks"],
+            "non_finite": res["non_finite"], "max_iterations": res["max_iterations"]}
+
+
 def channel_misfit(m, rows, space, data, loss, ls, chain, request, *,
                    log=lambda msg: None) -> dict:
     """Goodness of fit and the block bootstrap of one channel (``rows``: the boolean mask of its
@@ -184,6 +272,7 @@ def channel_misfit(m, rows, space, data, loss, ls, chain, request, *,
     warnings, boot, seconds = [], None, 0.0
     if bootstrap is None:
         bootstrap = DEFAULT_BOOTSTRAP if len(keys) >= MIN_BLOCKS else 0
+    skip = skip_reason(ls) if bootstrap and len(keys) >= MIN_BLOCKS else None
     if bootstrap:
         if len(keys) < MIN_BLOCKS:
             boot = {"method": "block bootstrap over incidence directions", "requested":
@@ -191,19 +280,25 @@ def channel_misfit(m, rows, space, data, loss, ls, chain, request, *,
                     "skipped": f"{len(keys)} fitted incidence direction(s): the bootstrap "
                                f"resamples whole incidences and needs at least {MIN_BLOCKS}"}
             warnings.append("no bootstrap: " + boot["skipped"])
+        elif skip is not None:
+            boot = skipped_record(skip, int(bootstrap), len(keys))
+            log(f"  bootstrap skipped: {skip[1]}")
+            warnings.append("no bootstrap: " + boot["skipped"])
         else:
-            log(f"  bootstrap: refitting {bootstrap} resamples of {len(keys)} incidences")
+            adaptive = request.bootstrap is None
+            log("  bootstrap: refitting " + (f"up to {bootstrap}" if adaptive else
+                                              f"{bootstrap}")
+                + f" resamples of {len(keys)} incidences")
             res = block_bootstrap(space, data, loss, ls, block, replicates=int(bootstrap),
                                   seed=seed, batch=len(ls.starts),
-                                  lm_maxiter=request.lm_maxiter, progress=request.progress)
+                                  lm_maxiter=request.lm_maxiter, progress=request.progress,
+                                  adaptive=adaptive)
             seconds = res["seconds"]
+            log(f"  bootstrap: {res['stop_reason']}")
             boot = {"method": "block bootstrap over incidence directions (whole incidences "
                               "resampled with replacement, each replicate refitted from the "
                               "least-squares optimum)",
-                    "requested": res["requested"], "replicates": res["replicates"],
-                    "blocks": res["blocks"], "non_finite": res["non_finite"],
-                    "max_iterations": res["max_iterations"], "at_bound": res["at_bound"],
-                    "seed": int(seed)}
+                    **run_record(res), "at_bound": res["at_bound"], "seed": int(seed)}
             if res["replicates"] >= 2:
                 boot["parameters"] = dict(zip(space.names, gof.bootstrap_summary(res["samples"])))
             note, more = bootstrap_caveats(res["blocks"], res["replicates"], res["requested"],

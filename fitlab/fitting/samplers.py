@@ -1,12 +1,12 @@
 """The posterior samplers a fit can use, by name: emcee (fitlab/fitting/mcmc.py, the default and
-the reference) and NUTS (fitlab/fitting/nuts.py, blackjax, loaded only when asked for)."""
+the reference) and NUTS (fitlab/fitting/nuts.py, blackjax). Each is imported when it runs:
+the names and descriptions (``fitlab fit --help``) need neither."""
 
 from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
 from fitlab.errors import FitlabError
-from fitlab.fitting.mcmc import run_mcmc
 from fitlab.registry import Registry
 
 
@@ -20,7 +20,7 @@ class Sampler(NamedTuple):
 #: The posterior samplers, by name.
 SAMPLERS: Registry[Sampler] = Registry("sampler", {
     "emcee": Sampler("affine-invariant ensemble sampler (emcee), the default and the reference",
-                     lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: run_mcmc(
+                     lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _emcee(
                          space, data, loss, ls, seed=seed, nsteps=nsteps, nwalkers=walkers,
                          progress=progress)),
     "nuts": Sampler("No-U-Turn sampler (blackjax), adapted and drawn in one compiled call, "
@@ -29,6 +29,12 @@ SAMPLERS: Registry[Sampler] = Registry("sampler", {
                         space, data, loss, ls, seed=seed, nsteps=nsteps, nchains=walkers or 4,
                         progress=progress)),
 })
+
+
+def _emcee(*args, **kwargs):
+    from fitlab.fitting.mcmc import run_mcmc  # on first use: emcee, scipy, JAX
+
+    return run_mcmc(*args, **kwargs)
 
 
 def _nuts(*args, **kwargs):

@@ -17,10 +17,9 @@ from __future__ import annotations
 import functools
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.models import Model, get_model
 
 SCALE = "scale"

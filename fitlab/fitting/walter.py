@@ -8,9 +8,9 @@ data follow a microfacet model, the points lie on the fitted D.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jnp
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize
 from fitlab.io.fitfile import fit_parameters

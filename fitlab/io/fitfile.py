@@ -9,6 +9,7 @@ from pathlib import Path
 from fitlab.errors import FitlabError
 from fitlab.fitting.space import SCALE
 from fitlab.io.files import read_bytes
+from fitlab.io.gates import ANGLES, GATES, QUANTITIES
 from fitlab.io.validate import (Any, Bool, Either, Int, List, Map, Num, Optional, Record, Str,
                                 check)
 
@@ -52,10 +53,21 @@ _PER_INCIDENCE = Record(optional={
     "theta_i": _NUM, "phi_i": _NUM, "n": Int(lo=0), "n_fitted": Int(lo=0), "role": Str(),
     "rms_relative_error": _OPT_NUM, "max_abs_relative_error": _OPT_NUM,
     "rms_relative_error_fitted_rows": _OPT_NUM})
+#: The fit error (fitlab.metrics.fit_error; data_formats/fit_json.md, "The fit error"): where
+#: present, every field the tools print is required. Files written before it have
+#: ``rms_relative_error_fit`` and ``relative_error_floor`` instead (still read).
+_FIT_ERROR = Record(
+    required={"rms_relative_error": _OPT_NUM, "rows": Int(lo=0), "rows_scored": Int(lo=0),
+              "floor": Num(lo=0), "floor_rule": Str(choices=("incidence_peak",))},
+    optional={"per_incidence": List(Record(
+        required={"theta_i": _NUM, "phi_i": _NUM, "rows": Int(lo=0),
+                  "rows_counted": Int(lo=0), "rms_relative_error": _OPT_NUM},
+        optional={"max_abs_relative_error": _OPT_NUM}), max_len=100_000)})
 _STATISTICS = Record(optional={
     "loss": Str(), "n_fit": Int(lo=0), "n_total": Int(lo=0), "cost": _OPT_NUM, "dof": Int(),
     "residual_noise_scale": _OPT_NUM, "rms_relative_error_fit": _OPT_NUM,
-    "relative_error_floor": _OPT_NUM, "chi2": _OPT_NUM, "chi2_per_dof": _OPT_NUM,
+    "relative_error_floor": _OPT_NUM, "fit_error": _FIT_ERROR,
+    "prediction_error": Optional(_FIT_ERROR), "chi2": _OPT_NUM, "chi2_per_dof": _OPT_NUM,
     "per_incidence": List(_PER_INCIDENCE, max_len=100_000)})
 _VALUES = Map(_OPT_NUM, max_len=MAX_PARAMETERS + 1)
 _EMPIRICAL_D = Record(optional={
@@ -97,7 +109,9 @@ _GOODNESS = Record(
 _BOOTSTRAP = Record(
     required={"requested": Int(lo=0), "replicates": Int(lo=0), "blocks": Int(lo=0)},
     optional={"method": Str(), "non_finite": Int(lo=0), "max_iterations": Int(lo=0),
-              "seed": Int(), "skipped": Str(), "note": Str(),
+              "seed": Int(), "skipped": Str(), "note": Str(), "refits": Int(lo=0),
+              "stopped": Str(choices=("converged", "max_iterations")), "stop_reason": Str(),
+              "skipped_status": Str(choices=("at_bound", "max_iterations", "non_finite")),
               "at_bound": Map(Int(lo=0), max_len=MAX_PARAMETERS + 1)})
 _FIT = Record(
     required={"channel": _NAME,
@@ -151,7 +165,11 @@ FIT_SCHEMA = Record(
                                  "rows_fitted": Int(lo=0), "fit_subset": Optional(Str(max_len=10_000)),
                                  "file_quantity": Str(), "quantity": Str(),
                                  "channels": List(_NAME, max_len=MAX_CHANNELS),
-                                 "metadata": Map(Any())}),
+                                 "metadata": Map(Any()),
+                                 "read_options": Record(optional={
+                                     "angles": Str(choices=ANGLES),
+                                     "accept": List(Str(choices=tuple(GATES)), max_len=16),
+                                     "quantity": Str(choices=QUANTITIES)})}),
         "fits": List(_FIT, min_len=1, max_len=MAX_CHANNELS),
         "loss": Str(max_len=100),
     },

@@ -97,14 +97,52 @@ def unrecognized(path, head: bytes, known) -> InputFileError:
     return InputFileError(path, "is in no format fitlab recognizes", hint=formats_hint)
 
 
-def read_any(path, format: str | None = None, **options):
-    """Read any supported file to a Measurement (format detected from content unless given)."""
+def _read_kwargs(fmt: Format, path, opts) -> dict:
+    """The read options (fitlab.io.gates.ReadOptions) ``fmt``'s reader takes; an option it does
+    not take (its spec fixes the angles' unit or the quantity) is refused when given."""
+    given = {"angles": opts.angles if opts.angles != "degrees" else None,
+             "quantity": opts.quantity}
+    for name, value in given.items():
+        if value is not None and name not in fmt.takes:
+            raise InputFileError(path, f"--{name} {value} applies to fitlab's measurement CSV; "
+                                 f"the {fmt.name} format states its {name} itself ({fmt.spec})",
+                                 hint=f"drop --{name}, or convert the file to a measurement CSV "
+                                 "(fitlab convert) and correct it there")
+    kw = {name: value for name, value in given.items() if name in fmt.takes and value is not None}
+    if fmt.takes:
+        kw["accept"] = opts.accept
+    return kw
+
+
+def read_any(path, format: str | None = None, *, angles: str | None = None, accept=(),
+             quantity: str | None = None, enforce: bool = True, **options):
+    """Read any supported file to a Measurement (format detected from content unless given),
+    checked (check_measurement) and passed through the sanity gates (fitlab.io.gates): a gate
+    that trips raises its InputFileError unless ``accept`` names it (``enforce=False``: none
+    raises). ``angles`` ("degrees", "radians") and ``quantity`` (one of
+    fitlab.io.gates.QUANTITIES, replacing the file's) apply to the formats that take them
+    (fitlab's CSV); ``options`` are the reader's own."""
+    from fitlab.io.gates import apply_gates, read_options
     from fitlab.io.measurement import check_measurement
 
-    return check_measurement(detect_format(path, format).read(path, **options))
-
-
-def describe_any(path, format: str | None = None) -> dict:
+    opts = read_options(angles, accept, quantity)
     fmt = detect_format(path, format)
-    return {"format": fmt.name, "format_description": fmt.description, "spec": fmt.spec,
-            **fmt.describe(path)}
+    m = check_measurement(fmt.read(path, **_read_kwargs(fmt, path, opts), **options))
+    return apply_gates(m, fmt.name, opts, enforce=enforce)
+
+
+def describe_any(path, format: str | None = None, *, angles: str | None = None, accept=(),
+                 quantity: str | None = None) -> dict:
+    """What ``path`` holds, for ``fitlab info``: the format's description, with every sanity
+    gate's finding reported (``warnings``, ``sanity_gates``) rather than refused."""
+    from fitlab.io.gates import read_options
+
+    opts = read_options(angles, accept, quantity)
+    fmt = detect_format(path, format)
+    kw = _read_kwargs(fmt, path, opts)
+    kw["accept"] = opts.accept
+    info = {"format": fmt.name, "format_description": fmt.description, "spec": fmt.spec,
+            **fmt.describe(path, format_name=fmt.name, **kw)}
+    if opts.record():
+        info["read_options"] = opts.record()
+    return info

@@ -550,10 +550,10 @@ def energy_checks(kf: KlemsFile) -> dict:
     return out
 
 
-def describe_klems(path) -> dict:
+def describe_klems(path, format_name: str = "klems", accept=()) -> dict:
     kf = read_klems_file(path)
     m = measurement_from_klems(kf)
-    info = describe_loaded(m)
+    info = describe_loaded(m, format_name, accept)
     info.update({
         "material": kf.material,
         "incident_data_structure": kf.structure,

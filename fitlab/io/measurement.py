@@ -2,8 +2,9 @@
 contract between every reader and the fitter.
 
 Internally values are the BSDF f in 1/sr (``quantity == "bsdf"``) or f up to an unknown overall
-scale (``quantity == "relative"``); files holding f·|cos θo| or f·|cos θi| are converted on
-reading, their sigma with them.
+scale (``quantity == "relative"``); files holding f·|cos θo|, f·|cos θi| or π·f (a radiance
+factor) are converted on reading, their sigma with them. The sanity gates that stop a valid but
+implausible file are fitlab.io.gates.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from fitlab.io.csvtable import read_table
 from fitlab.io.directions import check_angles, degrees_to_direction
 from fitlab.io.files import sha256_of
 from fitlab.io.format import Format
+from fitlab.io.gates import QUANTITIES, gate_error, radians_finding, summary
 
 DIRECTION_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
-QUANTITIES = ("bsdf", "bsdf_cos", "relative")
 RELATIVE_TO = ("bsdf", "bsdf_cos", "bsdf_cos_i")
 SCATTER = ("bsdf", "brdf", "btdf")
 _CHANNEL_VALUE = r"value_([A-Za-z0-9]+)"
@@ -45,7 +46,8 @@ class Measurement(NamedTuple):
     channel_names: tuple[str, ...]
     wavelength_nm: np.ndarray | None  # per channel, when the file gives wavelengths
     quantity: str  # "bsdf" or "relative"
-    file_quantity: str  # what the file stored: bsdf, bsdf_cos, relative (+ relative_to)
+    # what the file stored: bsdf, bsdf_cos, radiance_factor, relative (+ relative_to)
+    file_quantity: str
     metadata: dict
     lines: np.ndarray  # file line of each row
     # The instrument's aperture (data_formats/measurement_csv.md, "Aperture"); None: not given.
@@ -56,6 +58,12 @@ class Measurement(NamedTuple):
     # dataset_names; None: one dataset. fitlab.fit_many fits each on its own (datasets()).
     dataset: np.ndarray | None = None
     dataset_names: tuple = ()
+    # The sanity gates (fitlab.io.gates): a format's stored total integrated scatter against its
+    # data (TisBlock per block; Zemax, pgII), the gates' findings accepted by --accept ("NAME:
+    # what it found"), and the read options that differ from the defaults (set by read_any).
+    tis_blocks: tuple = ()
+    accepted: tuple = ()
+    read_options: dict | None = None
 
     @property
     def n(self) -> int:
@@ -237,24 +245,6 @@ def check_aperture(m: Measurement, line_of) -> None:
                  "give a row either aperture_deg or bin edges, not both")
 
 
-#: Above this many rows, a file whose angles all lie within [0, π] looks like radians.
-RADIANS_MIN_ROWS = 5
-
-
-def sanity_warnings(m: Measurement) -> list[str]:
-    """Sentences about what looks like a common mistake in a valid file (shown by ``fitlab
-    info``, ``convert`` and ``fit``, and kept in a fit's notes): angles that look like radians."""
-    out = []
-    theta = np.concatenate([m.theta_i, m.theta_o])
-    phi = np.concatenate([m.phi_i, m.phi_o])
-    if m.n >= RADIANS_MIN_ROWS and np.all(np.abs(theta) <= np.pi) and np.any(theta > 0) \
-            and np.all(np.abs(phi) <= 2 * np.pi) and np.any(theta != np.round(theta)):
-        out.append(f"{m.path}: every angle is within [0, π] and not whole degrees: they look like "
-                   "radians, but fitlab reads degrees; convert them (multiply by 180/π) unless "
-                   "the data really span only 3°")
-    return out
-
-
 def _meta_choice(table, key, choices, default=None, hint=""):
     path, metadata = table.path, table.metadata
     line = table.metadata_lines.get(key)
@@ -316,8 +306,64 @@ def _melt_channels(table):
     return out, tuple(names), rep(table.lines)
 
 
-def read_measurement(path) -> Measurement:
-    """Read and validate a measurement CSV; raises InputFileError naming file, line and column."""
+#: Angle columns, converted from radians with ``angles="radians"`` (``aperture_deg`` and
+#: ``source_divergence_deg`` say degrees in their names and stay degrees).
+ANGLE_COLUMNS = DIRECTION_COLUMNS + ("theta_o_lo", "theta_o_hi", "phi_o_lo", "phi_o_hi")
+#: Stored quantity → the factor the value is divided by to give f (or f times a scale).
+_TO_F = {"bsdf": lambda wi, wo: np.ones(len(wi)), "bsdf_cos": lambda wi, wo: np.abs(wo[:, 2]),
+         "bsdf_cos_i": lambda wi, wo: np.abs(wi[:, 2]),
+         "radiance_factor": lambda wi, wo: np.full(len(wi), np.pi)}
+
+
+def _radians_to_degrees(table) -> None:
+    """``--angles radians``: the angle columns, checked to be radians (θ within [0, π], φ within
+    [-2π, 2π]), converted to degrees in place."""
+    limits = {"theta": np.pi, "phi": 2 * np.pi}
+    for name in ANGLE_COLUMNS:
+        if name not in table.columns:
+            continue
+        col = table.columns[name]
+        lim = limits[name.split("_")[0]]
+        bad = np.flatnonzero(np.abs(col) > lim * (1 + 1e-12))
+        if bad.size:
+            raise InputFileError(
+                table.path, f"{col[bad[0]]:g} is beyond {'π' if lim == np.pi else '2π'}, but "
+                "--angles radians says the angles are radians", line=int(table.lines[bad[0]]),
+                column=name, hint="the file's angles look like degrees: drop --angles radians")
+        table.columns[name] = np.degrees(col)
+
+
+def _check_rows(table) -> None:
+    """A ``# rows: N`` line: the file has exactly N data rows (a file cut at a row boundary, or
+    edited, is refused)."""
+    if "rows" not in table.metadata:
+        return
+    from fitlab.io.validate import parse_number
+
+    line = table.metadata_lines.get("rows")
+    hint = "give the number of data rows (lines of values after the header)"
+    n = parse_number(table.metadata["rows"], table.path, what="'# rows:'", line=line, lo=1,
+                     hint=hint)
+    if n != int(n):
+        raise InputFileError(table.path, f"'# rows: {table.metadata['rows']}' is not a whole "
+                             "number", line=line, hint=hint)
+    have = len(table.lines)
+    if int(n) != have:
+        raise InputFileError(table.path, f"'# rows: {int(n)}' but the file has {have} data rows "
+                             f"(the last at line {int(table.lines[-1])})", line=line,
+                             hint="the file is truncated or was edited: restore the missing "
+                             "rows from its source (or correct the count if rows were removed "
+                             "on purpose)")
+
+
+def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
+                     accept=()) -> Measurement:
+    """Read and validate a measurement CSV; raises InputFileError naming file, line and column.
+
+    ``angles="radians"``: the file's angles are radians (converted to degrees). ``quantity``
+    replaces the file's ``# quantity:`` line. ``accept``: sanity gates accepted (here only
+    'radians' matters: a file whose angles look like radians is refused with that message rather
+    than one about the sides of the surface; the gates themselves run in read_any)."""
     path = Path(path)
     optional = ("value", "sigma", "channel", "wavelength_nm", "dataset") + CONE_COLUMNS \
         + BIN_COLUMNS
@@ -337,10 +383,21 @@ def read_measurement(path) -> Measurement:
     if "channel" in cols and "wavelength_nm" in cols:
         raise InputFileError(path, "has both a channel and a wavelength_nm column",
                              hint="name channels either by label or by wavelength, not both")
+    _check_rows(table)
+    if angles == "radians":
+        _radians_to_degrees(table)
     check_angles(table)
-    quantity = _meta_choice(table, "quantity", QUANTITIES,
-                            hint="state what the values are: '# quantity: bsdf' (f in 1/sr, no "
-                            "cosine), 'bsdf_cos' (f·|cos θo|) or 'relative' (f up to a scale)")
+    # A file whose angles look like radians gets that message, not one about the sides of the
+    # surface its small angles would otherwise earn (the gate itself runs in read_any).
+    radians = None
+    if angles != "radians" and "radians" not in accept:
+        radians = radians_finding(np.concatenate([cols["theta_i"], cols["theta_o"]]),
+                                  np.concatenate([cols["phi_i"], cols["phi_o"]]), "csv")
+    if quantity is None:
+        quantity = _meta_choice(table, "quantity", QUANTITIES,
+                                hint="state what the values are: '# quantity: bsdf' (f in 1/sr, "
+                                "no cosine), 'bsdf_cos' (f·|cos θo|), 'radiance_factor' (π·f) "
+                                "or 'relative' (f up to a scale)")
     relative_to = _meta_choice(table, "relative_to", RELATIVE_TO, default="bsdf")
     scatter = _meta_choice(table, "scatter", SCATTER, default="bsdf")
     check_indices(table.path, table.metadata, table.metadata_lines)
@@ -381,6 +438,8 @@ def read_measurement(path) -> Measurement:
     sigma = long.get("sigma")
 
     def fail_at(j, column, message, hint=None):
+        if radians is not None and column in ("theta_i", "theta_o"):
+            raise gate_error(path, radians)
         raise InputFileError(path, message, line=int(lines[j]), column=column, hint=hint)
 
     for name, th in (("theta_i", ti), ("theta_o", to)):
@@ -436,8 +495,7 @@ def read_measurement(path) -> Measurement:
     wo = degrees_to_direction(long["theta_o"], long["phi_o"])
     # Convert to one internal quantity: f (or f times an unknown scale).
     stored = quantity if quantity != "relative" else relative_to
-    factor = {"bsdf": np.ones_like(value), "bsdf_cos": np.abs(wo[:, 2]),
-              "bsdf_cos_i": np.abs(wi[:, 2])}[stored]
+    factor = _TO_F[stored](wi, wo)
     value = value / factor
     if sigma is not None:
         sigma = sigma / factor
@@ -448,7 +506,7 @@ def read_measurement(path) -> Measurement:
         channel=np.asarray(long["channel"], dtype=int), channel_names=channel_names,
         wavelength_nm=wavelengths, quantity="relative" if quantity == "relative" else "bsdf",
         file_quantity=file_quantity,
-        metadata={k: v for k, v in meta.items() if k not in CONE_COLUMNS},
+        metadata={k: v for k, v in meta.items() if k not in CONE_COLUMNS + ("rows",)},
         lines=np.asarray(lines), **aperture, dataset=dataset, dataset_names=dataset_names,
     ))
 
@@ -544,6 +602,7 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
     if m.bin_o_deg is not None:
         per_row.update({c: m.bin_o_deg[:, k] for k, c in enumerate(BIN_COLUMNS)})
     out.write(f"# quantity: {m.quantity}\n")
+    out.write(f"# rows: {m.n}\n")  # the long form: a line per row (a cut file is refused)
     for k, v in meta.items():
         out.write(f"# {k}: {v}\n")
     spectral = m.wavelength_nm is not None
@@ -581,15 +640,19 @@ def _detect(head: bytes, path) -> bool:
     return False
 
 
-def describe_measurement(path) -> dict:
-    m = read_measurement(path)
-    return describe_loaded(m)
+def describe_measurement(path, format_name: str = "csv", accept=(), angles: str = "degrees",
+                         quantity: str | None = None) -> dict:
+    m = read_measurement(path, angles=angles, quantity=quantity, accept=accept)
+    return describe_loaded(m, format_name, accept)
 
 
-def describe_loaded(m: Measurement) -> dict:
+def describe_loaded(m: Measurement, format_name: str | None = None, accept=()) -> dict:
     """What a Measurement holds, for ``fitlab info`` (shared by every reader; checked as
-    ``read_any`` checks it first)."""
+    ``read_any`` checks it first). ``warnings``: every sanity gate the file trips (refused by
+    the commands that read it unless ``accept`` names the gate: then said to be accepted);
+    ``sanity_gates``: what each gate found (fitlab.io.gates)."""
     check_measurement(m)
+    warnings, gates = summary(m, format_name, accept)
     incid = np.unique(np.stack([m.theta_i, np.mod(m.phi_i, 360)], axis=1), axis=0)
     trans = (m.wi[:, 2] * m.wo[:, 2]) < 0
     return {
@@ -610,7 +673,8 @@ def describe_loaded(m: Measurement) -> dict:
         "eta_inside_over_outside": m.eta(),
         "metadata": m.metadata,
         "sha256": m.sha256,
-        "warnings": sanity_warnings(m),
+        "warnings": warnings,
+        "sanity_gates": gates,
         **({"aperture": aperture_summary(m)} if m.has_aperture else {}),
     }
 
@@ -638,5 +702,6 @@ def aperture_summary(m: Measurement) -> dict:
     return out
 
 
-FORMAT = Format("csv", "fitlab measurement CSV", _detect, lambda p, **kw: read_measurement(p),
-                describe_measurement, "data_formats/measurement_csv.md", suffixes=(".csv",))
+FORMAT = Format("csv", "fitlab measurement CSV", _detect, read_measurement,
+                describe_measurement, "data_formats/measurement_csv.md", suffixes=(".csv",),
+                takes=("angles", "quantity"))

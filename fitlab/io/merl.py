@@ -302,13 +302,13 @@ def _detect(head: bytes, path) -> bool:
     return head[:HEADER_BYTES] == HEADER
 
 
-def describe_merl(path) -> dict:
+def describe_merl(path, format_name: str = "merl", accept=()) -> dict:
     table = read_merl_table(path)
     m = measurement_from_table(table)
     valid = table.valid
     n_wi, n_wo = np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]])
     normal = eval_merl(table, n_wi, n_wo)[0]
-    info = describe_loaded(m)
+    info = describe_loaded(m, format_name, accept)
     info.update({
         "file_bytes": os.path.getsize(path),
         "dims_theta_h_theta_d_phi_d": list(DIMS),

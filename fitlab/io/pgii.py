@@ -28,6 +28,7 @@ from fitlab.io.csvtable import text_lines
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, describe_loaded
+from fitlab.io.gates import TisBlock
 
 _KEY = re.compile(r"#\s*([A-Za-z_][\w\-]*)\s*(:?)\s*(.*?)\s*$")
 CALIBRATED = {"bsdf": "bsdf", "brdf": "bsdf", "btdf": "bsdf", "dsf": "bsdf_cos"}
@@ -281,7 +282,36 @@ def measurement_from_scan(scan: PgiiScan, sha256: str) -> Measurement:
         channel=np.repeat(np.arange(k), n), channel_names=h.channels, wavelength_nm=None,
         quantity="relative" if h.file_quantity.startswith("relative") else "bsdf",
         file_quantity=h.file_quantity, metadata=meta, lines=rep(scan.lines),
+        tis_blocks=_front_blocks(scan),
     )
+
+
+#: Data points on the front hemisphere needed for its integral (the front_integral check).
+MIN_FRONT_POINTS = 100
+
+
+def front_integral(scan: PgiiScan):
+    """(∫ file values dω over the front hemisphere of channel Y, largest gap in degrees), or
+    None with too few front points."""
+    front = scan.theta_o < 90
+    if front.sum() <= MIN_FRONT_POINTS:
+        return None
+    y = scan.header.channels.index("Y")
+    wo = degrees_to_direction(scan.theta_o[front], scan.phi_o[front])
+    return hemisphere_integral(wo, scan.values[front, y])
+
+
+def _front_blocks(scan: PgiiScan) -> tuple:
+    """The header's ``#front_integral`` against the integral of the file's values over the
+    front hemisphere (the sanity gate 'tis'): one TisBlock, or none without the header line."""
+    h = scan.header
+    if "front_integral" not in h.keys:
+        return ()
+    found = front_integral(scan)
+    if found is None:
+        return ()
+    (stated,) = _header_number(scan.path, h.keys, h.lines, "front_integral")
+    return (TisBlock("front hemisphere (#front_integral)", stated, found[0], 1.0),)
 
 
 def read_pgii(path, duplicates="average") -> Measurement:
@@ -305,13 +335,11 @@ def hemisphere_integral(wo, values, nodes=20000):
     return 2 * np.pi * float(values[idx].mean()), float(gap)
 
 
-def describe_pgii(path) -> dict:
+def describe_pgii(path, format_name: str = "pgii", accept=()) -> dict:
     scan = read_pgii_scan(path)
     m = measurement_from_scan(scan, sha256_of(path))
     h = scan.header
-    info = describe_loaded(m)
-    y = h.channels.index("Y")
-    front = scan.theta_o < 90
+    info = describe_loaded(m, format_name, accept)
     info.update({
         "incident_angle_deg": [h.theta_i, h.phi_i],
         "file_values": f"{h.kind} → {m.file_quantity}",
@@ -322,9 +350,9 @@ def describe_pgii(path) -> dict:
         "header": {k: _unquote(v) for k, v in h.keys.items() if k in
                    ("sample_name", "incident_angle", "format", "colorimetry", "upphi") + KEPT},
     })
-    if front.sum() > 100:
-        wo = degrees_to_direction(scan.theta_o[front], scan.phi_o[front])
-        total, gap = hemisphere_integral(wo, scan.values[front, y])
+    found = front_integral(scan)
+    if found is not None:
+        total, gap = found
         check = {"integral_of_file_values_dω": round(total, 6), "largest_gap_deg": round(gap, 2)}
         if "front_integral" in h.keys:
             (stated,) = _header_number(path, h.keys, h.lines, "front_integral")

@@ -672,14 +672,14 @@ def _detect(head: bytes, path) -> bool:
     return head[:12] == MAGIC
 
 
-def describe_rgl(path) -> dict:
+def describe_rgl(path, format_name: str = "rgl", accept=()) -> dict:
     material = read_material(path)
     m = measurement_from_material(material)
     f = material.tensor.fields
     normal = np.array([[0.0, 0.0, 1.0]])
     fr_n, names = eval_bsdf(material, normal, normal)
     valid = np.unpackbits(f["valid"].data) if "valid" in f else None
-    info = describe_loaded(m)
+    info = describe_loaded(m, format_name, accept)
     info.update({
         "file_bytes": material.tensor.size,
         "tensor_file_version": ".".join(map(str, material.tensor.version)),

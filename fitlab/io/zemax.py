@@ -31,6 +31,7 @@ from fitlab.io.validate import check_count, decode_text, parse_number, quote
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.measurement import Measurement, check_indices, describe_loaded
+from fitlab.io.gates import TisBlock
 
 SPEC = "data_formats/zemax_bsdf.md"
 LIST_KEYWORDS = ("SampleRotation", "AngleOfIncidence", "ScatterAzimuth", "ScatterRadial")
@@ -614,6 +615,8 @@ def to_measurement(zf: ZemaxFile, eta: float | None = None, keep_zeros: bool = F
         phi_o=phi_o, wi=wi, wo=wo, value=value, sigma=None, channel=channel.astype(int),
         channel_names=zf.channels, wavelength_nm=None, quantity="bsdf", file_quantity="bsdf",
         metadata=metadata, lines=lines,
+        tis_blocks=tuple(TisBlock(_block_label(r, zf), r["tis"], r["integral"], r["coverage"])
+                         for r in rows),
     )
 
 
@@ -634,7 +637,7 @@ def read_zemax(path, eta: float | None = None, keep_zeros: bool = False) -> Meas
     return to_measurement(parse_zemax(path), eta=eta, keep_zeros=keep_zeros)
 
 
-def describe_zemax(path) -> dict:
+def describe_zemax(path, format_name: str = "zemax", accept=()) -> dict:
     zf = parse_zemax(path)
     rows = tis_check(zf)
     m = to_measurement(zf, tis_rows=rows)
@@ -661,7 +664,7 @@ def describe_zemax(path) -> dict:
                + f"; the grid spans {r['coverage']:.1%} of the projected hemisphere"
                for r in rows},
         },
-        **describe_loaded(m),
+        **describe_loaded(m, format_name, accept),
     }
 
 

@@ -62,7 +62,7 @@ def multiple_scattering_part(model_name: str, channel_params: dict, *, samples=S
     """(measurement of the multiple-scattering part, the full simulation). ``channel_params``:
     {channel name: the stack's parameters}, the channels in the simulator's order (R, G, B or
     one)."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     from fitlab.models import get_model
     from fitlab.simulate import scene_from_dict, simulate

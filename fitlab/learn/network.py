@@ -206,7 +206,7 @@ def _only_models(layers: int):
 
 
 def _inputs(data, idx):
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     d = {k: jnp.asarray(data[k][idx]) for k in LAYER_KEYS + ("phi_p",)}
     cos_dphi = jnp.cos(jnp.radians(d["phi_p"][:, 1:] - d["phi_p"][:, :1]))
@@ -216,7 +216,7 @@ def _inputs(data, idx):
 
 def predict(weights, data, idx):
     """The learned lobe's f (S, R) at stacks ``idx`` of ``data`` (load_dataset)."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     x, d = _inputs(data, idx)
     layers = d["alpha"].shape[1]
@@ -237,7 +237,7 @@ def predict(weights, data, idx):
 def stack_errors(f, value):
     """Per stack: the relative mean absolute error (the training loss) and the RMS relative error
     over the rows above 1e-3 of the stack's largest |value|."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     scale = jnp.mean(jnp.abs(value), axis=-1) + 1e-12
     mae = jnp.mean(jnp.abs(f - value), axis=-1) / scale
@@ -262,8 +262,7 @@ def train(data: dict, *, steps: int = 4000, batch: int = 32, learning_rate: floa
     """Train the network on the stacks not held out. Returns (weights dict, {"train_loss",
     "held_out_loss", "held_out_rms_median", ...})."""
     import equinox as eqx
-    import jax
-    import jax.numpy as jnp
+    from fitlab._jax import jax, jnp
     import optax
 
     test = held_out(data["index"])
@@ -319,7 +318,7 @@ def train(data: dict, *, steps: int = 4000, batch: int = 32, learning_rate: floa
 
 def evaluate(weights: dict, data: dict) -> dict:
     """Held-out and training errors of ``weights`` on ``data`` (load_dataset)."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     w = {k: jnp.asarray(v) for k, v in weights.items()}
     out = {}
@@ -385,7 +384,7 @@ def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: 
     import hashlib
 
     import equinox
-    import jax
+    from fitlab._jax import jax
     import optax
 
     from fitlab.export.paramfile import chain_bytes

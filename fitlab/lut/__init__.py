@@ -26,7 +26,7 @@ Table kinds (:data:`KINDS`):
                       in Rusinkiewicz's half/difference parameterization at φd = 90°, or, with a
                       third size, over (cos θh, cos θd, φd) (φd folded into [0°, 90°] for a
                       reciprocal model). :func:`bake_auto` lets the measured parameterization
-                      error choose (``fitlab lut model --phi-d auto``).
+                      error choose (``fitlab lut model``'s default, ``--phi-d auto``).
 
 Grid and texel convention (every axis): an axis with N samples stores the value at the axis
 coordinate x_i = map(t_i) with t_i = i / (N - 1), i = 0 .. N-1: the first and last texel centres

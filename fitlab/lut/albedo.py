@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.frame import reflect, refracted
 from fitlab.fresnel import cos_theta_critical, fresnel_dielectric
 from fitlab.lut.axes import MU_MIN

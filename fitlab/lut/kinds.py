@@ -10,9 +10,9 @@ import functools
 import time
 from typing import Callable, NamedTuple
 
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jnp
 from fitlab.registry import Registry
 import fitlab.api
 from fitlab.api import eval_bsdf
@@ -817,7 +817,10 @@ def bake_auto(kind: str, *, size=None, mappings=None, dtype="float", check_point
     same points, and keep that one unless it measures a larger RMS error. ``size`` and
     ``mappings`` may give every axis (the extra ones are the candidate's; default
     ``Kind.extra_axes``) or the required ones only. The table's ``accuracy["auto"]`` holds both
-    measurements, the rule and the reason; a note says the same in words."""
+    measurements, the rule, the reason and whether the table kept meets the target
+    (``meets_target``: when false, no candidate met it and the table is the closer one;
+    ``fitlab lut`` then writes nothing, fitlab.export.lut_files.build_table); a note says the
+    same in words."""
     k = get_kind(kind)
     if k.auto_check is None:
         raise ValueError(f"{kind} tables have no optional axis to choose by measurement")
@@ -874,6 +877,7 @@ def bake_auto(kind: str, *, size=None, mappings=None, dtype="float", check_point
                      f"; the {len(size)}-axis table misses the target too (raise its sizes)"))
     record["chosen"] = _size_text(chosen.axes)
     record["reason"] = reason
+    record["meets_target"] = bool(chosen.accuracy[k.auto_check]["meets_target"])
     accuracy = {**chosen.accuracy, "auto": record}
     note = f"axes chosen by measurement (auto): {reason}"
     return chosen._replace(accuracy=accuracy, notes=tuple(chosen.notes) + (note,))

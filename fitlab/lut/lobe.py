@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab import vmf
 
 #: Default quadrature orders: Gauss-Legendre nodes in u, midpoint nodes in φ' over [0, π].

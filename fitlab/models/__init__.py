@@ -2,42 +2,70 @@
 
 A model declares what it is (``Model.capabilities``: lobes, isotropy, reciprocity, a delta
 component left out of f; a role for each parameter); code that needs to know asks the model.
-Adding a model is one file that defines a :class:`Model` and one line in ``_BUILTIN`` below
+Adding a model is one file that defines a :class:`Model` and one line in ``_builtin`` below
 (or, from outside the package, :func:`register_model`). See CONTRIBUTING.md.
+
+The registries :data:`MODELS` and :data:`CONSTRUCTORS` are built at their first use (PEP 562:
+``fitlab.models.MODELS``, :func:`get_model`), which imports every model's module; a submodule
+(``fitlab.models.presets``, ``fitlab.models.base``) loads without them. No model needs JAX to be
+built: JAX is imported when a model first computes (fitlab/_jax.py).
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 from typing import Callable
 
-from fitlab.models import diffuse, gltf_pbr, rough_conductor, rough_dielectric
 from fitlab.models.base import ROLES, Capabilities, Model, Option, Parameter
 from fitlab.models.composite import SEPARATOR, make_sum
-from fitlab.models import coated, spongecake, thin_layer, weidlich_wilkie  # noqa: E402  (layered: built from the above)
 from fitlab.models.syntax import parse_call, split_top_level
 from fitlab.registry import Registry
 
-_BUILTIN = (
-    rough_dielectric.MODEL,
-    rough_dielectric.ANISOTROPIC,
-    rough_conductor.MODEL,
-    rough_conductor.ANISOTROPIC,
-    diffuse.LAMBERTIAN,
-    diffuse.OREN_NAYAR,
-    gltf_pbr.MODEL,
-    gltf_pbr.CLEARCOAT_MODEL,
-    gltf_pbr.ANISOTROPIC_MODEL,
-    gltf_pbr.TRANSMISSION_MODEL,
-)
+_LOCK = threading.RLock()
 
-MODELS: Registry[Model] = Registry("model", {m.name: m for m in _BUILTIN},
-                                   listing="`fitlab models`")
 
-#: Layered constructors, ``name(MODEL[,key=value])`` (syntax: fitlab/models/syntax.py).
-CONSTRUCTORS: Registry[Callable] = Registry("layered model", {
-    coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call,
-    thin_layer.NAME: thin_layer.from_call, spongecake.NAME: spongecake.from_call})
+def _builtin() -> tuple[Model, ...]:
+    from fitlab.models import diffuse, gltf_pbr, rough_conductor, rough_dielectric
+
+    return (
+        rough_dielectric.MODEL,
+        rough_dielectric.ANISOTROPIC,
+        rough_conductor.MODEL,
+        rough_conductor.ANISOTROPIC,
+        diffuse.LAMBERTIAN,
+        diffuse.OREN_NAYAR,
+        gltf_pbr.MODEL,
+        gltf_pbr.CLEARCOAT_MODEL,
+        gltf_pbr.ANISOTROPIC_MODEL,
+        gltf_pbr.TRANSMISSION_MODEL,
+    )
+
+
+def _constructors() -> dict[str, Callable]:
+    """Layered constructors, ``name(MODEL[,key=value])`` (syntax: fitlab/models/syntax.py)."""
+    from fitlab.models import coated, spongecake, thin_layer, weidlich_wilkie
+
+    return {coated.NAME: coated.from_call, weidlich_wilkie.NAME: weidlich_wilkie.from_call,
+            thin_layer.NAME: thin_layer.from_call, spongecake.NAME: spongecake.from_call}
+
+
+def _load() -> None:
+    """Build MODELS and CONSTRUCTORS (once), then the listed layered examples."""
+    global MODELS, CONSTRUCTORS
+    with _LOCK:
+        if "MODELS" in globals():
+            return
+        CONSTRUCTORS = Registry("layered model", _constructors())
+        MODELS = Registry("model", {m.name: m for m in _builtin()}, listing="`fitlab models`")
+        _add_layered_examples()
+
+
+def __getattr__(name):
+    if name in ("MODELS", "CONSTRUCTORS"):
+        _load()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 #: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
 LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
@@ -57,6 +85,7 @@ def get_model(name: str) -> Model:
     ``thin_layer(BOTTOM[,roughness=kappa|alpha])`` and
     ``spongecake(LAYER[,LAYER...][,substrate=MODEL][,delta=true|false][,multiple=MODE])`` are
     layered models."""
+    _load()
     parts = split_top_level(name, SEPARATOR)
     if len(parts) > 1:
         return _sum_of(tuple(get_model(n) for n in parts))
@@ -83,6 +112,7 @@ def _sum_of(components: tuple[Model, ...]) -> Model:
 
 
 def _add_layered_examples() -> None:
+    _load()
     for name in LAYERED_EXAMPLES:
         MODELS.register(name, get_model(name), replace=True)
 
@@ -109,6 +139,7 @@ def register_model(model: Model, *, replace: bool = False) -> Model:
         raise TypeError(f"register_model needs a fitlab.models.Model, got {type(model).__name__}")
     if any(ch in model.name for ch in f"(),{SEPARATOR}= "):
         raise ValueError(f"model name {model.name!r}: use letters, digits and '_' only")
+    _load()
     for p in model.parameters:
         if p.role not in ROLES:
             raise ValueError(f"parameter {p.name} of {model.name!r} has unknown role "
@@ -117,8 +148,6 @@ def register_model(model: Model, *, replace: bool = False) -> Model:
     _add_layered_examples()
     return model
 
-
-_add_layered_examples()
 
 __all__ = ["MODELS", "Model", "Option", "Parameter", "Capabilities", "ROLES", "get_model",
            "register_model"]

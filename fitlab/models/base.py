@@ -190,7 +190,7 @@ def choose_branch(P, u):
     """The branch k of a mixture with probabilities ``P`` (K, ...) that ``u[..., 2]`` picks, and
     ``u`` with u[2] rescaled to [0, 1] within that branch's interval (a fresh uniform number
     for the branch's own sampler). Branches of probability 0 are never picked."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     from fitlab.numerics import safe_div
 
@@ -208,7 +208,7 @@ def sample_result(wo, f, pdf, valid):
     """What ``sample`` returns for directions ``wo`` drawn with density ``pdf``: (wo, weight,
     pdf) with weight = f|cos θo|/pdf (Walter eq. 37), and weight = pdf = 0 where ``valid`` is
     False or the pdf is 0 (the model's own draws that failed)."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     from fitlab.numerics import safe_div
 

@@ -30,8 +30,7 @@ from __future__ import annotations
 
 import functools
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import fresnel_dielectric_Walter2007
 from fitlab.interface import (beer_lambert, internal_diffuse_reflectance, refract_down,
                               refract_up, solid_angle_compression, transmittance)

@@ -22,8 +22,7 @@ from __future__ import annotations
 import functools
 from collections import Counter
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.models.base import Exchangeable, Model, Option, Parameter, Term
 from fitlab.numerics import safe_div
 

@@ -4,8 +4,7 @@ sampled with a cosine-weighted hemisphere."""
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.models.base import OUTSIDE, Capabilities, Model, Parameter, clear_film
 from fitlab.numerics import safe_div
 

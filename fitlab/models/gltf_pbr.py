@@ -51,8 +51,7 @@ hemisphere (diffuse), GGX visible normals of α (Heitz 2018) and, with the coat,
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.frame import dot, normalize, reflect
 from fitlab.microfacet import get_distribution
 from fitlab.models import roughness
@@ -132,8 +131,9 @@ def rotate_z(w, degrees):
     turned counter-clockwise by ``degrees`` (KHR_materials_anisotropy's direction)."""
     r = jnp.radians(degrees)
     c, s_ = jnp.cos(r), jnp.sin(r)
-    return jnp.stack([c * w[..., 0] + s_ * w[..., 1], -s_ * w[..., 0] + c * w[..., 1],
-                      w[..., 2]], axis=-1)
+    x, y = c * w[..., 0] + s_ * w[..., 1], -s_ * w[..., 0] + c * w[..., 1]
+    # z broadcast too: parameters stacked per channel, (C, 1), widen x and y to (C, N)
+    return jnp.stack([x, y, jnp.broadcast_to(w[..., 2], x.shape)], axis=-1)
 
 
 def unrotate_z(w, degrees):

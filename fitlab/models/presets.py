@@ -122,6 +122,17 @@ def presets_of(model) -> list[Preset]:
     return [p for p in PRESETS.values() if get_model(p.model).name == model.name]
 
 
+def spongecake_presets() -> tuple[str, ...]:
+    """The names of the SpongeCake presets (flake stacks: simulator scenes, ``fitlab
+    multiple-lobe --preset``), known without building the model registry."""
+    from fitlab.models import spongecake
+    from fitlab.models.syntax import parse_call
+
+    calls = {name: parse_call(p.model) for name, p in PRESETS.items()}
+    return tuple(name for name, call in calls.items()
+                 if call is not None and call.func == spongecake.NAME)
+
+
 def preset_params(name: str, channel: str) -> dict:
     """The parameters of preset ``name`` for colour channel R, G or B."""
     if channel not in CHANNELS:
@@ -147,14 +158,13 @@ def preset_scene(name: str, theta_i=(0.0, 30.0, 60.0), theta_o=None) -> dict:
     from fitlab.models.syntax import parse_call
 
     model, _, params = rgb_preset(name)
-    call = parse_call(model)
-    if call is None or call.func != spongecake.NAME:
+    if name not in spongecake_presets():
         raise ValueError(f"preset {name!r} is a {model} preset; only SpongeCake presets are "
                          "simulator scenes")
     if theta_o is None:
         theta_o = [t for t in range(-170, 180, 10) if abs(t) != 90]
     return {"format": "fitlab-scene", "version": 1, "name": f"SpongeCake preset {name}",
-            **spongecake.stack_scene(call.args, params),
+            **spongecake.stack_scene(parse_call(model).args, params),
             "illumination": {"theta_i": list(theta_i)},
             "detector": {"type": "inplane", "theta_o": list(theta_o), "estimator": "point"},
             "effects": {"delta": False}}

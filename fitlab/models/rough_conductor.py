@@ -8,8 +8,7 @@ Mitsuba's ``roughconductor``. (n, k) are relative to the outside medium.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
 from fitlab.frame import dot, normalize, reflect
 from fitlab.models import roughness

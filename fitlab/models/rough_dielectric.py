@@ -13,8 +13,7 @@ The BTDF is eq. 21 (radiance transport): f_t(i,o)/η_o² = f_t(o,i)/η_i².
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import fresnel_dielectric, fresnel_dielectric_Walter2007
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize, reflect, refracted
 from fitlab.models import roughness

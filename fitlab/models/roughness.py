@@ -9,8 +9,7 @@ given to the functions here are on the incident side's upper frame (wi.z >= 0).
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab import microfacet
 from fitlab.frame import dot
 from fitlab.models.base import Option, Parameter

@@ -53,8 +53,9 @@ from __future__ import annotations
 import functools
 from typing import NamedTuple
 
-import jax.numpy as jnp
+import numpy as np
 
+from fitlab._jax import jnp
 from fitlab.fresnel import fresnel_schlick
 from fitlab.frame import dot, normalize, reflect
 from fitlab.models.base import (OUTSIDE, Capabilities, Model, Parameter, Term, choose_branch,
@@ -502,8 +503,8 @@ def _with_learned(kinds, substrate, base, delta) -> Model:
                          "substrate; for other stacks fit the lobe (multiple=lobe, "
                          "`fitlab multiple-lobe`)")
     layers = tuple(Layer(k, i + 1) for i, k in enumerate(kinds))
-    weights = sl.load_weights(len(layers))
-    is_fiber = jnp.asarray([float(L.flakes == "fiber") for L in layers])
+    weights = sl.weight_arrays(len(layers))
+    is_fiber = np.asarray([float(L.flakes == "fiber") for L in layers])
 
     def lobe_of(params):
         one = jnp.ones_like(jnp.asarray(params["alpha1"]))

@@ -32,8 +32,7 @@ each with at least :data:`_P_FLOOR`, so the pdf is positive wherever f is.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.frame import flip_z
 from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
 from fitlab.models.diffuse import sample_cosine_hemisphere

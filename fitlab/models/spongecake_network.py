@@ -41,7 +41,7 @@ def n_outputs(layers: int) -> int:
 def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p, cos_dphi=None):
     """The network's input vector (..., n_inputs(L)) from per-layer arrays (..., L) and
     ``cos_dphi`` (..., L - 1), cos(φp_i − φp_1) of the layers below the first."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
     dtype = jnp.result_type(alpha, albedo, tau, f0, cos_theta_p)  # the parameters' precision
     if not jnp.issubdtype(dtype, jnp.floating):
@@ -60,8 +60,7 @@ def network_inputs(kind_is_fiber, alpha, albedo, tau, f0, cos_theta_p, cos_dphi=
 def mlp_apply(weights: dict, x):
     """The MLP of ``weights`` ({"W0", "b0", ..., "W3", "b3"}; ReLU hidden layers) at inputs
     x (..., 6), standardized by ``weights["x_mean"]``, ``["x_scale"]``."""
-    import jax
-    import jax.numpy as jnp
+    from fitlab._jax import jax, jnp
 
     w = {k: jnp.asarray(v, dtype=x.dtype) for k, v in weights.items()}  # evaluated in x's
     h = (x - w["x_mean"]) / w["x_scale"]                                 # precision
@@ -75,8 +74,7 @@ def mlp_apply(weights: dict, x):
 def lobe_from_outputs(y, layers: int = 1):
     """Network outputs (..., n_outputs(layers)) → the lobe parameters ({"alpha1_ms", ...};
     albedo1_ms = 1, only W1·γ'₁ being determined)."""
-    import jax
-    import jax.numpy as jnp
+    from fitlab._jax import jax, jnp
 
     s = jax.nn.sigmoid(y)
     out = {}
@@ -98,7 +96,7 @@ def _soft_exp(y, upper):
     """e^y below ``upper``, smoothly capped at it: upper · exp(−softplus(log upper − y)). The
     weights span decades between dim and bright stacks; a sigmoid saturated at 0 in training
     (its gradient vanishes), a log parameter does not."""
-    import jax
+    from fitlab._jax import jax
 
     return upper * jax.numpy.exp(-jax.nn.softplus(math.log(upper) - y))
 
@@ -106,10 +104,16 @@ def _soft_exp(y, upper):
 def load_weights(layers: int = 1, path=None) -> dict:
     """The weight arrays (as jax arrays) of a weights file (default: the shipped ones for
     ``layers`` layers)."""
-    import jax.numpy as jnp
+    from fitlab._jax import jnp
 
+    return {k: jnp.asarray(v) for k, v in weight_arrays(layers, path).items()}
+
+
+def weight_arrays(layers: int = 1, path=None) -> dict:
+    """The weight arrays of a weights file as NumPy arrays: what a model holds (no JAX until
+    it computes; :func:`mlp_apply` takes them in its inputs' precision)."""
     with np.load(path or WEIGHTS[layers]) as z:
-        return {k: jnp.asarray(z[k]) for k in z.files}
+        return {k: z[k] for k in z.files}
 
 
 def provenance(layers: int = 1, path=None) -> dict:

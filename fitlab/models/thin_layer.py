@@ -55,8 +55,7 @@ from __future__ import annotations
 
 import functools
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab import vmf
 from fitlab.fresnel import (CONDUCTOR_FRESNEL_METHODS, fresnel_dielectric,
                             fresnel_dielectric_Walter2007)

@@ -36,8 +36,7 @@ from __future__ import annotations
 
 import functools
 
-import jax.numpy as jnp
-
+from fitlab._jax import jnp
 from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
 from fitlab.frame import dot, normalize
 from fitlab.interface import beer_lambert, refract_down, refract_up

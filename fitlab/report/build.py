@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fitlab.errors import FitlabError
-from fitlab.metrics import REL_ERR_FLOOR, relative_errors
+from fitlab.metrics import REL_ERR_FLOOR, fit_error, fit_error_of, fit_error_text
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
 from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,
@@ -20,6 +20,7 @@ from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_ht
 from fitlab.report.inputs import (BAND_SAMPLES, data_prediction, load_inputs, model_f,
                                   prediction, predictive_band)
 from fitlab.report.style import render
+from fitlab.report.summary import CSS as SUMMARY_CSS, lead_html
 from fitlab.version import __version__
 
 #: At most this many incidence directions get an in-plane scan figure per channel.
@@ -123,7 +124,9 @@ def _header(inp, out_dir):
     return body
 
 
-def _warnings(inp):
+def _warning_items(inp) -> list:
+    """Every warning of the fit, one sentence each, channel named (the first screen's verdict
+    counts them; the Warnings section lists them)."""
     items = []
     for fit in inp.record["fits"]:
         tag = f"channel {fit['channel']}: "
@@ -143,8 +146,11 @@ def _warnings(inp):
 
         if misfit_sentence(fit):  # goodness of fit failed (fitlab.fitting.goodness)
             items.append(tag + misfit_sentence(fit))
-    return warning_html("Warnings: read these before trusting the numbers below", items) \
-        if items else ""
+    return items
+
+
+def _warnings(items):
+    return warning_html("Read these before trusting the numbers", items)
 
 
 def _bootstrap_cells(boot):
@@ -217,10 +223,9 @@ def _error_tables(inp, ch, preds):
     if st.get("chi2_per_dof") is not None:
         head.append(f"χ²/dof = {_fmt(st['chi2_per_dof'], 4)} (χ² = {_fmt(st['chi2'], 5)}, "
                     f"dof = {st['dof']}).")
-    head.append(f"RMS relative error over the fitted rows: {_fmt(st['rms_relative_error_fit'], 4)}"
-                f" ({st['n_fit']} of {st['n_total']} rows fitted). Relative errors use rows whose "
-                f"|value| is at least {st['relative_error_floor']:g} × the maximum of their "
-                "incidence.")
+    head.append(f"{fit_error_text(fit_error_of(st))} ({st['n_fit']} of {st['n_total']} rows "
+                "fitted). The table's errors leave out the rows below "
+                f"{REL_ERR_FLOOR:g} × the maximum of their incidence.")
     ap = ch.fit.get("aperture")
     if ap:
         err = ap.get("quadrature_error", {})
@@ -238,19 +243,17 @@ def _error_tables(inp, ch, preds):
                         "max |rel. error|"], rows, numeric=(0, 1, 3, 4, 5, 6))
     # Walter-style protocol: fit on a subset, predict the rest.
     if inp.record["data"].get("fit_subset") and not ch.fitted.all() and ch.fitted.any():
-        m = inp.measurement
-        v = m.value[ch.rows]
-        rel_all = np.full(v.shape, np.nan)
-        for inc in geo.incidences(m, ch.rows):  # the fitter's per-incidence statistics
-            sel = np.flatnonzero(np.isin(ch.rows, inc.rows))
-            rel, keep = relative_errors(preds[sel], v[sel])
-            rel_all[sel[keep]] = rel
+        errs = [st.get("fit_error"), st.get("prediction_error")]  # the fit's stored figures
+        if errs[0] is None:  # a file written before them: the same function (fitlab.metrics)
+            m = inp.measurement
+            errs = [fit_error(preds[k], m.value[ch.rows][k], m.theta_i[ch.rows][k],
+                              m.phi_i[ch.rows][k]) for k in (ch.fitted, ~ch.fitted)]
         srows = []
-        for label, mask in (("fit subset", ch.fitted), ("predicted (not fitted)", ~ch.fitted)):
-            r = rel_all[mask & np.isfinite(rel_all)]
-            srows.append([label, int(mask.sum()), r.size,
-                          _fmt(np.sqrt(np.mean(r**2)) if r.size else None, 4),
-                          _fmt(np.max(np.abs(r)) if r.size else None, 4)])
+        for label, e in zip(("fit subset", "predicted (not fitted)"), errs):
+            worst = [r["max_abs_relative_error"] for r in e["per_incidence"]
+                     if r.get("max_abs_relative_error") is not None]
+            srows.append([label, e["rows_scored"], e["rows"], _fmt(e["rms_relative_error"], 4),
+                          _fmt(max(worst) if worst else None, 4)])
         body += ("<h3>Fit subset against prediction (Walter 2007 §6.1 protocol)</h3>\n"
                  + paragraph(f"Fitted on {inp.record['data']['fit_subset']!s}; every other row "
                              "is a prediction. Predictions as good as the fit mean the model "
@@ -295,7 +298,8 @@ def _scans(rep, inp, ch, preds, tag):
         "(scale·f evaluated at posterior samples: parameter uncertainty only); grey dashed and "
         "dotted lines, when the fit sampled a noise scale σ_r (every loss but chi2): the 68% "
         "and 95% posterior predictive bands, where new measurements should fall (the model "
-        "at each sample plus a draw of the loss's noise model with that sample's σ_r). Bottom "
+        "at each sample plus the loss's noise model with that sample's σ_r; exact quantiles, "
+        "not random draws). Every band is clipped at 0. Bottom "
         "panel: relative residual (model − data)/data in %, for rows above "
         f"{REL_ERR_FLOOR:g} × the incidence's maximum, with the same bands relative to the "
         "best fit. x axis: angle of wo from the normal of its hemisphere, positive on the "
@@ -409,8 +413,9 @@ def _lobes(rep, inp, ch, tag):
             f = model_f(inp, ch.params, wi, wo)
             lobes.append(Lobe(t, x, f * np.abs(wo[:, 2])))
         sides[side] = lobes
-    fig = lobe_figure(sides, title=f"fitted {inp.model.name}, channel {ch.name} (best fit; "
-                      "the scale of relative data is not applied)")
+    fig = lobe_figure(sides, title=f"{inp.model.name}, channel {ch.name}: best fit"
+                      + (", without the scale of relative data" if inp.measurement.is_relative
+                         else ""))
     cap = (f"Polar lobes of the fitted BSDF in the plane of incidence, channel {ch.name}: "
            "f·|cos θo| in 1/sr (radius) against the direction of wo, at θi = "
            + ", ".join(f"{t:g}°" for t in thetas)
@@ -600,21 +605,26 @@ def _luts(rep, tables, out_dir):
 
 
 def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
-                 discover_luts=True, renderers=False, progress=True) -> dict:
+                 discover_luts=True, renderers=False, progress=True,
+                 read_options: dict | None = None) -> dict:
     """Write ``out_dir/index.html`` and the figures; returns a summary dict (``files``,
     ``figures``, ``index``, ``has_chain``). ``luts``: EXR tables to preview (each must have been
     baked from this fit, or from a model without a fit); ``discover_luts``: also preview the
     tables beside the fit file whose header names it; ``renderers``: add the hand-off section
     (fitlab/report/renderers.py: every renderer export's conversion error and a Mitsuba 3
-    preview render)."""
+    preview render). ``read_options``: how to read the data file (fitlab.read's ``angles``,
+    ``accept``, ``quantity``; default: as the fit recorded, ``data.read_options``)."""
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
-    inp = load_inputs(fit_path, data_path, chain_path, progress=say)
+    inp = load_inputs(fit_path, data_path, chain_path, progress=say, read_options=read_options)
     tables = _lut_tables(fit_path, luts, discover_luts)
     rep = _Report(say)
     meta = inp.record["data"].get("metadata", {})
     title = f"Fit report: {inp.model.name} on {meta.get('sample') or Path(inp.data_path).name}"
-    sections = [("warnings", None, _warnings(inp)),
-                ("header", "Fit, data and provenance", _header(inp, out_dir))]
+    warnings = _warning_items(inp)
+    # The answer first (fitlab/report/summary.py); the full warnings next; provenance last.
+    lead = lead_html(inp, data_prediction(inp, inp.channels[0]), rep.figure, len(warnings),
+                     _value_label(inp))
+    sections = [("warnings", "Warnings", _warnings(warnings))] if warnings else []
     for ch in inp.channels:
         tag = ch.name
         ctitle = f" (channel {ch.name})" if len(inp.channels) > 1 else ""
@@ -647,8 +657,9 @@ def build_report(fit_path, out_dir, *, data_path=None, chain_path=None, luts=(),
         from fitlab.report.renderers import renderers_section
 
         sections.append(("renderers", "Hand-off to renderers", renderers_section(rep, fit_path)))
+    sections.append(("header", "Fit, data and provenance", _header(inp, out_dir)))
     names = [f"{f.name}.{ext}" for f in rep.figures for ext in ("png", "svg")]
-    page = document(title, sections, files=sorted(names))
+    page = document(title, sections, files=sorted(names), lead=lead, css=SUMMARY_CSS)
     files = {}
     for f in rep.figures:
         files[f"{f.name}.png"] = f.png

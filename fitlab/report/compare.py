@@ -231,7 +231,8 @@ def _method(rec):
     if st["cross_validation"]:
         parts.append(paragraph(
             "Leave-one-incidence-out cross-validation: for each incidence direction (θi, φi) "
-            "the whole fit (global search and multi-start Levenberg–Marquardt) is repeated "
+            "the model is refitted by Levenberg–Marquardt from every end of the full fit's "
+            "starts (the basins its global search found) "
             "without that incidence's rows, and the refitted model predicts them. Held-out "
             "error: the RMS relative error (model − data)/data of those rows (rows below "
             f"{st['relative_error_floor']:g} × the incidence's maximum are not counted), per "

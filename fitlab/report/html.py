@@ -91,10 +91,11 @@ def paragraph(text: str) -> str:
     return f"<p>{esc(text)}</p>\n"
 
 
-def document(title: str, sections: list, files: list = ()) -> str:
+def document(title: str, sections: list, files: list = (), lead: str = "", css: str = "") -> str:
     """``sections``: list of (anchor, heading, body HTML); ``files``: the figure files written
-    beside the page (listed in a meta element, so a rebuild can remove stale ones). Returns the
-    whole page."""
+    beside the page (listed in a meta element, so a rebuild can remove stale ones); ``lead``:
+    HTML shown first, under the title and before the contents (a fit report's answer); ``css``:
+    rules added to the style sheet. Returns the whole page."""
     nav = "".join(f'<li><a href="#{esc(a)}">{esc(h)}</a></li>' for a, h, _ in sections if h)
     body = []
     for anchor, heading, content in sections:
@@ -107,6 +108,6 @@ def document(title: str, sections: list, files: list = ()) -> str:
             '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
             '<meta name="generator" content="fitlab report">\n'
             f'<meta name="fitlab-report-files" content="{esc(" ".join(files))}">\n'
-            f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
-            f"<h1>{esc(title)}</h1>\n<nav><ul>{nav}</ul></nav>\n" + "".join(body)
+            f"<title>{esc(title)}</title>\n<style>{CSS}{css}</style>\n</head>\n<body>\n"
+            f"<h1>{esc(title)}</h1>\n{lead}<nav><ul>{nav}</ul></nav>\n" + "".join(body)
             + "</body>\n</html>\n")

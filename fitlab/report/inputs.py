@@ -69,8 +69,9 @@ def _resolve(recorded: str, fit_path: Path) -> Path | None:
     return None
 
 
-def load_data(record: dict, fit_path: Path, data_path=None):
-    """The measurement the fit was made from, checked by its SHA-256."""
+def load_data(record: dict, fit_path: Path, data_path=None, read_options: dict | None = None):
+    """The measurement the fit was made from, checked by its SHA-256, read as the fit read it
+    (``data.read_options``: --angles, --accept, --quantity) unless ``read_options`` are given."""
     from fitlab.io.files import sha256_of
     from fitlab.io.formats import read_any
 
@@ -93,7 +94,9 @@ def load_data(record: dict, fit_path: Path, data_path=None):
         raise InputFileError(data_path, f"is not the file {fit_path} was fitted to (its SHA-256 "
                              "differs from the one recorded in data.sha256)",
                              hint="give the original data file with --data, or refit")
-    m = read_any(data_path)
+    if read_options is None:
+        read_options = record["data"].get("read_options") or {}
+    m = read_any(data_path, **read_options)
     label = (record["data"].get("metadata") or {}).get("dataset")
     if m.dataset is not None:  # a file of several datasets: the one the fit was made from
         if label not in m.dataset_names:
@@ -218,7 +221,8 @@ def noise_scales(chain, coords, samples_all, fit, space):
     return np.exp(flat[:, coords.index("log_noise")])
 
 
-def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> ReportInputs:
+def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None,
+                read_options: dict | None = None) -> ReportInputs:
     """Read and cross-check the fit record, its data file and (if any) its chain file."""
     from fitlab.export.paramfile import read_fit
     from fitlab.fitting.subset import subset_mask
@@ -239,7 +243,7 @@ def load_inputs(fit_path, data_path=None, chain_path=None, *, progress=None) -> 
             if key not in fit:
                 raise InputFileError(fit_path, f"a fit entry lacks {key!r}", column=f"fits.{key}")
     say(f"report: reading the data of {fit_path}")
-    m, data_used = load_data(record, fit_path, data_path)
+    m, data_used = load_data(record, fit_path, data_path, read_options)
 
     note = None
     has_mcmc = any(f.get("mcmc") for f in record["fits"])
@@ -355,15 +359,17 @@ def sample_params(ch: ChannelInputs):
     return params, scale
 
 
-#: Seed of the noise draws of posterior predictive bands (fixed: the report is deterministic).
-PREDICTIVE_SEED = 0
-
-
 def replicate_data(loss: str, model, noise, cos_o, floor: float, rng):
     """New data drawn from the fit's noise model given model values ``model`` (S, P) and noise
     scales ``noise`` (S,): the loss's residual r ~ N(0, σ_r) solved for the data value
     (``fitlab/fitting/losses.py``; the relative loss's scale |v| is taken as max(|m|, floor))."""
-    eps = noise[:, None] * rng.standard_normal(model.shape)
+    eps = noise[:, None] * rng.standard_normal(np.shape(model))
+    return _data_at(loss, np.asarray(model, float), eps, cos_o, floor)
+
+
+def _data_at(loss: str, model, eps, cos_o, floor: float):
+    """The data value whose residual under the loss's noise model is ``eps`` (decreasing in
+    ``eps``; the model value itself where the loss gives a direction no weight)."""
     c = np.abs(np.asarray(cos_o, float))[None, :]
     if loss == "relative":  # r = (m − v) / max(|v|, floor)
         return model - eps * np.maximum(np.abs(model), floor)
@@ -375,11 +381,57 @@ def replicate_data(loss: str, model, noise, cos_o, floor: float, rng):
     raise ValueError(f"no noise model for the loss {loss!r}")
 
 
+def _residual_of(loss: str, model, y, cos_o, floor: float):
+    """The inverse of :func:`_data_at`: the residual ε that gives the data value ``y`` (+inf
+    where no ε reaches it from above, −inf from below)."""
+    c = np.abs(np.asarray(cos_o, float))[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if loss == "relative":
+            return (model - y) / np.maximum(np.abs(model), floor)
+        step = np.where(y >= model, -np.inf, np.inf)  # c = 0: the data value is the model's
+        if loss == "log":
+            inside = 1.0 + y * c > 0
+            eps = np.log1p(model * c) - np.log(np.where(inside, 1.0 + y * c, 1.0))
+            return np.where(c > 0, np.where(inside, eps, np.inf), step)
+        if loss == "cos_l2":
+            return np.where(c > 0, (model - y) * c, step)
+    raise ValueError(f"no noise model for the loss {loss!r}")
+
+
+#: Bisection steps of the predictive quantiles (the bracket shrinks by 2**-60).
+QUANTILE_STEPS = 60
+
+
+def predictive_quantiles(loss: str, model, noise, cos_o, floor: float,
+                         quantiles=BAND_QUANTILES) -> np.ndarray:
+    """Quantiles (len(quantiles), P) of new data under the posterior predictive, exactly: at
+    each direction the data are a mixture over the S samples of the loss's noise model about
+    that sample's model value (``model`` (S, P), noise scales ``noise`` (S,)), and its CDF
+    P(v ≤ y) = mean_s Φ(−ε_s(y)/σ_s) is inverted by bisection. No random draws: the bands
+    are as smooth as the model curves, and the same on every run."""
+    from scipy.special import ndtr
+
+    model = np.asarray(model, float)
+    sigma = np.asarray(noise, float)[:, None]
+    lo = _data_at(loss, model, 9.0 * sigma, cos_o, floor).min(axis=0)  # every sample's data
+    hi = _data_at(loss, model, -9.0 * sigma, cos_o, floor).max(axis=0)  # lie in [lo, hi]
+    q = np.asarray(quantiles, float)[:, None] / 100.0
+    lo, hi = np.repeat(lo[None, :], len(q), 0), np.repeat(hi[None, :], len(q), 0)
+    for _ in range(QUANTILE_STEPS):
+        mid = 0.5 * (lo + hi)
+        cdf = np.stack([np.mean(ndtr(-_residual_of(loss, model, m[None, :], cos_o, floor)
+                                     / sigma), axis=0) for m in mid])
+        below = cdf < q
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
 def predictive_band(inputs: ReportInputs, ch: ChannelInputs, wi, wo, *, with_noise=False):
     """Quantiles BAND_QUANTILES (5, P) over the posterior samples at P direction pairs: of the
     model scale · f (evaluated at every thinned sample in one broadcast (S, P) call), or with
-    ``with_noise`` of replicated data (the model plus the fit's sampled noise: the posterior
-    predictive). None without a chain, or with ``with_noise`` when no noise scale was sampled."""
+    ``with_noise`` of new data (the model plus the fit's sampled noise: the posterior
+    predictive, :func:`predictive_quantiles`). None without a chain, or with ``with_noise`` when
+    no noise scale was sampled."""
     if ch.samples is None or (with_noise and ch.noise is None):
         return None
     params, scale = sample_params(ch)
@@ -387,7 +439,6 @@ def predictive_band(inputs: ReportInputs, ch: ChannelInputs, wi, wo, *, with_noi
     wo = np.asarray(wo, float)[None, ...]
     vals = scale * model_f(inputs, params, wi, wo)
     if with_noise:
-        rng = np.random.default_rng(PREDICTIVE_SEED)
-        vals = replicate_data(inputs.record["loss"], vals, ch.noise, wo[0, :, 2],
-                              ch.noise_floor, rng)
+        return predictive_quantiles(inputs.record["loss"], vals, ch.noise, wo[0, :, 2],
+                                    ch.noise_floor)
     return np.percentile(vals, BAND_QUANTILES, axis=0)

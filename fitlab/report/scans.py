@@ -29,9 +29,11 @@ class ScanSide(NamedTuple):
 
 
 def _band(ax, s: ScanSide, rel_to=None):
-    """Model bands (filled) and posterior predictive bands (grey lines); ``rel_to``: draw them
-    as % deviations from this curve (the residual panel)."""
+    """Model bands (filled) and posterior predictive bands (grey lines), clipped at 0 (a BSDF
+    is not negative; the relative loss's Gaussian noise would reach below it at low values);
+    ``rel_to``: draw them as % deviations from this curve (the residual panel)."""
     def tr(y):
+        y = np.maximum(y, 0.0)
         if rel_to is None:
             return y
         with np.errstate(divide="ignore", invalid="ignore"):

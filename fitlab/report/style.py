@@ -4,6 +4,7 @@ display, no global figure registry), one house style, and deterministic PNG/SVG 
 from __future__ import annotations
 
 import io
+import textwrap
 
 import matplotlib
 
@@ -46,10 +47,55 @@ def style():
     return matplotlib.rc_context(RC)
 
 
+def title_room(fig: Figure) -> list:
+    """[(title Text, the width in pixels it may take)] of a laid-out figure: an axes' titles
+    (centre, left, right) the width of their axes, the figure's suptitle the figure's width
+    less a margin."""
+    out = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        width = ax.get_window_extent().width
+        out += [(t, width) for t in (ax.title, ax._left_title, ax._right_title)
+                if t.get_text()]
+    sup = getattr(fig, "_suptitle", None)
+    if sup is not None and sup.get_text():
+        out.append((sup, fig.bbox.width * 0.98))
+    return out
+
+
+def fit_titles(fig: Figure, dpi: float = PNG_DPI) -> None:
+    """Wrap every title that is wider than its room (:func:`title_room`, less 2%) onto more
+    lines, so no title is cut at the figure's edges or runs past its axes; the layout engine
+    then makes room for the extra lines. Measured at the PNG's resolution: hinted text is not
+    proportional to the dpi."""
+    previous = fig.dpi
+    fig.set_dpi(dpi)
+    try:
+        fig.draw_without_rendering()  # lays the figure out: the axes' final widths
+        renderer = fig._get_renderer()
+        for text, room in title_room(fig):
+            room *= 0.98
+            words = " ".join(text.get_text().split())
+            width = text.get_window_extent(renderer).width
+            if width <= room:
+                continue
+            n = max(10, int(len(words) * room / width))
+            while True:
+                text.set_text(textwrap.fill(words, n, break_on_hyphens=False))
+                if n <= 10 or text.get_window_extent(renderer).width <= room:
+                    break
+                n -= max(1, n // 12)
+    finally:
+        fig.set_dpi(previous)
+
+
 def render(fig: Figure) -> tuple[bytes, bytes]:
     """(PNG bytes, SVG bytes) of ``fig``, identical for identical figures: no dates, no software
-    version in the metadata, a fixed SVG hash salt."""
+    version in the metadata, a fixed SVG hash salt. Titles wider than their axes (or the
+    figure) are wrapped first (:func:`fit_titles`)."""
     with matplotlib.rc_context(RC):
+        fit_titles(fig)
         png = io.BytesIO()
         fig.savefig(png, format="png", dpi=PNG_DPI, metadata={"Software": None})
         # The PNG's draw placed every axes; keep those positions rather than lay out again.

@@ -114,7 +114,9 @@ def page(res, figure: FigureEntry) -> str:
     params = "; ".join(f"{c}: " + ", ".join(f"{k} = {x:.6g}" for k, x in p.items())
                        for c, p in m["parameters"].items())
     head = (paragraph(f"Material: {m['model']} ({', '.join(f'{k}={v}' for k, v in m['options'].items()) or 'no options'}); {params}."
-                      + (f" From the fit {m['fit']}." if m.get("fit") else ""))
+                      + (f" From the fit {m['fit']}." if m.get("fit") else "")
+                      + "".join(f" The fit's own error, channel {c}: {e['text']}."
+                                for c, e in (m.get("fit_error") or {}).items()))
             + paragraph(f"Errors are measured on {res.directions}; albedos at θi = 0, 30, 60, "
                         "80° by quadrature; lobe images (64², f·cos θo over the projected "
                         "hemisphere) at θi = 0, 30, 60° compared by PSNR and SSIM "

@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from fitlab._jax import jax, jnp
 from fitlab.microfacet import DISTRIBUTIONS
 from fitlab.report.style import new_figure, styled
 

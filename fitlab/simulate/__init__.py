@@ -3,12 +3,27 @@
 A scene (data_formats/scene_toml.md) → :func:`load_scene` / :func:`scene_from_dict` → a
 validated :class:`Scene` → :func:`derive_effects` (what is traced and why) → :func:`simulate`
 (a :class:`SimulationResult`: BSDF per bin in 1/sr, standard errors, split by bounce order).
+
+The names below are imported at their first use (PEP 562): a submodule (``engine`` for the
+devices, ``walk`` for the launch size) loads without the rest.
 """
 
-from fitlab.simulate.effects import EffectPlan, derive_effects
-from fitlab.simulate.scene import Scene, load_scene, scene_from_dict
-from fitlab.simulate.simulator import SimulationResult, simulate
-from fitlab.simulate.walk import ORDER_CLASSES
+import importlib as _importlib
+
+#: Public name -> the module that defines it.
+_SOURCES = {"Scene": "scene", "load_scene": "scene", "scene_from_dict": "scene",
+            "EffectPlan": "effects", "derive_effects": "effects",
+            "SimulationResult": "simulator", "simulate": "simulator", "ORDER_CLASSES": "walk"}
 
 __all__ = ["Scene", "load_scene", "scene_from_dict", "EffectPlan", "derive_effects",
            "SimulationResult", "simulate", "ORDER_CLASSES"]
+
+
+def __getattr__(name):
+    if name in _SOURCES:
+        return getattr(_importlib.import_module(f"{__name__}.{_SOURCES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

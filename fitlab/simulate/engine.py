@@ -35,9 +35,8 @@ import sys
 from typing import Any, NamedTuple
 
 from fitlab.errors import FitlabError
+from fitlab.simulate.protocol import DEVICES
 
-#: Where the walk runs (the same names as ``fitlab simulate --device``).
-DEVICES = ("auto", "cpu", "gpu")
 #: Oldest LLVM major version that compiles Mitsuba 3.9's kernels through Dr.Jit 1.5 (16 aborts).
 MIN_LLVM = 17
 #: Dr.Jit's variable naming the libLLVM to load; fitlab sets it to the system or pip one it picks.

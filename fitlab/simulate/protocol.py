@@ -39,5 +39,9 @@ Phase function (a medium's)::
 ``MediumInteraction3f.wi``; forward scattering is ``wo = −wi``.
 """
 
+#: Where the walk runs (the names of ``fitlab simulate --device``; engine.py picks the backend).
+DEVICES = ("auto", "cpu", "gpu")
+#: Paths per launch of the kernel for exit tallies (per-path exit slots: ~32 bytes a path).
+LAUNCH_PATHS = 1 << 20
 #: Branch forcing codes (effects.EffectPlan: force_top / force_bottom / split_first).
 FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT = 0, 1, 2

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.simulate import components as comp
-from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT
+from fitlab.simulate.protocol import FORCE_CHOOSE, FORCE_REFLECT, FORCE_REFRACT, LAUNCH_PATHS
 
 #: How a lane reaches its boundary's sampling: "mask" (every boundary's code on every lane,
 #: masked) or "switch" (Dr.Jit's dr.switch: an indirect call per boundary).
@@ -55,8 +55,6 @@ ORDER_CLASSES = ("order0", "order1", "order2", "rest")
 RR_START = 3
 #: Smallest survival probability of Russian roulette.
 RR_MIN_Q = 0.05
-#: Paths per launch of the kernel for exit tallies (per-path exit slots: ~32 bytes a path).
-LAUNCH_PATHS = 1 << 20
 #: Memory of the per-path point-estimate sums of one launch (bytes).
 POINT_LAUNCH_BYTES = 64 << 20
 #: Paths whose contributions the host sums together before adding the sum to the totals, in

@@ -57,7 +57,7 @@ THRESHOLDS = {
 def _machine() -> dict:
     import os
 
-    import jax
+    from fitlab._jax import jax
 
     return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "python": platform.python_version(), "jax": jax.__version__,
@@ -180,6 +180,21 @@ def material_record(material, preset=None) -> dict:
     return rec
 
 
+def fit_errors(fit) -> dict:
+    """{channel: the fit's stored error (statistics.fit_error: rms_relative_error, rows,
+    floor_rule) and its sentence (text)}: how far the material is from its own data, the
+    scale against which the knobs' approximation errors are read."""
+    from fitlab.metrics import fit_error_of, fit_error_text
+
+    out = {}
+    for ch in fit.channels:
+        fe = fit_error_of(fit.statistics(ch))
+        if fe is not None:
+            out[ch] = {"rms_relative_error": fe["rms_relative_error"], "rows": fe["rows"],
+                       "floor_rule": fe["floor_rule"], "text": fit_error_text(fe)}
+    return out
+
+
 def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
               options: dict | None = None, preset: str | None = None, data=None, knobs=None,
               quick: bool = False, seed: int = 0, progress: bool = False,
@@ -233,7 +248,10 @@ def tradeoffs(fit=None, *, model: str | None = None, params: dict | None = None,
             variants += knob.run(ctx)
         except NotApplicable as exc:
             skipped[knob.name] = str(exc)
-    res = Tradeoffs(material_record(material, preset), ctx.directions, int(len(ctx.wi)),
+    record = material_record(material, preset)
+    if fit is not None:  # the fit's own error beside the knobs' (the parameter file's figure)
+        record["fit_error"] = fit_errors(fit)
+    res = Tradeoffs(record, ctx.directions, int(len(ctx.wi)),
                     tuple(variants), skipped, recommend(variants), _machine(),
                     time.perf_counter() - t_start, quick)
     if out is not None:

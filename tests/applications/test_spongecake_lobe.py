@@ -163,7 +163,7 @@ def test_cli_fits_the_simulated_multiple_scattering_of_a_thick_bright_layer(tmp_
     fit = fitlab.load_fit(out)
     assert fit.model == "spongecake(surface_z,multiple=only)"
     st = fit.statistics("Y")
-    assert st["rms_relative_error_fit"] < 0.1, st
+    assert st["fit_error"]["rms_relative_error"] < 0.1, st
     stack = {"alpha1": 0.3, "albedo1": 0.95, "f0_1": 1.0, "tau1": 3.0}
     params = lobe_parameters(fit, {"Y": stack})["Y"]
     # albedo at θi = 40°: single scattering, single + lobe, and the simulation's (the measured

@@ -27,7 +27,7 @@ def _strip_volatile(rec):
 
 def test_fit_walter_with_mcmc_and_chain(tmp_path, capsys):
     out, chain = tmp_path / "fit.json", tmp_path / "chain.npz"
-    argv = ["fit", WALTER, "--model", "rough_dielectric", "--fit-subset", "theta_i == 0",
+    argv = ["fit", WALTER, "--model", "rough_dielectric", "--fit-subset", "theta_i == 0", "-v",
             "--mcmc", "--mcmc-steps", "400", "--seed", "7", "--walter-diagnostics",
             "--out", str(out), "--chain", str(chain)]
     assert main(argv) == 0
@@ -72,6 +72,33 @@ def test_fit_to_stdout_without_mcmc(capsys):
     assert [f["channel"] for f in rec["fits"]] == ["R", "G", "B"]
     assert all(f["mcmc"] is None for f in rec["fits"])
     assert rec["loss"] == "chi2"
+
+
+def test_fit_prints_a_few_lines_unless_verbose(tmp_path, capsys):
+    """Issue 34 item 7: by default an RGB fit says in at most 20 lines (on stderr; the results
+    go to the files and stdout) each channel's parameters, error and verdict and what limits
+    trust; -v prints the rest: progress, per-incidence errors, every warning with its advice."""
+    data = EXAMPLES / "measurement_rgb_sigma.csv"
+    out = tmp_path / "fit.json"
+    argv = ["fit", str(data), "--model", "lambertian", "--bootstrap", "0", "--out", str(out)]
+    assert main(argv) == 0
+    brief = capsys.readouterr()
+    lines = brief.err.splitlines()
+    assert brief.out == "" and len(lines) <= 20, brief.err
+    assert [ln.split(":")[0] for ln in lines if ln.startswith("channel ")] == \
+        ["channel R", "channel G", "channel B"]
+    assert lines[-1].startswith(f"wrote {out}")
+    fits = json.loads(out.read_text(encoding="utf-8"))["fits"]
+    assert main(argv + ["-v"]) == 0
+    full = capsys.readouterr().err
+    assert len(full.splitlines()) > len(lines)
+    assert "fitting lambertian to channel R" in full and "theta_i =" in full and "time:" in full
+    assert "fitting lambertian" not in brief.err and "theta_i =" not in brief.err
+    for fit in fits:  # every warning: whole with -v, counted by default, kept in the file
+        for w in fit["warnings"]:
+            assert f"warning: channel {fit['channel']}: {w}" in full and w not in brief.err
+        if fit["warnings"]:
+            assert f"{len(fit['warnings'])} warning" in brief.err
 
 
 @pytest.mark.parametrize(
@@ -140,9 +167,13 @@ def test_least_squares_shows_progress_unless_quiet(tmp_path, capsys):
     src = Path(__file__).resolve().parents[2] / "data_formats" / "examples" / "walter_rough_glass.csv"
     args = ["fit", str(src), "--model", "rough_dielectric", "--fit-subset", "theta_i == 0",
             "--starts", "2", "--out", str(tmp_path / "f.json")]
-    assert main(args) == 0
+    assert main(args + ["-v"]) == 0
     err = capsys.readouterr().err
     assert "global search" in err and "eval" in err and "Levenberg-Marquardt from 4 starts" in err
+    # by default progress is one status line on a terminal, and nothing in a file or pipe
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "global search" not in err and "Levenberg" not in err and "channel Y: alpha" in err
     assert main(args + ["--quiet"]) == 0
     assert capsys.readouterr().err == ""
 

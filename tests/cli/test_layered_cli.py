@@ -122,5 +122,6 @@ def test_layered_models_tabulate_as_zemax_and_lut(tmp_path):
     exr = tmp_path / "ww.exr"
     assert main(["lut", "model", "--model", "weidlich_wilkie(lambertian)", "--param", "alpha1=0.2",
                  "--param", "n1=1.5", "--param", "k1=0", "--param", "tau1=0.1",
-                 "--param", "albedo2=0.6", "--size", "16x16", "--out", str(exr), "--quiet"]) == 0
+                 "--param", "albedo2=0.6", "--size", "16x16", "--phi-d", "slice", "--out", str(exr),
+                 "--quiet"]) == 0
     assert exr.stat().st_size > 0

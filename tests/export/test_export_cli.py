@@ -164,3 +164,50 @@ def test_python_api_mirrors_the_cli(tmp_path):
     made = fitlab.export_material(model="oren_nayar", params={"albedo": 0.5, "sigma": 0.3},
                                   to="mitsuba-plugin", out=tmp_path / "on.xml")
     assert (tmp_path / "on.xml").read_text(encoding="utf-8") == made.text
+
+
+def test_check_without_a_renderer_fails_before_anything_is_written(capsys, tmp_path,
+                                                                    monkeypatch):
+    """--check with no renderer: exit 2, what to install, nothing written (and no glTF
+    conversion fit run first: the renderer is found before the export is built)."""
+    from fitlab.export import check, threejs, renderers
+
+    monkeypatch.setattr(threejs, "missing", lambda: "Chromium not found")
+    monkeypatch.setattr(check, "mitsuba_missing", lambda: "Mitsuba 3 is not installed")
+    monkeypatch.setattr(renderers, "material_of", lambda *a, **k: pytest.fail("built"))
+    for out, needles in [("m.gltf", ("Chromium not found", "Mitsuba 3 is not installed",
+                                     "apt-get install chromium", "npm", "pip install mitsuba")),
+                         ("m.xml", ("Mitsuba 3 is not installed", "pip install mitsuba"))]:
+        code, _, err = _run(capsys, "--model", "lambertian", "--param", "albedo=0.5", "--out",
+                            tmp_path / out, "--check")
+        assert code == 2 and "Traceback" not in err, err
+        assert "--check cannot run" in err and all(n in err for n in needles), err
+        assert list(tmp_path.iterdir()) == []
+
+
+def test_gltf_check_takes_three_js_else_mitsuba(monkeypatch):
+    from fitlab.export import check, threejs
+
+    monkeypatch.setattr(check, "mitsuba_missing", lambda: None)
+    monkeypatch.setattr(threejs, "missing", lambda: None)
+    assert check.renderer_for("gltf") == "three" and check.renderer_for("mitsuba") == "mitsuba"
+    assert check.renderer_for("gltf", "mitsuba") == "mitsuba"
+    monkeypatch.setattr(threejs, "missing", lambda: "Chromium not found")
+    assert check.renderer_for("gltf") == "mitsuba"
+    with pytest.raises(ExportError, match="Chromium not found"):
+        check.renderer_for("gltf", "three")
+    with pytest.raises(ExportError, match="checked by mitsuba, not 'three'"):
+        check.renderer_for("mitsuba-plugin", "three")
+
+
+def test_gltf_validator_errors_fail_the_check(monkeypatch):
+    from fitlab.export import check, threejs
+
+    monkeypatch.setattr(threejs, "validator_missing", lambda: None)
+    monkeypatch.setattr(threejs, "validate", lambda path: {
+        "validator": "2.0.0-dev.3.10", "numErrors": 1, "numWarnings": 0, "numInfos": 0,
+        "numHints": 0, "messages": [{"code": "VALUE_NOT_IN_RANGE", "pointer": "/materials/0"}]})
+    with pytest.raises(ExportError, match="VALUE_NOT_IN_RANGE at /materials/0.*nothing written"):
+        check._validate_gltf("{}")
+    monkeypatch.setattr(threejs, "validator_missing", lambda: "Node.js is not installed")
+    assert check._validate_gltf("{}") == {"skipped": "Node.js is not installed"}

@@ -184,6 +184,35 @@ def test_three_renders_the_exported_material(tmp_path, dfg, case):
     assert np.all(spec_err <= explained + 1e-3)
 
 
+def test_export_check_through_three_js(dfg):
+    """``fitlab export --check`` on a glTF file (fitlab.export.check, the three.js route): the
+    figure is three.js's render against the material on the 120 check pairs; for a material
+    that is glTF's own BRDF the file's values give it back exactly (``specification`` 0) and
+    the figure is three.js's departures, which three_prediction gives to 1e-3; the validator
+    ran and found nothing."""
+    from fitlab.export.check import check_geometries, material_values, run_check
+    from fitlab.export.renderers import Exported
+    from fitlab.lobe_metrics import ERROR_FLOOR, relative_errors
+
+    model, values = CASES["clearcoat"]
+    material, channels = _material(model, values)
+    doc = gltf_document(material, model, channels, {})
+    c = run_check("gltf", "three", material, Exported(gltf_text(doc), doc, {}))
+    assert c["renderer"].startswith("three.js r187") and c["pairs"] == 120
+    assert c["specification"]["relative_max"] < 1e-12
+    assert c["validator"]["errors"] == c["validator"]["warnings"] == 0
+    wi, wo = check_geometries()
+    predicted = three_prediction({**channels["R"], "base_color": values["base_color"]}, wi, wo,
+                                 dfg)
+    want = relative_errors(material_values(material, wi, wo), predicted, np.ones(len(wi)),
+                           ERROR_FLOOR)
+    print(f"check figure: RMS {c['relative_rms']:.4f} max {c['relative_max']:.4f}; three.js's "
+          f"form predicts RMS {want['relative_rms']:.4f} max {want['relative_max']:.4f}")
+    assert c["relative_rms"] > 1e-3  # three.js is not the specification ...
+    assert abs(c["relative_rms"] - want["relative_rms"]) < 1e-3  # ... by its departures
+    assert abs(c["relative_max"] - want["relative_max"]) < 2e-3
+
+
 def test_validator_rejects_an_invalid_file(tmp_path):
     """The committed invalid example, and a buffer whose byteLength lies about its data."""
     import json
@@ -201,17 +230,27 @@ def test_validator_rejects_an_invalid_file(tmp_path):
 
 
 @pytest.mark.slow
-def test_fitted_export_renders_as_fitlab_predicts(tmp_path, dfg):
+def test_fitted_export_renders_as_fitlab_predicts(tmp_path, dfg, capsys):
     """End to end: ``fitlab export`` of a rough conductor to glTF (a fitted conversion), the
     file validated and rendered by three.js: the pixels equal fitlab's evaluation of the
     fitted glTF model in three.js's form; and they stay within the conversion error of the
-    original material where the departures are small (near normal incidence)."""
+    original material where the departures are small (near normal incidence). With --check
+    the command prints three.js's figure, the conversion's share and the validator's counts."""
     from fitlab.cli import main
 
     out = tmp_path / "gold.gltf"
     assert main(["export", "--model", "rough_conductor", "--param", "alpha=0.09", "--param",
                  "n=0.2,0.4,1.1", "--param", "k=3.9,2.6,2.2", "--out", str(out),
-                 "--quiet"]) == 0
+                 "--check"]) == 0
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.startswith("check:")]
+    assert len(lines) == 1 and "three.js r187" in lines[0] and "120 goniometer pairs" in err
+    rms = float(lines[0].split("relative RMS ")[1].split(",")[0])
+    spec = float(err.split("glTF's specified BRDF with the file's values: relative RMS ")[1]
+                 .split(",")[0])
+    assert 0 < spec < rms < 1  # the conversion's share, and three.js's departures on top
+    assert "meaning: what a three.js viewer shows" in err
+    assert "Khronos glTF validator 2.0.0-dev.3.10: 0 errors, 0 warnings" in err
     report = validate_gltf(out)
     assert report["numErrors"] == 0 and report["numWarnings"] == 0, report["messages"]
     import json

@@ -170,3 +170,28 @@ def test_refracting_dielectric_converts_with_a_warning():
     a = conv["albedo"]["30"]
     assert a["gltf_transmitted"][0] == pytest.approx(a["material_transmitted"][0], rel=0.1)
     assert conv["relative_rms"] > 0.25 and "thin-walled" in conv["warnings"][0]
+
+
+@pytest.mark.parametrize("model,values", [
+    ("gltf_pbr", {"base_color": 0.35, "metallic": 0.2, "roughness_factor": 0.45, "ior": 1.7,
+                  "specular": 0.8}),
+    ("gltf_pbr_clearcoat", {"base_color": 0.6, "roughness_factor": 0.6, "clearcoat": 0.7,
+                            "clearcoat_roughness_factor": 0.2}),
+    ("gltf_pbr_anisotropic", {"base_color": 0.9, "metallic": 1.0, "roughness_factor": 0.3,
+                              "anisotropy_strength": 0.6, "anisotropy_rotation": 30.0}),
+    ("gltf_pbr_transmission", {"base_color": 0.5, "roughness_factor": 0.35,
+                               "transmission": 0.6}),
+])
+def test_check_reads_the_material_back_from_the_file(model, values):
+    """What `fitlab export --check` renders without three.js (fitlab.export.check.gltf_material):
+    the file's material read as a glTF renderer reads it, extensions and defaults, equals the
+    values the document was written from (the rotation back from radians)."""
+    from fitlab.export.check import gltf_material
+    from fitlab.export.gltf_material import gltf_document
+
+    mat = _gltf_material(values, model)
+    doc = json.loads(gltf_text(gltf_document(mat, model, mat.channels, {})))
+    back = gltf_material(doc)
+    assert back.model == model and tuple(back.channels) == ("R", "G", "B")
+    for c in "RGB":
+        assert back.channels[c] == pytest.approx(mat.channels["Y"], rel=1e-12, abs=1e-12)

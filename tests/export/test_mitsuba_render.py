@@ -291,6 +291,26 @@ def test_cli_check_renders_the_export(capsys, tmp_path, fm):
     line = [x for x in err.splitlines() if x.startswith("check:")][0]
     rms = float(line.split("relative RMS ")[1].split(",")[0])
     assert "120 goniometer pairs" in line and rms < 2e-5
+    assert "meaning: an exact translation is within float32 rounding" in err
+
+
+def test_gltf_check_through_mitsuba(fm):
+    """The glTF check without three.js (fitlab.export.check): the material read back from the
+    file and rendered by Mitsuba with glTF's specified BRDF (fitlab's plugin); for a material
+    that is glTF's own BRDF the figure is float32 rounding."""
+    from fitlab.export.check import run_check
+    from fitlab.export.gltf_material import gltf_document, gltf_text
+    from fitlab.export.renderers import Exported
+
+    d = {q.name: q.default for q in fitlab.get_model("gltf_pbr_anisotropic").parameters}
+    channels = {c: {**d, "base_color": b, "metallic": 1.0, "roughness_factor": 0.4,
+                    "anisotropy_strength": 0.5, "anisotropy_rotation": 20.0}
+                for c, b in zip("RGB", (0.9, 0.6, 0.3))}
+    material = material_from_model("gltf_pbr_anisotropic", channels)
+    doc = gltf_document(material, "gltf_pbr_anisotropic", channels, {})
+    c = run_check("gltf", "mitsuba", material, Exported(gltf_text(doc), doc, {}))
+    assert c["renderer"].startswith("Mitsuba 3.9") and "gltf_pbr_anisotropic" in c["renderer"]
+    assert c["pairs"] == 120 and c["relative_max"] < 2e-5, c
 
 
 @pytest.mark.slow

@@ -232,7 +232,7 @@ def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
     data = Path(__file__).resolve().parents[2] / "data_formats" / "examples" / \
         "measurement_rgb_sigma.csv"
     out = tmp_path / "fit.json"
-    assert main(["fit", str(data), "--model", "lambertian", "--channel", "R",
+    assert main(["fit", str(data), "--model", "lambertian", "--channel", "R", "-v",
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
     fit = json.loads(out.read_text())["fits"][0]

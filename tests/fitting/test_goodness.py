@@ -201,7 +201,8 @@ def misfit(tmp_path_factory):
     out, chain = d / "beckmann.json", d / "beckmann.npz"
     argv = ["fit", str(data), "--model", "rough_conductor", "--option",
             "distribution=beckmann", "--fix", "n=1.5", "--fix", "k=3", "--mcmc",
-            "--mcmc-steps", "300", "--bootstrap", "40", "--out", str(out), "--chain", str(chain)]
+            "--mcmc-steps", "300", "--bootstrap", "40", "--out", str(out), "--chain", str(chain),
+            "-v"]
     import contextlib
     import io
 

@@ -153,7 +153,7 @@ def test_parameter_file_round_trip_through_every_reader(rgb, tmp_path, capsys):
     data = write_csv(rgb, tmp_path / "rgb.csv")
     out = tmp_path / "fit.json"
     assert main(["fit", str(data), "--model", MODEL, "--fix", "k=0", "--share", "alpha",
-                 "--starts", "2", "--bootstrap", "10", "--out", str(out)]) == 0
+                 "--starts", "2", "--bootstrap", "10", "-v", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "joint fit of channels R, G, B: alpha shared" in err and "(LS, shared)" in err
     res = fitlab.load_fit(out)
@@ -166,7 +166,7 @@ def test_parameter_file_round_trip_through_every_reader(rgb, tmp_path, capsys):
     assert main(["report", str(out), "--data", str(data), "--out", str(tmp_path / "rep"),
                  "--quiet"]) == 0
     assert (tmp_path / "rep" / "index.html").is_file()
-    assert main(["lut", "model", "--from-fit", str(out), "--size", "16x16",
+    assert main(["lut", "model", "--from-fit", str(out), "--size", "16x16", "--phi-d", "slice",
                  "--out", str(tmp_path / "t.exr"), "--quiet"]) == 0
     assert main(["convert", str(out), str(tmp_path / "g.bsdf"), "--channel", "G"]) == 0
     assert main(["convert", str(out), str(tmp_path / "rgb.binary")]) == 0
@@ -201,7 +201,7 @@ def test_coat_lobe_over_a_rough_inner_lobe_rgb_shared_geometry(tmp_path):
         for name, v in {**truth, "coat_alpha": 0.03, "alpha": 0.25}.items():
             assert abs(p[name] - v) < 4 * s[name], (c, name, p[name], v, s[name])
         assert r.statistics(c)["chi2_per_dof"] < 1.3 and not r.warnings[c]
-    assert main(["lut", "model", "--from-fit", str(out), "--size", "16x16",
+    assert main(["lut", "model", "--from-fit", str(out), "--size", "16x16", "--phi-d", "slice",
                  "--dtype", "float", "--out", str(tmp_path / "coated.exr"), "--quiet"]) == 0
     assert main(["convert", str(out), str(tmp_path / "coated.binary")]) == 0
 

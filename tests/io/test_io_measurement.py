@@ -70,7 +70,8 @@ def test_select_keeps_provenance():
     "name, line, column, fragment",
     [
         ("measurement_no_quantity.csv", None, None, "'# quantity: ...' is missing"),
-        ("measurement_bad_quantity.csv", 1, None, "is not one of bsdf, bsdf_cos, relative"),
+        ("measurement_bad_quantity.csv", 1, None,
+         "is not one of bsdf, bsdf_cos, radiance_factor, relative"),
         ("measurement_no_value.csv", None, None, "lacks the column value"),
         ("measurement_unknown_column.csv", 2, "weight", "unknown column"),
         ("measurement_non_numeric.csv", 4, "value", "'n/a' is not a number"),
@@ -96,6 +97,7 @@ def test_select_keeps_provenance():
         ("measurement_cone_and_bin.csv", 4, "aperture_deg", "both a detector cone and a bin"),
         ("measurement_bad_dataset_label.csv", 4, "dataset", "'-bad label' is not a dataset label"),
         ("measurement_dataset_duplicate.csv", 5, None, "repeats the directions of line 3"),
+        ("measurement_rows_short.csv", 2, None, "'# rows: 6' but the file has 4 data rows"),
     ],
 )
 def test_invalid(name, line, column, fragment):
@@ -113,7 +115,7 @@ def test_invalid(name, line, column, fragment):
 def test_every_invalid_measurement_example_is_documented_and_tested():
     spec = (EXAMPLES.parent / "measurement_csv.md").read_text()
     tested = Path(__file__).read_text()
-    for p in INVALID.glob("measurement_*.csv"):
+    for p in INVALID.glob("measurement_*.csv"):  # (sanity_*: tests/io/test_sanity_gates.py)
         assert p.name in spec, f"{p.name} missing from measurement_csv.md"
         assert p.name in tested, f"{p.name} has no test"
 
@@ -149,26 +151,28 @@ def test_bad_wavelength(tmp_path):
     assert (info.value.line, info.value.column) == (3, "wavelength_nm")
 
 
-def test_angles_that_look_like_radians_are_flagged(tmp_path, capsys):
-    """Issue 14: a file whose angles all lie in [0, π] gets a warning with the fix; whole-degree
-    angles near normal incidence do not."""
+def test_angles_that_look_like_radians_are_refused_by_every_reader_but_info(tmp_path, capsys):
+    """Issue 14, then issue 34: a file whose angles all lie in [0, π] is refused (exit 2) with
+    the fix, which info reports instead; whole-degree angles near normal incidence are not.
+    (The gates' own tests: tests/io/test_sanity_gates.py.)"""
     from fitlab.cli import main
-    from fitlab.io.measurement import read_measurement, sanity_warnings
+    from fitlab.io.formats import read_any
 
     rows = "\n".join(f"0.5236,0,{t:.4f},3.1416,0.{k + 1}" for k, t in enumerate((0.1, 0.3, 0.6, 0.9, 1.2)))
     src = tmp_path / "rad.csv"
     src.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n" + rows + "\n")
-    (w,) = sanity_warnings(read_measurement(src))
-    assert "look like radians" in w and "180/π" in w
+    with pytest.raises(InputFileError, match="look like radians") as e:
+        read_any(src)
+    assert "--angles radians" in str(e.value) and "180/π" in str(e.value)
     assert main(["info", str(src)]) == 0
     assert "look like radians" in capsys.readouterr().out
     out = tmp_path / "o.csv"
-    assert main(["convert", str(src), str(out)]) == 0
-    assert "warning:" in capsys.readouterr().err
+    assert main(["convert", str(src), str(out)]) == 2 and not out.exists()
+    assert "--angles radians" in capsys.readouterr().err
     deg = tmp_path / "deg.csv"
     deg.write_text("# quantity: bsdf\ntheta_i,phi_i,theta_o,phi_o,value\n"
                    + "\n".join(f"0,0,{t},180,0.5" for t in (1, 2, 3, 4, 5)) + "\n")
-    assert sanity_warnings(read_measurement(deg)) == []  # whole degrees near normal incidence
+    assert read_any(deg).accepted == ()  # whole degrees near normal incidence
 
 
 def test_brdf_angle_on_the_far_side_hint_says_how_to_write_it(tmp_path):

@@ -4,6 +4,7 @@ files, bad input, nothing written on error, the documented examples."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -181,8 +182,8 @@ def test_write_is_atomic_and_refuses_missing_folders(tmp_path, fresnel_table, mo
 
 def test_cli_lut_from_fit_writes_exr_glsl_and_info_shows_it(tmp_path, capsys):
     out = tmp_path / "glass.exr"
-    rc = main(["lut", "model", "--from-fit", str(FIT), "--size", "32x16", "--dtype", "float",
-               "--hlsl", "--check-points", "128", "--out", str(out)])
+    rc = main(["lut", "model", "--from-fit", str(FIT), "--size", "32x16", "--phi-d", "slice",
+               "--dtype", "float", "--hlsl", "--check-points", "128", "--out", str(out)])
     assert rc == 0
     err = capsys.readouterr().err
     assert "lookup vs direct evaluation at 128 random points" in err
@@ -206,15 +207,18 @@ def test_cli_lut_from_fit_writes_exr_glsl_and_info_shows_it(tmp_path, capsys):
 VINYL_WW = ROOT / "fits" / "brown_vinyl_weidlich_wilkie_lambert.json"
 
 
-def test_cli_lut_model_phi_d_auto_from_fit_and_info(tmp_path, capsys):
+def test_cli_lut_model_default_meets_the_target_with_phi_d(tmp_path, capsys):
+    """The default (--phi-d auto) on a fit whose f depends on φd: the 2D table misses the
+    target, the table with the φd axis meets it and is written (and says so)."""
     out = tmp_path / "vinyl.exr"
-    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--phi-d", "auto", "--size",
-                 "32x32x8", "--check-points", "256", "--hlsl", "--out", str(out)]) == 0
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "64x64x8",
+                 "--check-points", "256", "--hlsl", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "axes chosen by measurement: the 2-axis table misses the target" in err
-    assert "(phi_d axis)" in err
+    assert "(phi_d axis)" in err and "misses the target RMS" not in err
     t = exr.read_exr(out)
     assert [a.name for a in t.axes] == ["cos_theta_h", "cos_theta_d", "phi_d"]
+    assert t.accuracy["parameterization"]["meets_target"] is True
     assert t.source_fit == path_for_record(VINYL_WW, out)
     assert t.model["name"] == "weidlich_wilkie(lambertian)"
     glsl = out.with_suffix(".glsl").read_text()
@@ -225,27 +229,56 @@ def test_cli_lut_model_phi_d_auto_from_fit_and_info(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["axes"]["axis2"]["name"] == "phi_d" and info["axes"]["axis2"]["hi"] == 90.0
     auto = info["accuracy"]["auto"]
-    assert [c["size"] for c in auto["candidates"]] == ["32x32", "32x32x8"]
+    assert [c["size"] for c in auto["candidates"]] == ["64x64", "64x64x8"]
+    assert auto["meets_target"] is True and not auto["candidates"][0]["meets_target"]
     assert auto["candidates"][0]["rms_rel"] > 0.04 > auto["candidates"][1]["rms_rel"]
     assert any("chosen by measurement" in n for n in info["notes"])
 
 
-def test_cli_lut_model_2d_stays_the_default_and_says_it_misses(tmp_path, capsys):
+def test_cli_lut_model_slice_gives_the_2d_table_and_says_it_misses(tmp_path, capsys):
     out = tmp_path / "vinyl2d.exr"
     assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "32x32",
-                 "--check-points", "256", "--out", str(out)]) == 0
+                 "--phi-d", "slice", "--check-points", "256", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "phi_d = 90 deg assumed" in err and "--phi-d auto or a third --size number" in err
+    assert "phi_d = 90 deg assumed" in err and "misses the target RMS <= 0.01" in err
+    assert "--phi-d auto, the default, adds a phi_d axis" in err
     t = exr.read_exr(out)
     assert len(t.axes) == 2 and "auto" not in t.accuracy
     assert t.accuracy["parameterization"]["meets_target"] is False
     assert "vec2 fitlab_model_halfdiff" in out.with_suffix(".glsl").read_text()
 
 
+def test_cli_lut_model_fails_with_the_figures_when_no_table_meets_the_target(tmp_path, capsys):
+    """Too few samples for the target: exit 2, both tables' measured errors and what to try;
+    nothing written. --phi-d axis then writes the 3D table knowingly, with its figure."""
+    out = tmp_path / "small.exr"
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "8x8x2",
+                 "--check-points", "64", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "fitlab lut: error: no table meets the target" in err
+    assert re.search(r"measured 8x8 RMS [0-9.]+, max [0-9.]+; 8x8x2 RMS [0-9.]+, max [0-9.]+",
+                     err), err
+    assert "--size 16x16x4" in err and "--phi-d axis" in err and "--phi-d slice" in err
+    assert list(tmp_path.iterdir()) == []
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "8x8x2",
+                 "--phi-d", "axis", "--check-points", "64", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "(phi_d axis)" in err and "misses the target" in err
+    assert [a.size for a in exr.read_exr(out).axes] == [8, 8, 2]
+
+
+def test_cli_lut_model_axis_adds_the_default_phi_d_size(tmp_path):
+    out = tmp_path / "l.exr"
+    assert main(["lut", "model", "--model", "lambertian", "--param", "albedo=0.5", "--size",
+                 "8", "--phi-d", "axis", "--check-points", "16", "--quiet", "--out",
+                 str(out)]) == 0
+    assert [a.size for a in exr.read_exr(out).axes] == [8, 8, lut.PHI_D_SIZE]
+
+
 @pytest.mark.parametrize("argv", [
     ["fresnel", "--preset", "copper", "--size", "64"],
     ["model", "--model", "oren_nayar", "--param", "albedo=0.5", "--param", "sigma=0.3",
-     "--size", "8x8x4", "--mapping", "phi_d=sqrt", "--dtype", "float"],
+     "--size", "8x8x4", "--phi-d", "axis", "--mapping", "phi_d=sqrt", "--dtype", "float"],
     ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size", "8",
      "--phi-d", "auto", "--check-points", "64"],
     ["fresnel", "--param", "eta=1.33"],
@@ -253,7 +286,7 @@ def test_cli_lut_model_2d_stays_the_default_and_says_it_misses(tmp_path, capsys)
      "--option", "fresnel=lazanyi"],
     ["D", "--option", "distribution=phong", "--size", "64x32", "--mapping", "alpha=log"],
     ["model", "--model", "oren_nayar", "--param", "albedo=0.5", "--param", "sigma=0.3",
-     "--size", "16", "--dtype", "float"],  # f grows like tan θ at the horizon
+     "--size", "16", "--phi-d", "slice", "--dtype", "float"],  # f grows like tan θ at the horizon
     ["dfg", "--size", "4", "--check-points", "4", "--alpha-range", "0.05:1"],
 ])
 def test_cli_lut_kinds(tmp_path, argv, capsys):
@@ -283,7 +316,9 @@ def _fit_with(tmp_path, **changes):
     (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--size", "8x8x4",
                 "--phi-d", "slice", "--out", f"{d}/x.exr"], "drop one of them"),
     (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--mapping",
-                "phi_d=sqrt", "--out", f"{d}/x.exr"], "has no phi_d axis"),
+                "phi_d=sqrt", "--phi-d", "slice", "--out", f"{d}/x.exr"], "has no phi_d axis"),
+    (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5",
+                "--check-points", "0", "--out", f"{d}/x.exr"], "--phi-d slice (2D)"),
     (lambda d: ["model", "--model", "lambertian", "--param", "albedo=0.5", "--phi-d", "auto",
                 "--check-points", "0", "--out", f"{d}/x.exr"], "needs the accuracy check"),
     (lambda d: ["D", "--phi-d", "auto", "--out", f"{d}/x.exr"], "model tables only"),

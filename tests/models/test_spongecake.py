@@ -346,8 +346,8 @@ def test_presets_evaluate_and_tabulate_through_the_cli(tmp_path, capsys):
     values = [float(line.split(",")[-1]) for line in rows[1:]]
     assert len(values) == 3 and all(v > 0 and np.isfinite(v) for v in values)
     out = tmp_path / "leaf.exr"
-    assert main(["lut", "model", "--preset", "plant_leaf", "--size", "16x16", "--check-points",
-                 "64", "--out", str(out)]) == 0
+    assert main(["lut", "model", "--preset", "plant_leaf", "--size", "16x16", "--phi-d", "slice",
+                 "--check-points", "64", "--out", str(out)]) == 0
     assert out.exists() and "3 channel(s) (R, G, B)" in capsys.readouterr().err
     # an anisotropic preset cannot go into the isotropic (θh, θd) table: exit 2, with the reason
     assert main(["lut", "model", "--preset", "fabric", "--size", "16x16", "--out",

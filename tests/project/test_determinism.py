@@ -70,7 +70,8 @@ def test_fit_chain_lut_and_report_are_byte_identical(tmp_path):
             ["fit", inp / "walter_small.csv", "--model", "rough_dielectric", "--fit-subset",
              "theta_i == 0", "--mcmc", "--mcmc-steps", "100", "--walkers", "8", "--starts", "2",
              "--quiet", "--out", fit, "--chain", out / "chain.npz"],
-            ["lut", "model", "--from-fit", fit, "--size", "16x16", "--check-points", "64",
+            ["lut", "model", "--from-fit", fit, "--size", "16x16", "--phi-d", "slice",
+             "--check-points", "64",
              "--quiet", "--out", out / "fit_lut.exr"],
             # the chain recorded in the fit; the table beside the fit found and previewed
             # (`fitlab fit --report` builds the same page: the slow test below runs it)
@@ -118,7 +119,7 @@ def test_lut_exr_and_shaders_are_byte_identical(tmp_path):
              out / "d.exr"],
             # axes chosen by measurement: the record of both candidates, no run time
             ["lut", "model", "--from-fit", inp / "glass_fit.json", "--phi-d", "auto",
-             "--size", "8x8x4", "--check-points", "64", "--quiet", "--out", out / "auto.exr"],
+             "--size", "64x64x8", "--check-points", "64", "--quiet", "--out", out / "auto.exr"],
         ]
 
     files = _run_twice(tmp_path, commands)

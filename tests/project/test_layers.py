@@ -140,6 +140,26 @@ def test_the_checks_see_what_they_should(table):
         layer_of(table, "a_module_nobody_placed")
 
 
+def test_only_fitlab_jax_imports_jax():
+    """fitlab/_jax.py is fitlab's one way to JAX: every module reaches JAX through it, so JAX
+    loads at its first use and fitlab's settings (float64, no asynchronous CPU dispatch) are in
+    place before any fitlab code computes (issue 34 item 7)."""
+    hits = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path == PACKAGE / "_jax.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module or ""]
+            else:
+                continue
+            hits += [f"{path.relative_to(PACKAGE.parent)}:{node.lineno}: import {n}"
+                     for n in names if n == "jax" or n.startswith("jax.")]
+    assert not hits, "use `from fitlab._jax import jax, jnp`:\n" + "\n".join(hits)
+
+
 # --------------------------------------------------------------------------------------------
 # Names are not structure: a model carries its structure (Model.terms, .inner, .arguments,
 # .translations); outside fitlab/models/ nothing parses or compares a model's name

@@ -495,8 +495,8 @@ def test_lookup_tables_of_the_fit_are_previewed(made, tmp_path, capsys):
     d.mkdir()
     fit = d / "walter.json"
     shutil.copy(src, fit)
-    assert main(["lut", "model", "--from-fit", str(fit), "--size", "32", "--out",
-                 str(d / "walter_model.exr"), "--quiet"]) == 0
+    assert main(["lut", "model", "--from-fit", str(fit), "--size", "32", "--phi-d", "slice",
+                 "--out", str(d / "walter_model.exr"), "--quiet"]) == 0
     fresnel = tmp_path / "copper.exr"  # from a preset, not from any fit
     assert main(["lut", "fresnel", "--preset", "copper", "--size", "32", "--out", str(fresnel),
                  "--quiet"]) == 0
@@ -516,7 +516,7 @@ def test_lookup_tables_of_the_fit_are_previewed(made, tmp_path, capsys):
     # A table of another fit is an error, and nothing is written.
     other = tmp_path / "other.exr"
     assert main(["lut", "model", "--from-fit", str(made["fits"]["brdf"][0]), "--size", "16",
-                 "--out", str(other), "--quiet"]) == 0
+                 "--phi-d", "slice", "--out", str(other), "--quiet"]) == 0
     capsys.readouterr()
     assert main(["report", str(fit), "--data", str(WALTER), "--lut", str(other), "--out",
                  str(tmp_path / "rep3"), "--quiet"]) == 2
@@ -537,3 +537,151 @@ def test_accuracy_rows_show_every_auto_candidate():
     assert rows[0] == ["auto: parameterization of the 8x8 candidate", 0.3, 0.07, "2-axis misses"]
     assert rows[1][0].endswith("8x8x4 candidate (chosen)") and rows[1][1:3] == [0.01, 0.001]
     assert rows[2][0] == "storage"
+
+
+# --------------------------------------------------------------------------------------------
+# The first screen, the bands and the titles (issue 34)
+# --------------------------------------------------------------------------------------------
+
+
+def test_first_screen_comes_first_and_provenance_last(made):
+    """Verdict, parameters with both intervals, the fit error (the parameter file's figure) and
+    the key figure come before the contents; the provenance is the last section."""
+    from fitlab.metrics import fit_error_of, fit_error_text
+
+    text = (made["reports"]["walter"] / "index.html").read_text(encoding="utf-8")
+    lead = text[text.index("</h1>"):text.index("<nav>")]
+    rec = json.loads(made["fits"]["walter"][0].read_text())
+    fit = rec["fits"][0]
+    alpha = fit["parameters"]["alpha"]
+    assert 'id="verdict"' in lead and "Not trusted: the MCMC chain" in lead  # 300 steps
+    assert "run a longer chain" in lead  # the status's advice
+    assert f"{alpha['value']:.5g}" in lead and "68% credible (MCMC)" in lead
+    assert f"{alpha['posterior']['p16']:.5g}" in lead  # the credible interval
+    assert f"{alpha['value'] - alpha['stderr']:.5g}" in lead  # the least-squares interval
+    assert html_escape(fit_error_text(fit_error_of(fit["statistics"]))) in lead
+    assert '<figure id="fit_Y"' in lead
+    sections = re.findall(r'<section id="([^"]+)">', text)
+    assert sections[-1] == "header" and sections[0] == "warnings"
+    assert sections.index("parameters-Y") < sections.index("scans-Y")
+
+
+def html_escape(s):
+    import html
+
+    return html.escape(s, quote=True)
+
+
+def _fit_entry(**over):
+    fit = {"channel": "Y", "solver": {"stopped": "converged"},
+           "goodness": {"describes_data": True},
+           "parameters": {"alpha": {"value": 0.3, "fixed": False, "bounds": [1e-4, 1.0],
+                                    "stderr": 0.01, "at_bound": False,
+                                    "posterior": {"p16": 0.2905, "p84": 0.3102}},
+                          "eta": {"value": 1.5, "fixed": True, "bounds": [1, 3]}},
+           "statistics": {"rms_relative_error_fit": 0.05, "n_fit": 10, "n_total": 20}}
+    fit.update(over)
+    return fit
+
+
+def test_verdict_reads_the_statuses():
+    from fitlab.fitting.status import Status
+    from fitlab.report.summary import PROBLEMS, parameter_table, verdict
+
+    assert set(PROBLEMS) == {s for s in Status if not s.ok}  # every failure has its words
+    v = verdict([_fit_entry()])
+    assert v.trusted and v.sentence == ("Trustworthy: converged, the model describes the data "
+                                        "within their noise, and the least-squares and MCMC "
+                                        "intervals agree.")
+    bound = _fit_entry()
+    bound["parameters"]["alpha"].update(value=1.0, at_bound=True)
+    v = verdict([bound])
+    assert not v.trusted
+    assert v.sentence.startswith("Not trusted: least squares ended at the bound alpha = 1; "
+                                 "try: widen the parameter's range")
+    wide = _fit_entry()
+    wide["parameters"]["alpha"]["posterior"] = {"p16": 0.27, "p84": 0.33}
+    assert "MCMC interval of alpha is 3× as wide" in verdict([wide]).sentence
+    two = [_fit_entry(channel="R"), _fit_entry(channel="G", goodness={"describes_data": False})]
+    v = verdict(two)
+    assert v.sentence.startswith("Not trusted: the model does not describe the data within "
+                                 "their noise (channel G); try: compare models")
+    header, rows = parameter_table([_fit_entry()])
+    assert header == ["parameter", "best fit", "68% interval (least squares)",
+                      "68% credible (MCMC)", "unit"]
+    assert rows[0][:4] == ["alpha", "0.3", "[0.29, 0.31]", "[0.2905, 0.3102]"]
+    assert rows[1][:4] == ["eta", "1.5", "fixed", "fixed"]
+
+
+@pytest.mark.parametrize("loss", ["relative", "log", "cos_l2"])
+def test_predictive_bands_are_exact_and_smooth(loss):
+    """The posterior predictive quantiles are those of many draws of the noise model, and
+    smooth along a scan (no draw noise); the linear panel clips them at 0."""
+    from fitlab.report.inputs import BAND_QUANTILES, predictive_quantiles, replicate_data
+
+    rng = np.random.default_rng(3)
+    x = np.linspace(-80, 80, 161)
+    curve = 0.02 + np.exp(-(x / 20) ** 2)
+    model = curve[None, :] * np.exp(0.03 * rng.standard_normal((60, 1)))
+    noise = 0.08 * np.exp(0.1 * rng.standard_normal(60))
+    cos_o = np.cos(np.radians(x))
+    q = predictive_quantiles(loss, model, noise, cos_o, 0.01)
+    draws = np.concatenate([replicate_data(loss, model, noise, cos_o, 0.01, rng)
+                            for _ in range(200)])  # 12000 per direction
+    mc = np.percentile(draws, BAND_QUANTILES, axis=0)
+    width = mc[4] - mc[0]  # the draws' own error is about 1% of the 95% band's width
+    assert np.all(np.abs(q - mc) <= 0.03 * width + 1e-3)
+    # smooth: away from grazing (where log and cos_l2 noise grows as 1/cos θo) the bands bend
+    # no more than the curve does (one draw per sample, as before, gave 20 to 60 times more)
+    def rough(b):
+        return (np.abs(np.diff(b, 2, axis=-1)).max(axis=-1) / np.abs(b).max(axis=-1))
+
+    inner = np.abs(x) <= 60
+    assert rough(q[:, inner]).max() < 1.5 * rough(curve)
+
+
+def test_scan_bands_are_clipped_at_zero():
+    from matplotlib.collections import PolyCollection
+
+    from fitlab.report.scans import ScanSide, scan_figure
+
+    x = np.linspace(-80, 80, 33)
+    y = np.exp(-(x / 20) ** 2) + 0.01
+    band = np.stack([y * s for s in (-0.5, 0.5, 1.0, 1.5, 2.0)])  # reaching below 0
+    side = ScanSide("reflection", x, y, None, x < 0, y, x, y, band, 0.0, band)
+    lin = scan_figure([side], title="t", ylabel="f (1/sr)").axes[0]
+    ys = [ln.get_ydata() for ln in lin.lines] + [
+        p.vertices[:, 1] for c in lin.collections if isinstance(c, PolyCollection)
+        for p in c.get_paths()]
+    lowest = min(np.nanmin(np.asarray(v, float)) for v in ys)
+    assert lowest >= 0.0
+
+
+def test_titles_fit_their_axes():
+    """Laid out as render() lays them out, no title runs past its axes or the figure (long ones
+    are wrapped)."""
+    from fitlab.report.goodness import interval_figure
+    from fitlab.report.lobes import Lobe, lobe_figure
+    from fitlab.report.posterior import corner_figure
+    from fitlab.report.summary import Curve, fit_figure
+    from fitlab.report.style import PNG_DPI, fit_titles, title_room
+
+    x = np.linspace(-80, 80, 33)
+    y = np.exp(-(x / 20) ** 2) + 0.01
+    long = ("weidlich_wilkie(lambertian+rough_conductor), channel Visible: best fit, without "
+            "the scale of relative data")
+    figs = [lobe_figure({"reflection": [Lobe(30.0, x, y)]}, title=long),
+            corner_figure(np.random.default_rng(0).normal(size=(100, 3)) * 1e-3 + 123.456,
+                          ["alpha_long_name", "beta", "gamma"], ["1", "1", "1"], np.zeros(3)),
+            interval_figure([("a", 1.0, [("least squares", 0.9, 1.1)])], long)]
+    figs.append(fit_figure([("reflection", [Curve("θi = 0°", x, y, x, y, x < 0)])],
+                           ylabel="f (1/sr)", title="channel R (the others below)"))
+    for fig in figs:
+        fit_titles(fig)  # as render() does before it saves the PNG
+        fig.set_dpi(PNG_DPI)
+        fig.draw_without_rendering()
+        renderer = fig._get_renderer()
+        for text, room in title_room(fig):
+            box = text.get_window_extent(renderer)
+            assert box.width <= room + 1, text.get_text()
+            assert box.x0 >= -1 and box.x1 <= fig.bbox.width + 1, text.get_text()

@@ -3,15 +3,16 @@ measurement with :func:`fitlab.fit` and ranks them, per channel, by how well the
 they were not fitted to (data_formats/compare.md).
 
 Leave-one-incidence-out cross-validation (CV). For each incidence direction (θi, φi) among the
-fitted rows, the whole fitting procedure (global search and multi-start Levenberg–Marquardt, the
-same loss, starts and seed) is repeated without that incidence's rows, and the refitted model
-predicts them. Score: the RMS relative error (model − data)/data of the held-out rows, per
+fitted rows, the model is refitted without that incidence's rows (the same loss) by
+Levenberg–Marquardt from every end of the full fit's starts (the basins its global search and
+low-discrepancy starts found; ``crossval.fold_starts``), in one batched call of the full fit's
+compiled stage, and the refitted model predicts them. Score: the RMS relative error (model − data)/data of the held-out rows, per
 incidence and pooled over every held-out row (rows below 1% of their incidence's maximum are not
 counted, as in the fit statistics). A fold keeps the data's shape: the rows it leaves out get a
-zero residual through a row mask (``least_squares.ROW_MASK``), so one compilation serves every
-fold of a model (brown vinyl, Lambert + GGX dielectric: 0.3-0.4 s a fold after one compile of
-about 15-20 s, where a new shape per fold compiled for about 15 s each time; over five models
-on the shared 2-core machine 1-11 s a fold).
+zero residual through a row mask (``least_squares.ROW_MASK``), so the full fit's compilation
+serves every fold of a model. A fold used to repeat the global search as well (1-11 s a fold on
+brown vinyl on the shared 2-core machine, most of a comparison's time:
+benchmarks/bench_first_hour.py).
 
 PSIS-LOO and WAIC (ArviZ) from the MCMC posterior. The pointwise log-likelihood of a posterior
 sample is the fit's own likelihood (fitlab/fitting/mcmc.py) row by row, written as a density of
@@ -53,8 +54,8 @@ from fitlab.errors import FitlabError
 from fitlab.fitting.compare.candidates import Candidate, parse_candidate, resolve_candidates
 from fitlab.fitting.compare.common import SCHEMA, SCHEMA_VERSION
 from fitlab.fitting.compare.criteria import _arviz, information_criteria, pointwise_log_likelihood
-from fitlab.fitting.compare.crossval import (aperture_order, cross_validate, in_sample_errors,
-                                             incidences_of, jackknife_difference)
+from fitlab.fitting.compare.crossval import (aperture_order, cross_validate, incidences_of,
+                                             jackknife_difference)
 from fitlab.fitting.compare.record import DECISIVE_SE, SMALL_ELPD, _record
 from fitlab.fitting.compare.result import (INCIDENCE_COLUMNS, SUMMARY_COLUMNS, CompareResult,
                                            load_compare)
@@ -66,21 +67,65 @@ from fitlab.fitting.result import thaw
 # --------------------------------------------------------------------------------------------
 
 
-def _progress(enabled, total):
-    if not enabled:
-        return None
-    from tqdm import tqdm
+class _Progress:
+    """A tqdm bar on stderr whose time left is estimated from measured step times: each kind of
+    step (a full fit, a cross-validation fold, PSIS-LOO and WAIC) counts at the mean of the
+    steps of that kind measured so far (tqdm's own estimate would average a fold that takes a
+    tenth of a second with a full fit that takes tens); before a kind has been measured the
+    estimate says so instead of guessing."""
 
-    return tqdm(total=total, desc="compare", unit="fit", file=sys.stderr, dynamic_ncols=True,
-                mininterval=0.5, bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} fits "
-                "[{elapsed}<{remaining}] {postfix}")
+    def __init__(self, total: dict):
+        import time
+
+        from tqdm import tqdm
+
+        self.clock = time.perf_counter
+        self.left = dict(total)
+        self.spent = {k: [0.0, 0] for k in total}
+        self.t = self.clock()
+        self.what = ""
+        self.bar = tqdm(total=sum(total.values()), desc="compare", unit="step",
+                        file=sys.stderr, dynamic_ncols=True, mininterval=0.5,
+                        bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} steps [{elapsed}] "
+                        "{postfix}")
+
+    def doing(self, what: str):
+        self.what = what
+        self.bar.set_postfix_str(f"{what}; {self.eta()}", refresh=False)
+        self.bar.refresh()
+
+    def eta(self) -> str:
+        todo = {k: n for k, n in self.left.items() if n}
+        if not todo:
+            return "finishing"
+        if any(self.spent[k][1] == 0 for k in todo):
+            return "time left: measuring the first " + ", ".join(
+                k for k in todo if self.spent[k][1] == 0)
+        s = sum(n * self.spent[k][0] / self.spent[k][1] for k, n in todo.items())
+        return f"about {s:.0f} s left (measured step times)"
+
+    def step(self, kind: str):
+        now = self.clock()
+        self.spent[kind][0] += now - self.t
+        self.spent[kind][1] += 1
+        self.left[kind] -= 1
+        self.t = now
+        self.bar.update(1)
+        self.doing(self.what)
+
+    def write(self, text: str):
+        self.bar.write(text, file=sys.stderr)
+
+    def close(self):
+        self.bar.close()
 
 
 def compare(measurement, models, *, fix: dict | None = None, free=(), options: dict | None = None,
             loss: str | None = None, subset=None, channels=None, cv: bool = True,
             mcmc: bool = True, mcmc_steps: int = 3000, walkers: int | None = None,
             starts: int = 8, seed: int = 0, progress: bool = False,
-            throw: bool = False) -> "CompareResult":
+            throw: bool = False, angles: str | None = None, accept=(),
+            quantity: str | None = None) -> "CompareResult":
     """Fit each of ``models`` to ``measurement`` (a Measurement or a path) and rank them by
     leave-one-incidence-out cross-validation (``cv``) and by PSIS-LOO and WAIC from the MCMC
     posterior (``mcmc``, needs ArviZ); returns an immutable :class:`CompareResult`.
@@ -92,11 +137,12 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
     likelihood). progress: a bar with the time left on stderr. What limits trust in the ranking is
     ``result.statuses(label, channel)`` and ``result.ok``; throw: raise a FitlabError naming it
-    instead of returning a comparison that is not ``ok``."""
-    from fitlab.fitting.api import fit, read
+    instead of returning a comparison that is not ``ok``. angles, accept, quantity: how a path
+    is read (:func:`fitlab.read`; not with a Measurement)."""
+    from fitlab.fitting.api import fit, measurement_of
     from fitlab.fitting.subset import channel_ids, rows_of
 
-    m = read(measurement) if not hasattr(measurement, "value") else measurement
+    m = measurement_of(measurement, angles=angles, accept=accept, quantity=quantity)
     if not cv and not mcmc:
         raise FitlabError("nothing to rank by: keep cross-validation (cv=True, drop --no-cv) "
                           "or the posterior's PSIS-LOO and WAIC (mcmc=True, drop --no-mcmc)")
@@ -124,16 +170,17 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             raise FitlabError(f"{m.path}: channel {few[0]} has one incidence direction among the "
                               "fitted rows: leave-one-incidence-out cross-validation needs two "
                               "or more; rank by PSIS-LOO and WAIC alone with --no-cv")
-    total = len(cands) * (1 + sum((len(incs[c]) if cv else 0) + (1 if mcmc else 0)
-                                  for c in chan_ids))
-    bar = _progress(progress, total)
-    say = (lambda s: (bar.write(s, file=sys.stderr) if bar is not None else None))
+    total = {"full fit": len(cands),
+             "CV fold": len(cands) * sum(len(incs[c]) for c in chan_ids) if cv else 0,
+             "PSIS-LOO": len(cands) * len(chan_ids) if mcmc else 0}
+    bar = _Progress(total) if progress else None
+    say = (lambda s: (bar.write(s) if bar is not None else None))
     fits, per = [], {c: [] for c in chan_ids}
     run_warnings = []
     try:
         for cand in cands:
             if bar is not None:
-                bar.set_postfix_str(f"{cand.label}: fit" + (" + MCMC" if mcmc else ""))
+                bar.doing(f"{cand.label}: fit" + (" + MCMC" if mcmc else ""))
             try:
                 res = fit(m, cand.request)
             except FitlabError as exc:
@@ -142,31 +189,33 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
                                    "data": {**thaw(res.record["data"]), "fit_subset": expr}})
             fits.append(res)
             if bar is not None:
-                bar.update(1)
+                bar.step("full fit")
             for c in chan_ids:
                 name = m.channel_names[c]
                 rows = rows_fit & (m.channel == c)
-                entry = {"in_sample": in_sample_errors(m, cand, res, loss, rows, c),
+                # in-sample: the fit's own stored error (statistics.fit_error, the one
+                # definition: fitlab.metrics.fit_error over the fitted rows)
+                entry = {"in_sample": res._fit(name)["statistics"]["fit_error"],
                          "folds": None, "ic": None, "fit": res._fit(name)}
                 if cv:
                     def on_fold(fold, _label=cand.label):
                         if bar is not None:
-                            bar.set_postfix_str(f"{_label}: CV without θi = "
-                                                f"{fold['theta_i']:g}°")
-                            bar.update(1)
+                            bar.step("CV fold")
+                            bar.doing(f"{_label}: CV, θi = {fold['theta_i']:g}° done")
                     entry["folds"] = cross_validate(m, cand, loss, rows, c, seed=seed,
                                                     starts=starts, on_fold=on_fold,
-                                                    order=aperture_order(res, name))
+                                                    order=aperture_order(res, name),
+                                                    fit=res._fit(name))
                 if mcmc:
                     if bar is not None:
-                        bar.set_postfix_str(f"{cand.label}: PSIS-LOO, WAIC")
+                        bar.doing(f"{cand.label}: PSIS-LOO, WAIC")
                     ll = pointwise_log_likelihood(m, cand, res, loss, rows, c)
                     loo, waic = information_criteria(ll["loglik"], ll["reff"])
                     entry["ic"] = {"loo": loo, "waic": waic, **{k: v for k, v in ll.items()
                                                                if k != "loglik"}}
                     del ll
                     if bar is not None:
-                        bar.update(1)
+                        bar.step("PSIS-LOO")
                 per[c].append(entry)
             say(f"compare: {cand.label} done")
     finally:

@@ -26,8 +26,7 @@ LOGLIK_CHUNK = 256
 def _loglik_kernel(static, loss: str):
     """Jitted (samples (S, P), problem) → (pointwise log-likelihood (S, n), the chain's
     log-posterior recomputed (S,)). P: the unit-box coordinates, then log σ_r if sampled."""
-    import jax
-    import jax.numpy as jnp
+    from fitlab._jax import jax, jnp
 
     from fitlab.fitting.least_squares import residuals_native
     from fitlab.fitting.losses import has_absolute_noise
@@ -58,7 +57,7 @@ def pointwise_log_likelihood(m, cand: Resolved, result, loss, rows, channel) -> 
     ``fitlab.fit(..., mcmc=True)``: ``loglik`` (walkers, draws, rows), ``reff`` (effective over
     stored samples), ``samples``, ``informative`` (rows whose residual depends on the value:
     the others carry no likelihood and are left out)."""
-    import jax
+    from fitlab._jax import jax
 
     from fitlab.fitting.least_squares import problem_of
 

@@ -1,5 +1,5 @@
 """Incidences, relative errors, the jackknife, and leave-one-incidence-out cross-validation of
-one candidate (and its in-sample errors under the same rule)."""
+one candidate (its in-sample error is its fit's stored ``statistics.fit_error``, the same rule)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def jackknife_difference(sq_a, sq_b, counts) -> tuple[float, float]:
 def _masked(data_all, data_kept, kept):
     """``data_all`` (every row of the fit) with the loss constants of a fit to the ``kept``
     rows, and the row mask that zeroes the others (their constants are a kept row's: finite)."""
-    import jax
+    from fitlab._jax import jax
 
     from fitlab.fitting.least_squares import ROW_MASK
 
@@ -108,12 +108,30 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     return {**base, "space": space, "data": data, "start_native": start_native}
 
 
+def fold_starts(fit: dict, names) -> list:
+    """The starts of every fold of a candidate: where each Levenberg–Marquardt start of its full
+    fit ended (``fit``: the channel's entry of its parameter file; a start that ended at NaN or
+    inf: where it started), native vectors in the order of ``names``. They hold the basins the
+    full fit's global search and low-discrepancy starts found, and are as many as its starts,
+    so a fold reuses the full fit's compiled stage."""
+    out = []
+    for st in fit["starts"]:
+        at = st["end"] if st.get("end") else st["start"]
+        out.append([float(at[n]) for n in names])
+    return out
+
+
 def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, order=None,
-                   on_fold=None):
+                   on_fold=None, fit=None):
     """Leave-one-incidence-out CV of one candidate on one channel's ``rows`` (bool, all rows of
     the measurement; ``order``: the fit's aperture quadrature order, if any). Returns one dict
     per incidence: theta_i, phi_i, rel (held-out relative errors of the counted rows),
-    parameters (the fold's fit), warnings, error (a fold that could not be fitted)."""
+    parameters (the fold's fit), warnings, error (a fold that could not be fitted).
+
+    With ``fit`` (the channel's entry of the candidate's full fit) each fold is refitted by
+    Levenberg–Marquardt from the ends of the full fit's starts (:func:`fold_starts`), in one
+    batched call, without a global search of its own; without it, by the whole procedure
+    (global search and multi-start Levenberg–Marquardt with ``starts`` and ``seed``)."""
     from fitlab.fitting.channel import least_squares_warnings
     from fitlab.fitting.least_squares import fit_least_squares
 
@@ -129,9 +147,14 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
         try:
             space, data_k, start_native = _channel_problem(m, base, kept, order)
             data = _masked(base["data"], data_k, kept[rows])
-            ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
-                                   n_starts=starts, seed=seed,
-                                   lm_maxiter=cand.request.lm_maxiter)
+            if fit is not None:
+                ls = fit_least_squares(space, data, base["loss"],
+                                       local_starts=fold_starts(fit, space.names),
+                                       lm_maxiter=cand.request.lm_maxiter)
+            else:
+                ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
+                                       n_starts=starts, seed=seed,
+                                       lm_maxiter=cand.request.lm_maxiter)
             if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
@@ -144,19 +167,3 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
         if on_fold is not None:
             on_fold(fold)
     return folds
-
-
-def in_sample_errors(m, cand: Resolved, result, loss, rows, channel):
-    """Relative errors of the full fit at each incidence's counted rows (the CV's rule)."""
-    name = m.channel_names[channel]
-    order = aperture_order(result, name)
-    base = _problem(m, cand, loss, rows, channel, order)
-    space, in_chan = base["space"], base["in_chan"]
-    params = result.parameters[name]
-    pred = _predict(space, np.array([params[n] for n in space.names]), m, in_chan, order)
-    keys = incidence_keys(m)
-    out = []
-    for ti, pi in incidences_of(m, rows):
-        held = rows & (keys[:, 0] == ti) & (keys[:, 1] == pi)
-        out.append(relative_errors(pred[held[in_chan]], m.value[held])[0])
-    return out

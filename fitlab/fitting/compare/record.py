@@ -12,7 +12,7 @@ from fitlab.fitting.compare.common import SCHEMA, SCHEMA_VERSION
 from fitlab.fitting.compare.criteria import _arviz, _compare_ic
 from fitlab.fitting.compare.crossval import (_rms, incidence_keys, incidences_of,
                                              jackknife_difference)
-from fitlab.metrics import REL_ERR_FLOOR, relative_errors
+from fitlab.metrics import REL_ERR_FLOOR, fit_error_text, relative_errors
 from fitlab.fitting.status import Status, channel_statuses
 
 #: A difference is decisive beyond this many standard errors ...
@@ -178,6 +178,14 @@ def _verdict_ic(block, order, kind):
     return v
 
 
+def _in_sample(fe, incs) -> dict:
+    """A candidate's in-sample error: its fit's stored ``statistics.fit_error`` (the one
+    definition, fitlab.metrics.fit_error), per incidence in the order of ``incs``."""
+    per = {(r["theta_i"], r["phi_i"]): r["rms_relative_error"] for r in fe["per_incidence"]}
+    return {"rms_relative_error": fe["rms_relative_error"], "rows": fe["rows"],
+            "per_incidence": [per.get((t, p)) for t, p in incs], "text": fit_error_text(fe)}
+
+
 def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc, mcmc_steps,
             walkers, starts, seed, fix, options, free, run_warnings) -> dict:
     from fitlab.export.paramfile import software_versions
@@ -195,7 +203,7 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
         for ti, pi in incs[c]:
             held = rows & (keys[:, 0] == ti) & (keys[:, 1] == pi)
             counted.append(relative_errors(m.value[held], m.value[held])[1])
-        in_sample = {lab: _rms(np.concatenate(e["in_sample"])) for lab, e in zip(labels, entries)}
+        in_sample = {lab: e["in_sample"]["rms_relative_error"] for lab, e in zip(labels, entries)}
         if m.sigma is not None:
             sig = np.concatenate([m.sigma[rows & (keys[:, 0] == t) & (keys[:, 1] == p)][k]
                                   / np.abs(m.value[rows & (keys[:, 0] == t) & (keys[:, 1] == p)]
@@ -217,8 +225,7 @@ def _record(m, cands, fits, per, chan_ids, incs, rows_fit, expr, loss, cv, mcmc,
                 "parameters": {k: p["value"] for k, p in fit["parameters"].items()},
                 "stderr": {k: p.get("stderr") for k, p in fit["parameters"].items()
                            if not p["fixed"]},
-                "in_sample": {"rms_relative_error": in_sample[cand.label],
-                              "per_incidence": [_rms(x) for x in e["in_sample"]]},
+                "in_sample": _in_sample(e["in_sample"], incs[c]),
                 "fit_warnings": list(fit.get("warnings") or []),
                 "statuses": [str(st) for st in channel_statuses(fit)],
             })

@@ -207,9 +207,11 @@ class CompareResult:
     def incidences_csv(self) -> str:
         return _csv(INCIDENCE_COLUMNS, self.incidence_table())
 
-    def summary(self) -> str:
-        """What ``fitlab compare`` prints: per channel the ranking table and the verdict, then
-        the warnings and the statuses that undermine the ranking (:attr:`ok`)."""
+    def summary(self, verbose: bool = True) -> str:
+        """What ``fitlab compare -v`` prints: per channel the ranking table and the verdicts,
+        then the warnings and the statuses that undermine the ranking (:attr:`ok`). Without
+        ``verbose`` (``fitlab compare``): each channel's first verdict (CV, else PSIS-LOO, else
+        WAIC) and one line that counts the warnings and names the statuses."""
         lines = []
         for ch in self.record["channels"]:
             noise = ch["noise_scale"]["relative"]
@@ -243,17 +245,23 @@ class CompareResult:
                     line += (f" {lo['rank']:>8} {lo['elpd']:>10.1f} ± {lo['se']:<5.1f} {d:>16} "
                              f"{pk['bad'] + pk['very_bad']:>6}")
                 lines.append(line)
-            for key in ("cv", "loo", "waic"):
-                if key in ch["verdict"]:
-                    lines.append("  " + ch["verdict"][key]["text"])
+            verdicts = [ch["verdict"][key]["text"] for key in ("cv", "loo", "waic")
+                        if key in ch["verdict"]]
+            lines += ["  " + text for text in (verdicts if verbose else verdicts[:1])]
             if ch["verdict"].get("agree") is False:
                 lines.append("  CV and PSIS-LOO pick different winners (see compare.md, "
                              "'When the measures disagree').")
-        for w in self.record["warnings"]:
-            lines.append(f"warning: {w}")
-        if all("statuses" in mod for ch in self.record["channels"] for mod in ch["models"]):
-            lines += [f"status: {where}: {s.value}: {s.advice}"
-                      for where, s in self._untrusted()]
+        untrusted = (self._untrusted() if all("statuses" in mod for ch in self.record["channels"]
+                                              for mod in ch["models"]) else [])
+        if verbose:
+            lines += [f"warning: {w}" for w in self.record["warnings"]]
+            lines += [f"status: {where}: {s.value}: {s.advice}" for where, s in untrusted]
+        elif self.record["warnings"] or untrusted:
+            n = len(self.record["warnings"])
+            names = sorted({s.value for _, s in untrusted})
+            lines.append(f"{n} warning{'' if n == 1 else 's'}"
+                         + (f", statuses {', '.join(names)}" if names else "")
+                         + " (-v prints them; compare.json keeps them)")
         return "\n".join(lines) + "\n"
 
     # ---- files ------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 // The Khronos glTF validator (npm gltf-validator) on one file: prints its JSON report.
-// Usage: node tests/browser/validate_gltf.mjs FILE.gltf
+// Usage: node validate_gltf.mjs FILE.gltf, from a folder where the package gltf-validator
+// resolves (fitlab.export.threejs.validate copies it beside a link to node_modules)
 import { readFileSync } from 'node:fs';
 import validator from 'gltf-validator';
 

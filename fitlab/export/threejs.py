@@ -1,0 +1,189 @@
+"""A glTF file in a real glTF renderer: three.js renders its first material in headless
+Chromium on a virtual goniometer, and the Khronos glTF validator (Node.js) checks the file
+(``fitlab export X.gltf --check``; the tests in tests/export/test_gltf_browser.py).
+
+The goniometer page (``web/gltf_goniometer.html``, tests/browser/README.md): for each direction
+pair (wi, wo) a flat patch (normal +z, tangent +x: fitlab's local frame) with the file's
+material under one directional light of irradiance 1 from wi, seen by an orthographic camera
+from wo, rendered into a float target with no tone mapping; each pixel is f(wi, wo)·cos θi as
+three.js computes it. The page loads three.js from a ``node_modules`` folder (never a CDN) and is
+served from localhost (ES modules do not load from ``file://``).
+
+What it needs, found here (:func:`missing`): the npm package ``three`` (and ``gltf-validator``
+for the validator) in a ``node_modules`` folder (``$FITLAB_NODE_MODULES``, else ``./node_modules``,
+else the one beside a fitlab checkout: ``npm ci`` there installs the versions package.json pins),
+Chromium (``$FITLAB_CHROMIUM``, else ``chromium``, ``chromium-browser``, ``google-chrome`` on the
+PATH) and, for the validator, ``node``.
+"""
+
+from __future__ import annotations
+
+import functools
+import html
+import http.server
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from fitlab.errors import FitlabError
+
+WEB = Path(__file__).resolve().parent / "web"
+PAGE = WEB / "gltf_goniometer.html"
+VALIDATOR_SCRIPT = WEB / "validate_gltf.mjs"
+#: Environment variables naming the node_modules folder and the browser.
+NODE_MODULES_ENV = "FITLAB_NODE_MODULES"
+CHROMIUM_ENV = "FITLAB_CHROMIUM"
+BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+#: What a user installs for the three.js check (printed when it cannot run).
+INSTALL = ("Chromium (apt-get install chromium) and the npm package three in a node_modules "
+           "folder (npm ci in a fitlab checkout, or npm install three gltf-validator in the "
+           f"working folder; ${NODE_MODULES_ENV} may name the folder; needs Node.js: apt-get "
+           "install nodejs npm)")
+
+
+class RenderError(FitlabError):
+    """three.js (or the browser, or the validator) did not give an answer."""
+
+
+def node_modules() -> Path | None:
+    """The node_modules folder to load three.js from (see the module's doc), or None."""
+    env = os.environ.get(NODE_MODULES_ENV, "").strip()
+    candidates = [Path(env)] if env else [
+        Path.cwd() / "node_modules", Path(__file__).resolve().parents[2] / "node_modules"]
+    for c in candidates:
+        if (c / "three" / "build" / "three.module.js").is_file():
+            return c
+    return None
+
+
+def browser() -> str | None:
+    """The Chromium executable, or None."""
+    env = os.environ.get(CHROMIUM_ENV, "").strip()
+    if env:
+        return shutil.which(env) or (env if os.access(env, os.X_OK) else None)
+    for name in BROWSERS:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _version(mods: Path, package: str) -> str | None:
+    try:
+        return json.loads((mods / package / "package.json").read_text())["version"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def missing() -> str | None:
+    """Why three.js cannot render here (None: it can)."""
+    lacks = []
+    if node_modules() is None:
+        where = os.environ.get(NODE_MODULES_ENV) or "./node_modules or a fitlab checkout's"
+        lacks.append(f"the npm package three (not in {where})")
+    if browser() is None:
+        lacks.append("Chromium")
+    return " and ".join(lacks) + " not found" if lacks else None
+
+
+def validator_missing() -> str | None:
+    """Why the Khronos validator cannot run here (None: it can)."""
+    mods = node_modules()
+    if not shutil.which("node"):
+        return "Node.js is not installed"
+    if mods is None or _version(mods, "gltf-validator") is None:
+        return "the npm package gltf-validator is not installed"
+    return None
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+def render_goniometer(gltf_path, wi, wo, *, size: int = 8, timeout: float = 180.0
+                      ) -> tuple[np.ndarray, dict]:
+    """three.js's pixel values (N, 3) for each pair (wi[k], wo[k]): f(wi, wo)·cos θi of the
+    file's first material (linear, no tone mapping), and the page's report (``three``: its
+    revision, ``material``: the three.js material type)."""
+    mods, chrome = node_modules(), browser()
+    if mods is None or chrome is None:
+        raise RenderError(f"three.js cannot render here: {missing()}; install {INSTALL}")
+    pairs = np.concatenate([np.atleast_2d(wi), np.atleast_2d(wo)], axis=1)
+    with tempfile.TemporaryDirectory(prefix="fitlab-gltf-page-") as tmp:
+        tmp = Path(tmp)
+        (tmp / "node_modules").symlink_to(mods.resolve())
+        shutil.copy(PAGE, tmp / "index.html")
+        shutil.copy(gltf_path, tmp / "material.gltf")
+        (tmp / "config.json").write_text(json.dumps(
+            {"gltf": "material.gltf", "pairs": pairs.tolist(), "size": int(size)}))
+        handler = functools.partial(_Quiet, directory=str(tmp))
+        server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        thread = threading.Thread(target=server.serve_forever, daemon=True)
+        thread.start()
+        try:
+            url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+            cmd = [chrome, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                   "--no-first-run", "--disable-background-networking",
+                   "--disable-component-update", "--disable-sync",
+                   "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                   f"--user-data-dir={tmp / 'profile'}", "--virtual-time-budget=60000",
+                   "--dump-dom", url]
+            try:
+                out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                                     env={**os.environ, "HOME": str(tmp)})
+            except subprocess.TimeoutExpired:
+                raise RenderError(f"{chrome} did not finish the three.js render in "
+                                  f"{timeout:g} s") from None
+        finally:
+            server.shutdown()
+            server.server_close()
+    text = out.stdout
+    start = text.find('<pre id="result">')
+    if start < 0:
+        raise RenderError(f"three.js gave no result ({chrome} said: "
+                          f"{out.stderr.strip()[-600:]})")
+    body = text[start + len('<pre id="result">'):text.index("</pre>", start)]
+    try:
+        report = json.loads(html.unescape(body))
+    except ValueError:
+        raise RenderError(f"three.js gave no result (the page says {body[:200]!r})") from None
+    if not report.get("ok"):
+        raise RenderError(f"three.js could not render the file: {report.get('error')}")
+    values = np.asarray(report["values"], dtype=float)
+    if values.shape != (pairs.shape[0], 3):
+        raise RenderError(f"three.js returned {values.shape} values for {pairs.shape[0]} pairs")
+    return values, report
+
+
+def validate(path, *, timeout: float = 120.0) -> dict:
+    """The Khronos glTF validator's issues report of ``path`` (``numErrors``,
+    ``numWarnings``, ``numInfos``, ``numHints``, ``messages``) and ``validator``: its version."""
+    why = validator_missing()
+    if why:
+        raise RenderError(f"the glTF validator cannot run: {why}")
+    mods = node_modules()
+    with tempfile.TemporaryDirectory(prefix="fitlab-gltf-validator-") as tmp:
+        tmp = Path(tmp)
+        (tmp / "node_modules").symlink_to(mods.resolve())
+        shutil.copy(VALIDATOR_SCRIPT, tmp / "validate.mjs")
+        try:
+            out = subprocess.run(["node", str(tmp / "validate.mjs"), str(Path(path).resolve())],
+                                 cwd=tmp, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise RenderError(f"the glTF validator did not finish in {timeout:g} s") from None
+    if out.returncode != 0:
+        raise RenderError(f"the glTF validator failed: {out.stderr.strip()[-600:]}")
+    report = json.loads(out.stdout)
+    report["validator"] = _version(mods, "gltf-validator")
+    return report
+
+
+__all__ = ["INSTALL", "RenderError", "browser", "missing", "node_modules", "render_goniometer",
+           "validate", "validator_missing"]
