@@ -23,7 +23,7 @@ import types as _types
 from fitlab import _jax  # noqa: F401  (JAX_ENABLE_X64 before anything imports JAX)
 from fitlab.version import __version__
 
-#: Public name -> the module that defines it.
+#: Public name -> the module that defines it (``__all__``, in its order).
 _SOURCES = {
     "read": "fitlab.fitting.api", "fit": "fitlab.fitting.api",
     "FitRequest": "fitlab.fitting.request",
@@ -38,10 +38,7 @@ _SOURCES = {
     "write_report": "fitlab.report.api",  # matplotlib: only when a report is written
 }
 
-__all__ = ["__version__", "read", "fit", "FitRequest", "load_fit", "FitResult", "compare", "CompareResult",
-           "Candidate", "export_material", "fit_many", "ManyResult", "eval_bsdf", "sample_bsdf",
-           "pdf_bsdf", "MODELS", "get_model", "register_model", "tradeoffs", "Tradeoffs",
-           "write_report"]
+__all__ = ["__version__", *_SOURCES]
 
 
 def __getattr__(name):

@@ -29,7 +29,7 @@ ANGLES = ("degrees", "radians")
 # ---- the stated rules (data_formats/measurement_csv.md, "Sanity gates") --------------------
 
 #: radians: at least this many rows, every θ and φ within [0, π] and [-2π, 2π], some θ > 0 and
-#: some angle not a whole number of degrees.
+#: some θ not a whole number of degrees.
 RADIANS_MIN_ROWS = 5
 #: quantity: a group (channel, incidence, side) counts with at least this many rows, all
 #: values > 0, whose |cos θo| spans at least this factor (largest / smallest).

@@ -51,7 +51,8 @@ def _constructors() -> dict[str, Callable]:
 
 
 def _load() -> None:
-    """Build MODELS and CONSTRUCTORS (once), then the listed layered examples."""
+    """Build MODELS (``Registry[Model]``: every registry model by name, the listed layered
+    examples included) and CONSTRUCTORS (``Registry[Callable]``), once."""
     global MODELS, CONSTRUCTORS
     with _LOCK:
         if "MODELS" in globals():
@@ -66,6 +67,7 @@ def __getattr__(name):
         _load()
         return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: Representative layered models, listed by ``fitlab models`` (any inner or base works by name).
 LAYERED_EXAMPLES = ("coated(lambertian)", "coated(rough_conductor)", "weidlich_wilkie(lambertian)",
