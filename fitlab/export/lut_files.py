@@ -190,10 +190,16 @@ def missed_target_text(auto: dict) -> str:
     if len(last) == 2:
         last.append(lut.PHI_D_SIZE)
     more = "x".join(str(min(2 * n, lut.SIZE_MAX)) for n in last)
+    c = auto["candidates"]
+    hint = ""
+    if len(c) == 2 and c[1]["rms_rel"] > 0.5 * c[0]["rms_rel"]:
+        hint = ("; the phi_d axis hardly lowers the error, so it lies within the cells (a sharp "
+                "lobe, or f growing toward the horizon, which no size tabulates: "
+                "data_formats/lut_exr.md)")
     return (f"no table meets the target (lookup vs the model at random direction pairs: RMS "
-            f"relative <= {t['rms_rel']:g} and max <= {t['max_rel']:g}); measured {tried}; "
-            f"nothing written. Try more samples (e.g. --size {more}), or write a table that "
-            "misses the target knowingly: --phi-d axis (with phi_d) or --phi-d slice (2D, "
+            f"relative <= {t['rms_rel']:g} and max <= {t['max_rel']:g}); measured {tried}"
+            f"{hint}; nothing written. Try more samples (e.g. --size {more}), or write a table "
+            "that misses the target knowingly: --phi-d axis (with phi_d) or --phi-d slice (2D, "
             "phi_d = 90 deg)")
 
 

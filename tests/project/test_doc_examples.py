@@ -105,6 +105,11 @@ NOT_RUN = {
         "tests/models/test_spongecake_learned.py trains on a few",
     "learn-lobe --layers 2 --jobs 2 --dir lobe_data_2 --out spongecake_ms_2layer.npz":
         "hours, as above",
+    "export fits/brown_vinyl_lambert_ggx_conductor.json --out out/vinyl.gltf --check":
+        "tests/export/test_gltf_browser.py::test_fitted_export_renders_as_fitlab_predicts runs "
+        "`export --check` on this fit (50 s: three.js in Chromium)",
+    "lut dfg --size 64 --out dfg.exr":
+        "19-35 s of quadrature; tests/lut/test_lut.py::test_dfg_reproduces_schlick_conductor_albedo",
     "lut albedo_conductor --dtype float --out E_ggx.exr":
         "28 s of quadrature at 2 cores; tests/lut/test_lut.py bakes the albedo kinds small",
     "lut albedo_dielectric --size 32x32x16 --out E_glass.exr":
