@@ -99,20 +99,68 @@ def fresnel_schlick(cos_i, f0):
     return f0 + (1.0 - f0) * q**5
 
 
+#: Hoffman 2019's angle for the Lazányi–Szirmay-Kalos correction: μ̄ = cos θ = 1/7 (θ ≈ 81.8°),
+#: where its shape μ(1 - μ)^6 peaks (OpenPBR's "F82").
+LAZANYI_MU = 1.0 / 7.0
+
+
 def fresnel_conductor_LazanyiSzirmayKalos(cos_i, n, k):
-    """Lazányi–Szirmay-Kalos approximation for metals, as given in Elek 2010 appendix B:
-    F = ((n-1)² + 4 n (1-cos)^5 + k²) / ((n+1)² + k²). Exact at normal and grazing incidence.
-    Elek quotes a deviation of "5% at most"; for this form that holds up to about 55° for the
-    appendix metals, but near 80° it overestimates by up to 6% (copper) and 41% (chromium)
-    (measured in tests/models/test_reference_values.py)."""
+    """Lazányi & Szirmay-Kalos 2005 ("Fresnel term approximations for metals", WSCG short
+    papers): Schlick with F0 from (n, k), minus their correction term for metals,
+    F = F_Schlick(μ) - a μ (1 - μ)^α, with α = 6 and a fitted per material. fitlab fits a as
+    Hoffman 2019 ("Fresnel equations considered harmful"; OpenPBR's F82 model, notation of
+    Kutz 2021) does: the approximation equals the exact reflectance at μ̄ = 1/7 (θ ≈ 81.8°, the
+    peak of μ(1 - μ)^6, near where a metal's reflectance dips below Schlick's),
+    a = (F_Schlick(μ̄) - F_exact(μ̄; n, k)) / (μ̄ (1 - μ̄)^6). Exact at normal and grazing
+    incidence (the term vanishes there) and at μ̄; clipped to [0, 1] (a < 0 when the exact
+    reflectance at μ̄ lies above Schlick's, e.g. n < 1 with small k).
+
+    Elek 2010 appendix B prints the form without the correction term,
+    ((n-1)² + 4 n (1-μ)^5 + k²)/((n+1)² + k²), which is Schlick's with F0 from (n, k) to
+    rounding: that is fitlab's ``schlick``. A renderer computes a once per material; this
+    function derives it at every call (one exact Fresnel at μ̄), so its cost here is not the
+    shader's."""
     q = 1.0 - jnp.clip(jnp.abs(cos_i), 0.0, 1.0)
-    return ((n - 1.0) ** 2 + 4.0 * n * q**5 + k * k) / ((n + 1.0) ** 2 + k * k)
+    f0 = schlick_f0(n, k)
+    mu = LAZANYI_MU
+    w_bar = mu * (1.0 - mu) ** 6
+    a = (fresnel_schlick(mu, f0) - fresnel_conductor_exact(mu, n, k)) / w_bar
+    return jnp.clip(fresnel_schlick(cos_i, f0) - a * (1.0 - q) * q**6, 0.0, 1.0)
 
 
 def schlick_f0(n, k=0.0):
     """Normal-incidence reflectance ((n-1)² + k²) / ((n+1)² + k²) used to drive Schlick."""
     return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
 
+
+def fresnel_dielectric_Schlick(cos_i, eta):
+    """Schlick's approximation [Sch94] of the dielectric reflectance, F0 = ((η-1)/(η+1))², for
+    incidence from the side of ``cos_i``'s normal (``eta`` = η_t/η_i, the signature of
+    :func:`fresnel_dielectric_Walter2007`).
+
+    Schlick's polynomial is written for light arriving from the less dense medium. For light
+    from the denser side (η_t/η_i < 1) it takes the cosine of the transmitted direction,
+    |cos θt| = sqrt(1 - (1 - cos²θi)/η²) (Snell's law), the standard fix: the reflectance is then
+    a function of the angle in the less dense medium, the same for a crossing and its reverse
+    (so the BTDF keeps Walter eq. 21's generalized reciprocity), and 1 under total internal
+    reflection (g² = η² - 1 + cos²θi ≤ 0, as in Walter eq. 22). Without it Schlick is wrong
+    beyond the critical angle (below 1 where the exact F is 1). Gradients are finite
+    (double-where); NaN inputs give NaN."""
+    c = jnp.abs(cos_i)
+    f0 = ((eta - 1.0) / (eta + 1.0)) ** 2
+    g2 = eta**2 - 1.0 + c**2  # Walter eq. 22's g²: (η_t/η_i cos θt)²
+    ok = g2 > 0
+    cos_t = jnp.where(ok, jnp.sqrt(jnp.where(ok, g2, 1.0)), 0.0) * safe_div(1.0, eta)
+    c_less_dense = jnp.where(eta >= 1.0, c, jnp.minimum(cos_t, 1.0))
+    # total internal reflection: g² ≤ 0 (only for η < 1; at η = 1, c = 0 Schlick gives 1 too)
+    return jnp.where(g2 <= 0, 1.0, fresnel_schlick(c_less_dense, f0))
+
+
+#: Fresnel variants a dielectric model can use, by name; each takes (cos_i, eta = η_t/η_i).
+DIELECTRIC_FRESNEL_METHODS = {
+    "exact": fresnel_dielectric_Walter2007,
+    "schlick": fresnel_dielectric_Schlick,
+}
 
 #: Fresnel variants a conductor model can use, by name. Each takes (cos_i, n, k).
 CONDUCTOR_FRESNEL_METHODS = {

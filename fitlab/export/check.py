@@ -67,9 +67,9 @@ def mitsuba_missing() -> str | None:
     from fitlab.simulate.engine import select_libllvm
 
     select_libllvm()  # a libLLVM Dr.Jit can use, chosen before mitsuba is imported
-    try:
-        import mitsuba  # noqa: F401
-    except ImportError:
+    import importlib.util
+
+    if importlib.util.find_spec("mitsuba") is None:
         return "Mitsuba 3 is not installed"
     return None
 

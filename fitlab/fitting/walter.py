@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from fitlab._jax import jnp
-from fitlab.fresnel import fresnel_dielectric_Walter2007
+from fitlab.fresnel import DIELECTRIC_FRESNEL_METHODS
 from fitlab.frame import dot, flip_z, half_vector_transmission, normalize
 from fitlab.io.fitfile import fit_parameters
 
@@ -19,10 +19,11 @@ COS_MIN = 0.5
 LOW_VALUE = 0.01
 
 
-def empirical_D(wi, wo, value, eta, scale=1.0):
+def empirical_D(wi, wo, value, eta, scale=1.0, fresnel="exact"):
     """(θm in degrees, D_empirical, mask) for a rough dielectric with relative index ``eta``.
 
-    ``value`` is the measured f (or f times ``scale`` for relative data)."""
+    ``value`` is the measured f (or f times ``scale`` for relative data); ``fresnel`` names the
+    fitted model's F in ``DIELECTRIC_FRESNEL_METHODS`` (Walter eq. 22 by default)."""
     wi, wo = jnp.asarray(wi), jnp.asarray(wo)
     s = jnp.where(wi[..., 2] < 0, -1.0, 1.0)
     wi, wo = flip_z(wi, s), flip_z(wo, s)
@@ -31,7 +32,7 @@ def empirical_D(wi, wo, value, eta, scale=1.0):
     h = jnp.where(is_r[..., None], wi + wo, half_vector_transmission(wi, wo, eta))
     hh = normalize(h)
     i_h, o_h = dot(wi, hh), dot(wo, hh)
-    F = fresnel_dielectric_Walter2007(i_h, eta)
+    F = DIELECTRIC_FRESNEL_METHODS[fresnel](i_h, eta)
     ci, co = wi[..., 2], jnp.abs(wo[..., 2])
     # f = K · G · D with G := 1: K from eq. 20 (reflection) or eq. 21 (transmission).
     K_r = F / (4.0 * ci * co)
@@ -67,7 +68,10 @@ def add_empirical_D(record, result, m):
         scale = params.get("scale", 1.0)
         rows = ch["rows"]
         eta = params[model.parameters_with_role("index")[0].name]
-        theta_m, D, ok, hh = empirical_D(m.wi[rows], m.wo[rows], m.value[rows], eta, scale)
+        fresnel = result["options"].get("fresnel", "exact")
+        theta_m, D, ok, hh = empirical_D(
+            m.wi[rows], m.wo[rows], m.value[rows], eta, scale,
+            fresnel if fresnel in DIELECTRIC_FRESNEL_METHODS else "exact")
         dist = model.microfacet(params, **result["options"])
         D_fit = np.asarray(dist.D(jnp.asarray(hh)))
         log_ratio = np.log(D[ok] / D_fit[ok]) if ok.any() else np.array([])

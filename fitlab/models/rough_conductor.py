@@ -21,7 +21,9 @@ INDEX = (
 )
 
 FRESNEL = Option("fresnel", tuple(CONDUCTOR_FRESNEL_METHODS), "exact",
-                 "conductor Fresnel: exact, schlick (F0 from n, k) or lazanyi (Elek appendix B)")
+                 "conductor Fresnel: exact, schlick (F0 from n, k) or lazanyi (Lazányi–"
+                 "Szirmay-Kalos 2005: Schlick minus a·μ(1-μ)^6, a fitted to the exact F at "
+                 "μ = 1/7 as Hoffman 2019's F82)")
 
 
 def make(anisotropic: bool) -> Model:
@@ -86,7 +88,7 @@ def make(anisotropic: bool) -> Model:
         sample=sample,
         pdf=pdf,
         reference="Walter et al. 2007 eqs 13-14, 20, 23-36, 37-41; exact conductor Fresnel "
-        "(unpolarized), Schlick, or Lazányi–Szirmay-Kalos as in Elek 2010 appendix B"
+        "(unpolarized), Schlick, or Lazányi–Szirmay-Kalos 2005 with Hoffman 2019's fit of a"
         + ("; anisotropic D and G1 by slope stretching (Heitz 2014 eqs 80-86)" if anisotropic
            else ""),
         capabilities=Capabilities(isotropic=not anisotropic),

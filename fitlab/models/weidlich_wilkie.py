@@ -57,8 +57,9 @@ OPTIONS = (
     Option("distribution", microfacet.names(), "ggx",
            "microfacet distribution of every interface and of a rough-conductor base"),
     Option("fresnel", tuple(CONDUCTOR_FRESNEL_METHODS), "exact",
-           "Fresnel of the interfaces (complex index): exact, schlick, or lazanyi (Elek "
-           "appendix B, the paper's shader)"),
+           "Fresnel of the interfaces (complex index): exact, schlick (F0 from n, k; also "
+           "Elek appendix B's shader formula) or lazanyi (Lazányi–Szirmay-Kalos 2005: "
+           "Schlick minus a·μ(1-μ)^6, a fitted to the exact F at μ = 1/7, Hoffman 2019)"),
     Option("radiance_scaling", ("eta2", "none"), "eta2",
            "eta2: lower-layer term times (n_{i-1}/n_i)^2 per interface (solid-angle compression, "
            "energy conserving); none: eq. 2 as printed (up to eta^2 too bright)"),

@@ -234,6 +234,8 @@ def test_scene_xml_loads_and_renders_like_the_dict(fm):
      {"distribution": "beckmann"}, "distribution=beckmann"),
     ("rough_conductor", {"Y": {"alpha": 0.2, "n": 0.2, "k": 3.9}}, {"fresnel": "schlick"},
      "fresnel=schlick"),
+    ("rough_dielectric", {"Y": {"alpha": 0.2, "eta": 1.5}}, {"fresnel": "schlick"},
+     "fresnel=schlick"),
     ("rough_conductor", {c: {"alpha": a, "n": 0.2, "k": 3.9} for c, a in
                          zip("RGB", (0.1, 0.2, 0.3))}, {}, "--share alpha"),
     ("coated(lambertian)", {"Y": {"albedo": 0.5, "coat_eta": 1.5, "coat_tau": 0.0}}, {},

@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from fitlab.frame import refract
-from fitlab.fresnel import cos_theta_critical, fresnel_dielectric, fresnel_dielectric_Walter2007
+from fitlab.fresnel import (cos_theta_critical, fresnel_dielectric, fresnel_dielectric_Schlick,
+                            fresnel_dielectric_Walter2007)
 from fitlab.interface import refract_down, refract_up
 
 #: η_t/η_i on both sides of 1, near 1 included.
@@ -325,3 +326,140 @@ def test_conductor_below_the_critical_angle_of_n_below_one():
             ok = np.isfinite(want)  # the amplitudes are 0/0 at grazing incidence for η = 1
             np.testing.assert_allclose(got[ok], want[ok], rtol=1e-9, atol=1e-12,
                                        err_msg=f"n={nn}, k={k}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Schlick for dielectrics (fitlab.fresnel.fresnel_dielectric_Schlick, rough_dielectric's
+# ``fresnel=schlick``) and Lazányi–Szirmay-Kalos for metals
+# ----------------------------------------------------------------------------------------------
+
+_schlick_d = jax.jit(fresnel_dielectric_Schlick)
+
+
+def _naive_schlick(c, eta):
+    """Schlick's polynomial of the incident cosine whatever the side: wrong from the denser
+    side beyond the critical angle."""
+    f0 = ((eta - 1) / (eta + 1)) ** 2
+    return f0 + (1 - f0) * (1 - np.abs(c)) ** 5
+
+
+def test_schlick_dielectric_equals_exact_at_normal_incidence_and_grazing():
+    """F(1) = ((η-1)/(η+1))² for either side (η and 1/η), like Walter eq. 22; F(0) = 1 from the
+    less dense side. From the less dense side it is Schlick's polynomial of cos θi."""
+    for eta in ETAS:
+        assert float(_schlick_d(1.0, eta)) == pytest.approx(float(_fd(1.0, eta)[0]), rel=1e-12)
+        if eta >= 1:
+            assert float(_schlick_d(0.0, eta)) == 1.0
+            np.testing.assert_allclose(np.asarray(_schlick_d(COS, eta)), _naive_schlick(COS, eta),
+                                       rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("eta", [1 / 1.5, 1 / 1.33, 0.2])
+def test_schlick_dielectric_total_internal_reflection_and_the_reverse_crossing(eta):
+    """From the denser side (η_t/η_i < 1) Schlick takes the transmitted cosine: F = 1 beyond the
+    critical angle (where the incident cosine's polynomial is far below 1), continuous at it, and
+    on a refracted pair the reflectance equals that of the reverse crossing (Snell's law)."""
+    c_crit = float(np.sqrt(1 - eta**2))
+    beyond = np.linspace(0.0, c_crit * (1 - 1e-9), 50)
+    np.testing.assert_array_equal(np.asarray(_schlick_d(beyond, eta)), 1.0)
+    assert np.all(_naive_schlick(beyond[1:], eta) < 0.95)  # what the fix avoids
+    assert float(_schlick_d(c_crit * (1 + 1e-9), eta)) > 1 - 1e-3
+    c_in = np.linspace(c_crit * 1.001, 1.0, 40)  # denser side, η_t/η_i = eta
+    c_out = np.sqrt(1 - (1 - c_in**2) / eta**2)  # the same crossing seen from the other side
+    np.testing.assert_allclose(np.asarray(_schlick_d(c_in, eta)),
+                               np.asarray(_schlick_d(c_out, 1 / eta)), rtol=1e-11)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_schlick_dielectric_gradients_finite_and_dtype_kept(dtype):
+    pts = [(1.0, 1.5), (0.0, 1.5), (0.0, 1.0), (1.0, 1.0), (0.0, 1 / 1.5),
+           (float(np.sqrt(1 - 1 / 1.5**2)), 1 / 1.5), (0.5, 0.2), (1e-8, 1.0001)]
+    c = jnp.asarray([p[0] for p in pts], dtype)
+    e = jnp.asarray([p[1] for p in pts], dtype)
+    assert _schlick_d(c, e).dtype == dtype
+    g = jax.jit(jax.vmap(jax.grad(fresnel_dielectric_Schlick, argnums=(0, 1))))(c, e)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in g)
+    assert np.isnan(float(_schlick_d(jnp.asarray(np.nan, dtype), jnp.asarray(1.5, dtype))))
+
+
+def _rough_dielectric_schlick_checks(params, wi, wo, u):
+    """One compiled call: f(i,o) and f(o,i) with fresnel=schlick (and exact), the sampler's
+    weights and chosen sides with schlick."""
+    from fitlab.models import get_model
+
+    m = get_model("rough_dielectric")
+    f_io = m.eval(params, wi, wo, fresnel="schlick")
+    f_oi = m.eval(params, wo, wi, fresnel="schlick")
+    f_exact = m.eval(params, wi, wo)
+    wo_s, weight, _ = m.sample(params, wi, u, fresnel="schlick")
+    return f_io, f_oi, f_exact, wo_s, weight
+
+
+def test_rough_dielectric_schlick_reciprocity_r_plus_t_and_furnace():
+    """rough_dielectric with fresnel=schlick (η = 1.5, both sides of the interface):
+    normal-incidence reflection equals the exact model's; f(i,o) = f(o,i) in reflection and
+    f(i,o)/η_o² = f(o,i)/η_i² in transmission (Walter eq. 21); with α = 1e-3 (G ≈ 1) the sampled
+    reflected share is F_Schlick(θi) and reflected + transmitted = 1 (F and 1 - F per
+    microfacet); with α = 0.5 the albedo (mean weight) is at most 1."""
+    rng = np.random.default_rng(5)
+    n_pairs, n_u = 1000, 4096
+    thetas = np.radians([0.0, 45.0, 80.0, 180.0, 135.0, 120.0])  # from inside too
+    def dirs(n):  # random directions on the sphere: either side for wi and wo
+        v = rng.normal(size=(n, 3))
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+    wi_r = np.concatenate([dirs(n_pairs), [[0.0, 0.0, 1.0]]])
+    wo_r = np.concatenate([dirs(n_pairs), [[0.0, 0.0, 1.0]]])
+    wi_s = np.repeat([[np.sin(t), 0.0, np.cos(t)] for t in thetas], n_u, axis=0)
+    wi_s = np.concatenate([wi_s, wi_s])
+    alpha = np.concatenate([np.full(len(thetas) * n_u, 1e-3), np.full(len(thetas) * n_u, 0.5)])
+    n = len(wi_s)
+    pad = n - len(wi_r)
+    wi = np.concatenate([wi_r, np.repeat(wi_r[:1], pad, 0)])
+    wo = np.concatenate([wo_r, np.repeat(wo_r[:1], pad, 0)])
+    checks = jax.jit(_rough_dielectric_schlick_checks)  # one compilation: both calls pad to n rows
+    f_io, f_oi, f_exact, _, _ = map(np.asarray, checks(
+        {"alpha": np.full(n, 0.3), "eta": np.full(n, 1.5)}, wi, wo, rng.random((n, 3))))
+    _, _, _, wo_s, weight = map(np.asarray, checks(
+        {"alpha": alpha, "eta": np.full(n, 1.5)}, wi_s, wi_s, rng.random((n, 3))))
+    k = len(wi_r)
+    f_io, f_oi, f_exact, wi, wo = f_io[:k], f_oi[:k], f_exact[:k], wi[:k], wo[:k]
+    assert f_io[-1] == pytest.approx(f_exact[-1], rel=1e-12) and f_io[-1] > 0  # normal incidence
+    refl = wi[:, 2] * wo[:, 2] > 0
+    np.testing.assert_allclose(f_io[refl], f_oi[refl], rtol=1e-9, atol=1e-300)
+    eta_o = np.where(wo[:, 2] < 0, 1.5, 1.0)  # index on wo's side (outside 1, inside 1.5)
+    eta_i = np.where(wi[:, 2] < 0, 1.5, 1.0)
+    t = ~refl
+    np.testing.assert_allclose(f_io[t] / eta_o[t] ** 2, f_oi[t] / eta_i[t] ** 2, rtol=1e-9,
+                               atol=1e-300)
+    assert np.count_nonzero(f_io[t]) > 50 and np.count_nonzero(f_io[refl]) > 50
+    w = weight.reshape(2, len(thetas), n_u)
+    up = (wo_s[:, 2] * wi_s[:, 2] > 0).reshape(2, len(thetas), n_u)
+    cos_i = np.abs(np.cos(thetas))
+    F = np.asarray(_schlick_d(cos_i, np.where(np.cos(thetas) > 0, 1.5, 1 / 1.5)))
+    sigma = np.sqrt(F * (1 - F) / n_u)
+    assert np.all(np.abs(up[0].mean(axis=1) - F) <= 4 * sigma + 1e-3), (up[0].mean(axis=1), F)
+    np.testing.assert_allclose(w[0].mean(axis=1), 1.0, atol=2e-3)  # R + T = 1 (smooth limit)
+    mean, err = w[1].mean(axis=1), w[1].std(axis=1) / np.sqrt(n_u)
+    assert np.all(mean <= 1 + 4 * err + 1e-3), mean
+
+
+#: (n, k) near 550 nm: copper from Elek 2010 appendix A (CONDUCTOR_PRESETS, green); gold and
+#: aluminium from the usual tables (Johnson & Christy 1972; Rakić 1995), rounded.
+METALS_550NM = {"copper": (1.04, 2.59), "gold": (0.43, 2.46), "aluminium": (0.96, 6.69)}
+
+
+@pytest.mark.parametrize("metal", list(METALS_550NM))
+def test_lazanyi_is_not_schlick_and_is_closer_to_exact_near_grazing(metal):
+    """Lazányi–Szirmay-Kalos with its metal term (a from Hoffman's 82°) differs from Schlick and
+    follows the exact reflectance more closely between 60° and 89° (measured max |ΔF| there:
+    copper 0.041 → 0.0057, gold 0.0098 → 0.0062, aluminium 0.092 → 0.0076)."""
+    from fitlab.fresnel import CONDUCTOR_FRESNEL_METHODS
+
+    n, k = METALS_550NM[metal]
+    c = np.cos(np.radians(np.linspace(60.0, 89.0, 291)))
+    exact = _conductor_reference(c, n, k)
+    sch = np.asarray(jax.jit(CONDUCTOR_FRESNEL_METHODS["schlick"])(c, n, k))
+    laz = np.asarray(jax.jit(CONDUCTOR_FRESNEL_METHODS["lazanyi"])(c, n, k))
+    assert np.max(np.abs(laz - sch)) > 5e-3
+    assert np.max(np.abs(laz - exact)) < 0.7 * np.max(np.abs(sch - exact))
+    assert np.max(np.abs(laz - exact)) < 0.008

@@ -43,7 +43,7 @@ ETAS = (1.0001, 1.05, 1.5, 2.4, 1 / 1.0001, 1 / 1.05, 1 / 1.5, 1 / 2.4)
 DISTS = ("ggx", "beckmann", "beckmann_rational", "phong")
 
 #: (model, options, parameter grid). Conductor Fresnel variants are checked with GGX and
-#: Beckmann; the exact one with every distribution.
+#: Beckmann, the dielectric's Schlick with GGX; the exact ones with every distribution.
 CONFIGS = (
     [("rough_dielectric", {"distribution": d}, {"alpha": ALPHAS, "eta": ETAS}) for d in DISTS]
     + [("rough_conductor", {"distribution": d, "fresnel": "exact"},
@@ -51,6 +51,8 @@ CONFIGS = (
     + [("rough_conductor", {"distribution": d, "fresnel": f},
         {"alpha": ALPHAS, "n": (0.01, 1.0, 10.0), "k": (0.0, 20.0)})
        for d in ("ggx", "beckmann") for f in ("schlick", "lazanyi")]
+    + [("rough_dielectric", {"distribution": "ggx", "fresnel": "schlick"},
+        {"alpha": ALPHAS, "eta": ETAS})]
     + [("lambertian", {}, {"albedo": (0.0, 0.5, 1.0)}),
        ("oren_nayar", {}, {"albedo": (0.0, 0.5, 1.0), "sigma": (0.0, 1e-4, 0.3, np.pi / 2)})]
 )

@@ -15,7 +15,9 @@ and fits/README.md is handled by kind, and a block this module cannot classify f
   exit 0, unless NOT_RUN says why not (another test runs it, it needs data or services that are
   not bundled, or it takes minutes). Shell lines that are not fitlab are skipped for the reason
   in SHELL_LINES (``mkdir -p DIR`` is done).
-- Data blocks are read with fitlab's own reader (DATA_BLOCKS); the others say why not.
+- Data blocks are read with fitlab's own reader (DATA_BLOCKS: a scene through load_scene, a
+  sweep through load_sweep and compared with the example file it shows, a CSV through
+  fitlab.read; the values of values_csv.md are recomputed by the model); the others say why not.
 
 After each run the copied inputs are unchanged, the repository's ``git status --porcelain`` is
 unchanged, and for README.md every new file is one the repository ignores (``out/``): nothing a
@@ -54,7 +56,7 @@ CLEAN_CHECKOUT_DOCS = ("README.md",)
 # --------------------------------------------------------------------------------------------
 
 #: Placeholders of command lines (whole tokens) and the bundled files or values that replace
-#: them; a list runs the line once per value.
+#: them (outputs go under the ignored out/); EVERY_COMMAND runs the line once per subcommand.
 PLACEHOLDERS = {
     "FILE": "data_formats/examples/zemax_brown_vinyl.bsdf",
     "IN": "data_formats/examples/zemax_brown_vinyl.bsdf",
@@ -106,8 +108,9 @@ NOT_RUN = {
     "learn-lobe --layers 2 --jobs 2 --dir lobe_data_2 --out spongecake_ms_2layer.npz":
         "hours, as above",
     "export fits/brown_vinyl_lambert_ggx_conductor.json --out out/vinyl.gltf --check":
-        "tests/export/test_gltf_browser.py::test_fitted_export_renders_as_fitlab_predicts runs "
-        "`export --check` on this fit (50 s: three.js in Chromium)",
+        "the glTF conversion fit of this fit takes 30-50 s; tests/export/test_gltf_browser.py::"
+        "test_fitted_export_renders_as_fitlab_predicts runs `export --check` (three.js in "
+        "Chromium) on a fitted conversion of a conductor",
     "lut dfg --size 64 --out dfg.exr":
         "19-35 s of quadrature; tests/lut/test_lut.py::test_dfg_reproduces_schlick_conductor_albedo",
     "lut albedo_conductor --dtype float --out E_ggx.exr":
@@ -287,7 +290,7 @@ def python_source(block: Block) -> str:
 class Unit(NamedTuple):
     doc: str
     line: int
-    kind: str  # python | command | mkdir | copy | data
+    kind: str  # python | command | mkdir | data
     key: str  # the command after `fitlab` (or "python:<first line>", the data handler, ...)
     argvs: tuple  # command: the argument lists to run; python: (Block,); data: (Block,)
     slow: bool
@@ -597,7 +600,7 @@ def _run_data(unit: Unit, folder: Path) -> None:
 
 def _find_unit(doc: str, key: str):
     for u in all_units():
-        if u.doc == doc and (u.key == key or u.key.startswith(key)):
+        if u.doc == doc and u.key == key:
             return u
     return None
 
@@ -693,9 +696,29 @@ def test_example_runs(unit, work):
         written = sorted(f"{name}/{k}" for k in set(inputs[name]) | set(after)
                          if inputs[name].get(k) != after.get(k))
         assert not written, f"{unit.id} wrote into the bundled inputs: {written}"
-    assert git_status() == status, f"{unit.id} changed the checkout (git status)"
+    now = git_status()
+    assert now == status, (  # (in a tree others edit meanwhile, their edits show here too)
+        f"{unit.id} changed the checkout: git status --porcelain gained "
+        f"{sorted(set(now.splitlines()) - set(status.splitlines()))} and lost "
+        f"{sorted(set(status.splitlines()) - set(now.splitlines()))}")
     if unit.doc in CLEAN_CHECKOUT_DOCS:
         new = sorted(set(files(folder)) - before)
         assert not not_ignored(new), (
             f"{unit.id} writes files the repository does not ignore: {not_ignored(new)}; "
             "write under out/")
+
+
+def test_tables_name_what_the_documents_hold():
+    """No stale entries: every NOT_RUN line, NEEDS consumer and DATA_BLOCKS block is in a
+    document (a line that changed is classified again)."""
+    keys = set()
+    for block in all_blocks():
+        if is_command_block(block):
+            keys |= {" ".join(t[len("fitlab "):].split(" #")[0].split())
+                     for _, t in logical_lines(block) if is_fitlab_line(t)}
+    assert not set(NOT_RUN) - keys, f"NOT_RUN names lines no document has: {set(NOT_RUN) - keys}"
+    units = {(u.doc, u.key) for u in all_units()}
+    assert not set(NEEDS) - units, f"NEEDS names no unit: {set(NEEDS) - units}"
+    firsts = {(b.doc, s) for b in all_blocks() for (d, s) in DATA_BLOCKS
+              if b.doc == d and b.first.startswith(s)}
+    assert not set(DATA_BLOCKS) - firsts, f"DATA_BLOCKS: {set(DATA_BLOCKS) - firsts}"
