@@ -240,29 +240,29 @@ def first_scattering(layers, params, wi):
     return first * gamma
 
 
-#: The single-scattering albedo (:func:`single_scattering_albedo`) is a product quadrature over
-#: each layer's phase-function sample: Gauss–Legendre in u0 (the polar part), the trapezoid rule
-#: in the periodic u1 (the azimuth), with these numbers of nodes.
-ALBEDO_NODES = (8, 8)
+#: The single-scattering albedo (:func:`single_scattering_albedo`) is a quadrature over each
+#: layer's phase-function sample at the points of a centred Fibonacci lattice of this size (a
+#: Fibonacci number; ALBEDO_LATTICE_STEP the one before it). Its error, against 200,000-sample
+#: Monte Carlo over the contract's hard cases at θi up to 89.9°: below 0.009 (34 points: 0.025;
+#: 233 points: 0.005; steep near the horizon, the integrand converges slowly).
+ALBEDO_POINTS, ALBEDO_LATTICE_STEP = 89, 55
 
 
-def albedo_nodes(n0=None, n1=None):
-    """(n0·n1, 2) points (u0, u1) in [0, 1)² and their weights (summing to 1)."""
-    n0, n1 = (n0 or ALBEDO_NODES[0]), (n1 or ALBEDO_NODES[1])
-    x, wx = np.polynomial.legendre.leggauss(n0)
-    u0, w0 = np.repeat(0.5 * (x + 1.0), n1), np.repeat(0.5 * wx, n1)
-    u1 = np.tile((np.arange(n1) + 0.5) / n1, n0)
-    return np.stack([u0, u1], axis=-1), w0 / n1
+def albedo_lattice(n=None, step=None):
+    """(n, 2) points (u0, u1) of a centred Fibonacci lattice in [0, 1)²."""
+    n, step = n or ALBEDO_POINTS, step or ALBEDO_LATTICE_STEP
+    j = np.arange(n)
+    return np.stack([(j + 0.5) / n, np.mod(j * step / n + 0.5 / n, 1.0)], axis=-1)
 
 
 def single_scattering_albedo(layers, params, w, same_side_only=False):
     """A(ω) = ∫ f_ss(ω, ωo)|cos θo| dωo of the layers' single scattering, estimated per layer
-    by a quadrature of its phase-function sample's weight at :func:`albedo_nodes`. With the
+    by the mean of its phase-function sample's weight over :func:`albedo_lattice`. With the
     phase density D(h)/(4σ(ω)) (eq. 4) or p_HG, layer k's weight f_k|cos θo|/p is
     F · d_k(ω) · G_k/Tρ_k · attenuation (eq. 10 with G of eq. 12 or 14, §4.3): a smooth
     function bounded by the layer's first-scattering mass γ_k(1 − e^{−d_k}) · attenuation
-    (:func:`first_scattering`), which the quadrature integrates to about 1e-3 (tested in
-    tests/models/test_spongecake.py). ``same_side_only``: only ωo on ω's side (the layers over a
+    (:func:`first_scattering`), which the lattice integrates to within 0.01 (see
+    :data:`ALBEDO_POINTS`). ``same_side_only``: only ωo on ω's side (the layers over a
     substrate scatter light from above upward only). Shape of ``w[..., 0]``."""
     from fitlab._jax import jax
 
@@ -290,9 +290,7 @@ def single_scattering_albedo(layers, params, w, same_side_only=False):
             total = total + weight
         return total
 
-    u, weights = albedo_nodes()
-    return jnp.tensordot(jnp.asarray(weights, w.dtype), jax.vmap(at)(jnp.asarray(u, w.dtype)),
-                         axes=1)
+    return jnp.mean(jax.vmap(at)(jnp.asarray(albedo_lattice(), w.dtype)), axis=0)
 
 
 def delta_transmittance(layers, params, wi):
@@ -604,12 +602,28 @@ def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
         m = stack_mass(p, wi)
         return m if substrate is None else m + delta_transmittance(layers, p, wi)
 
+    above_only = substrate is not None
+    # the base's energy at ω: its single scattering's albedo, the declared delta transmission
+    # and, over a substrate, what reaches the substrate (its albedo ≤ 1 when it conserves energy)
+    seen = above_only or (delta if delta is not None else True)
+
+    def stack_albedo(p, w):
+        return single_scattering_albedo(layers, p, w, same_side_only=above_only)
+
+    def base_energy(p, w):
+        e = stack_albedo(p, w)
+        return e + delta_transmittance(layers, p, w) if seen else e
+
+    caps = base.capabilities
+    if substrate is not None:
+        caps = caps._replace(energy_conserving=substrate.capabilities.energy_conserving)
     name = canonical_name(kinds, substrate.name if substrate is not None else None,
                           None if multiple == "only" else delta, multiple)
     return ms.with_multiple(None if multiple == "only" else base, stack, multiple, name,
-                            transmits=substrate is None, above_only=substrate is not None,
+                            transmits=substrate is None, above_only=above_only,
                             extra=extra, stack_mass=stack_mass, base_mass=base_mass,
-                            capabilities=base.capabilities)
+                            capabilities=caps, stack_albedo=stack_albedo,
+                            base_energy=None if multiple == "only" else base_energy)
 
 
 def simulator_stack(kinds, channel_params) -> list[dict]:

@@ -60,6 +60,18 @@ def test_schlick_is_exact_at_normal_incidence_and_not_elsewhere():
     assert _variant(res, "Fresnel", "fresnel=exact").current
 
 
+@pytest.mark.slow  # the knob's mechanism stays in the quick tier (the conductor's test above)
+def test_fresnel_knob_measures_the_choices_a_dielectric_offers():
+    """rough_dielectric offers exact and schlick (no lazanyi, a metal's approximation): the knob
+    measures both, read from the model's option, and Schlick is off at 70° (reflection)."""
+    wi = directions(np.array([70.0]), 0.0)
+    wo = directions(np.array([70.0]), 180.0)
+    res = fitlab.tradeoffs(model="rough_dielectric", params={"alpha": 0.3, "eta": 1.5},
+                           data=_data(wi, wo), knobs=["Fresnel"])
+    assert {v.setting for v in res.variants} == {"fresnel=exact", "fresnel=schlick"}
+    assert _variant(res, "Fresnel", "fresnel=schlick").errors["f_rel_max"] > 1e-3
+
+
 def test_a_table_at_its_texel_centres_has_only_the_storage_error():
     """At the grid nodes of the 32² table (φd = 90°) the lookup returns the stored values: the
     error is the rounding to float (≤ 2^-24) or half (≤ 2^-11) and no interpolation."""

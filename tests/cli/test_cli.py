@@ -52,7 +52,7 @@ def test_models_json(capsys):
     assert m["name"] == "rough_dielectric"
     alpha = next(p for p in m["parameters"] if p["name"] == "alpha")
     assert (alpha["lower"], alpha["upper"]) == (1e-4, 1.0)
-    assert {o["name"] for o in m["options"]} == {"distribution", "sampling"}
+    assert {o["name"] for o in m["options"]} == {"distribution", "fresnel", "sampling"}
 
 
 @pytest.mark.parametrize(

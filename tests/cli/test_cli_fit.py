@@ -36,7 +36,8 @@ def test_fit_walter_with_mcmc_and_chain(tmp_path, capsys):
     assert "TOO SHORT TO TRUST" in err  # 400 steps is deliberately short: it must say so
     rec = read_fit(out)
     assert rec["schema"] == SCHEMA and rec["schema_version"] == SCHEMA_VERSION
-    assert rec["model"]["options"] == {"distribution": "ggx", "sampling": "standard"}
+    assert rec["model"]["options"] == {"distribution": "ggx", "fresnel": "exact",
+                                       "sampling": "standard"}
     assert rec["data"]["rows_fitted"] == 69 and rec["data"]["fit_subset"] == "theta_i == 0"
     assert len(rec["data"]["sha256"]) == 64 and rec["seed"] == 7
     assert "created_utc" not in rec and "timings_s" not in rec  # no clock time without --timings

@@ -3,8 +3,10 @@
 * Fresnel: Walter et al. 2007 eq. 22 against the textbook (Hecht, "Optics") amplitude
   coefficients; normal incidence, Walter's 0.04 for glass, total internal reflection, Brewster,
   Stokes reciprocity; the conductor formula against complex-index Fresnel and against the
-  dielectric at k = 0; Schlick 1994; the Lazányi–Szirmay-Kalos approximation as printed in
-  Elek 2010 appendix B, with what its "5% at most" claim turns out to mean for the appendix metals.
+  dielectric at k = 0; Schlick 1994; the Lazányi–Szirmay-Kalos 2005 approximation with its metal
+  term (a from Hoffman 2019's 82°) against a NumPy transcription, and both it and the form Elek
+  2010 appendix B prints (Schlick's) against what Elek's "5% at most" claim means for the
+  appendix metals.
 * Distributions and Smith G1 of Walter section 5.2 (eqs 25-27, 30, 33-34) and the Phong mapping.
 * Full BSDF values: by hand at normal incidence, and over many directions against an independent
   plain-numpy transcription of Walter eqs 13, 16, 20-23 (tests/walter_numpy.py), which never

@@ -269,12 +269,26 @@ def _option_sets(model_name):
             yield opts
 
 
+#: The dielectric's Schlick Fresnel only changes F after the normal is sampled (the same code for
+#: every distribution and sampling): checked with the default distribution and sampling only.
+FRESNEL_DEFAULTS_ONLY = ("rough_dielectric", "rough_dielectric_anisotropic")
+
+
+def _weight_option_sets(name):
+    defaults = get_model(name).default_options()
+    for opts in _option_sets(name):
+        if (name in FRESNEL_DEFAULTS_ONLY and opts.get("fresnel") != defaults.get("fresnel")
+                and any(opts[k] != v for k, v in defaults.items() if k != "fresnel")):
+            continue
+        yield opts
+
+
 WEIGHT_CASES = [
     pytest.param(name, opts, id="-".join([name, *opts.values()]),
                  marks=() if opts == get_model(name).default_options() else (pytest.mark.slow,))
     for name in ("rough_dielectric", "rough_conductor", "rough_dielectric_anisotropic",
                  "rough_conductor_anisotropic", "lambertian", "oren_nayar")
-    for opts in _option_sets(name)
+    for opts in _weight_option_sets(name)
 ]
 
 #: Incidence angles in degrees (> 90°: from inside) and per-model parameter grids.

@@ -109,16 +109,24 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
 
 
 def fold_starts(fit: dict, names) -> list:
-    """The starts of every fold of a candidate: where each Levenberg–Marquardt start of its full
-    fit ended (``fit``: the channel's entry of its parameter file; a start that ended at NaN or
-    inf: where it started), native vectors in the order of ``names``. They hold the basins the
-    full fit's global search and low-discrepancy starts found, and are as many as its starts,
-    so a fold reuses the full fit's compiled stage."""
-    out = []
-    for st in fit["starts"]:
-        at = st["end"] if st.get("end") else st["start"]
-        out.append([float(at[n]) for n in names])
-    return out
+    """The starts of every fold of a candidate (``fit``: the channel's entry of its parameter
+    file), native vectors in the order of ``names``: the full fit's optimum, and every other end
+    of its Levenberg–Marquardt starts whose cost is within EQUAL_COST_RTOL (1%) of the best (the
+    optima as good as the best, at other parameters: the basins a fold may prefer), the other
+    lanes copies of the optimum. As many as the full fit's starts, so a fold reuses the full
+    fit's compiled stage; ends that are worse minima are left out, since the batched
+    Levenberg–Marquardt runs until its slowest start stops and one start left in a far basin
+    makes every fold cost a full fit."""
+    from fitlab.fitting.least_squares import EQUAL_COST_RTOL
+
+    ends = [(st["cost"], [float(st["end"][n]) for n in names]) for st in fit["starts"]
+            if st.get("end") and st.get("cost") is not None]
+    if not ends:
+        return [[float(fit["parameters"][n]["value"]) for n in names]] * len(fit["starts"])
+    best = min(c for c, _ in ends)
+    good = [x for c, x in sorted(ends, key=lambda e: e[0])
+            if c <= best * (1 + EQUAL_COST_RTOL) + 1e-300]
+    return (good + [good[0]] * len(fit["starts"]))[:len(fit["starts"])]
 
 
 def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, order=None,
@@ -129,8 +137,8 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
     parameters (the fold's fit), warnings, error (a fold that could not be fitted).
 
     With ``fit`` (the channel's entry of the candidate's full fit) each fold is refitted by
-    Levenberg–Marquardt from the ends of the full fit's starts (:func:`fold_starts`), in one
-    batched call, without a global search of its own; without it, by the whole procedure
+    Levenberg–Marquardt from the full fit's optimum and its equally good ends
+    (:func:`fold_starts`), in one batched call, without a global search of its own; without it, by the whole procedure
     (global search and multi-start Levenberg–Marquardt with ``starts`` and ``seed``)."""
     from fitlab.fitting.channel import least_squares_warnings
     from fitlab.fitting.least_squares import fit_least_squares
