@@ -257,7 +257,7 @@ def test_misfit_is_reported_in_the_report_sections(misfit):
 
     rec = json.loads(misfit["out"].read_text())
     ch = _channel(rec)
-    warn = build._warnings(SimpleNamespace(record=rec))
+    warn = build._warnings(build._warning_items(SimpleNamespace(record=rec)))
     assert "THE MODEL DOES NOT DESCRIBE THE DATA" in warn
     table = build._parameter_table(ch)
     assert "bootstrap 68% interval" in table
