@@ -369,28 +369,15 @@ def local_fits(k, problem, starts_u, weights=None):
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
                       n_starts: int = 8, seed: int = 0,
                       global_maxeval: int | None = None,
-                      lm_maxiter: int = LM_MAXITER, progress: bool = False,
-                      local_starts=None) -> LeastSquaresResult:
+                      lm_maxiter: int = LM_MAXITER, progress: bool = False) -> LeastSquaresResult:
     """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start;
     ``lm_maxiter`` is each LM run's step limit; ``progress`` shows a bar with an estimate of the
-    time left for the global search, then the Levenberg–Marquardt stage, on stderr.
-
-    ``local_starts`` (native vectors): Levenberg–Marquardt from exactly these, no global search
-    and no low-discrepancy starts (a cross-validation fold refitted from the ends of the full
-    fit's starts, fitlab.fitting.compare: as many starts as the full fit had, so its compiled
-    stage is reused)."""
+    time left for the global search, then the Levenberg–Marquardt stage, on stderr."""
     k = kernels(space.static, loss, int(lm_maxiter))
     n_rows = int(data.value.shape[0])
     data = pad_rows(space.static, data)
     problem = problem_of(space, data)
     d = space.ndim
-    if local_starts is not None:
-        starts_u = [np.clip(space.to_unit(np.asarray(x, dtype=float)), 1e-9, 1 - 1e-9)
-                    for x in local_starts]
-        glob_info = {"algorithm": "none (Levenberg-Marquardt from given starts)",
-                     "evaluations": 0, "non_finite": 0, "status": "skipped", "best_cost": None}
-        return _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter,
-                            progress)
     n_local = 1 + n_starts + (start_native is not None)
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
@@ -417,14 +404,6 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     starts_u = [u_glob] + list(halton(n_starts, d))
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
-    return _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter,
-                        progress)
-
-
-def _local_stage(space, k, problem, starts_u, glob_info, n_rows, loss, lm_maxiter, progress):
-    """Levenberg–Marquardt from every start (unit box) in one call, the best end, its
-    covariance and the starts' record: fit_least_squares' second stage."""
-    d = space.ndim
     if progress:
         progress_line(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...")
     loc = canonical_runs(space, local_fits(k, problem, starts_u))  # one labelling of

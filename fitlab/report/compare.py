@@ -231,8 +231,7 @@ def _method(rec):
     if st["cross_validation"]:
         parts.append(paragraph(
             "Leave-one-incidence-out cross-validation: for each incidence direction (θi, φi) "
-            "the model is refitted by Levenberg–Marquardt from the full fit's optimum (and "
-            "from every other optimum its starts found as good, within 1%) "
+            "the model is refitted by Levenberg–Marquardt from the full fit's optimum "
             "without that incidence's rows, and the refitted model predicts them. Held-out "
             "error: the RMS relative error (model − data)/data of those rows (rows below "
             f"{st['relative_error_floor']:g} × the incidence's maximum are not counted), per "

@@ -3,11 +3,10 @@ measurement with :func:`fitlab.fit` and ranks them, per channel, by how well the
 they were not fitted to (data_formats/compare.md).
 
 Leave-one-incidence-out cross-validation (CV). For each incidence direction (θi, φi) among the
-fitted rows, the model is refitted without that incidence's rows (the same loss) by
-Levenberg–Marquardt from the full fit's optimum and from every other end of its starts as good
-(cost within 1%: the basins its global search and low-discrepancy starts found as good as the
-best; ``crossval.fold_starts``), in one batched call of the full fit's compiled stage, and the
-refitted model predicts them. Score: the RMS relative error (model − data)/data of the held-out rows, per
+fitted rows, the model is refitted without that incidence's rows (the same loss, each kept
+row's loss constant that of a fit to the kept rows) by Levenberg–Marquardt from the full fit's
+optimum, every fold a lane of the full fit's compiled, batched stage
+(``crossval.batched_folds``), and the refitted model predicts them. Score: the RMS relative error (model − data)/data of the held-out rows, per
 incidence and pooled over every held-out row (rows below 1% of their incidence's maximum are not
 counted, as in the fit statistics). A fold keeps the data's shape: the rows it leaves out get a
 zero residual through a row mask (``least_squares.ROW_MASK``), so the full fit's compilation

@@ -108,25 +108,69 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     return {**base, "space": space, "data": data, "start_native": start_native}
 
 
-def fold_starts(fit: dict, names) -> list:
-    """The starts of every fold of a candidate (``fit``: the channel's entry of its parameter
-    file), native vectors in the order of ``names``: the full fit's optimum, and every other end
-    of its Levenberg–Marquardt starts whose cost is within EQUAL_COST_RTOL (1%) of the best (the
-    optima as good as the best, at other parameters: the basins a fold may prefer), the other
-    lanes copies of the optimum. As many as the full fit's starts, so a fold reuses the full
-    fit's compiled stage; ends that are worse minima are left out, since the batched
-    Levenberg–Marquardt runs until its slowest start stops and one start left in a far basin
-    makes every fold cost a full fit."""
-    from fitlab.fitting.least_squares import EQUAL_COST_RTOL
+def batched_folds(m, base, rows, incs, fit: dict, lm_maxiter, order=None):
+    """Every leave-one-incidence-out fold of one candidate refitted at once: each fold is one
+    lane of the full fit's compiled Levenberg–Marquardt stage (as many lanes per call as the
+    full fit had starts), started at the full fit's optimum, its data the full fit's rows with
+    the held-out incidence's rows weighted 0 and every other row's loss constant that of a fit
+    to the kept rows (the relative loss's 1% floor of the kept rows: the weight is the ratio of
+    the two constants, so a lane's residuals are exactly the fold's). Returns one dict per fold
+    (as :func:`cross_validate`)."""
+    from types import SimpleNamespace
 
-    ends = [(st["cost"], [float(st["end"][n]) for n in names]) for st in fit["starts"]
-            if st.get("end") and st.get("cost") is not None]
-    if not ends:
-        return [[float(fit["parameters"][n]["value"]) for n in names]] * len(fit["starts"])
-    best = min(c for c, _ in ends)
-    good = [x for c, x in sorted(ends, key=lambda e: e[0])
-            if c <= best * (1 + EQUAL_COST_RTOL) + 1e-300]
-    return (good + [good[0]] * len(fit["starts"]))[:len(fit["starts"])]
+    from fitlab.fitting.channel import least_squares_warnings
+    from fitlab.fitting.exchange import canonical_runs
+    from fitlab.fitting.least_squares import (kernels, local_fits, lm_stop_reason, pad_rows,
+                                              problem_of)
+    from fitlab.fitting.losses import loss_weights
+
+    space, data, loss = base["space"], base["data"], base["loss"]
+    k = kernels(space.static, loss, int(lm_maxiter))
+    padded = pad_rows(space.static, data)
+    problem = problem_of(space, padded)
+    n_pad, n = int(padded.value.shape[0]), int(rows.sum())
+    batch = len(fit["starts"])
+    u0 = space.to_unit(np.array([fit["parameters"][p]["value"] for p in space.names], float))
+    keys = incidence_keys(m)
+    w_full = np.asarray(data.consts["w"], float) if "w" in data.consts else None
+    plan = []
+    for ti, pi in incs:
+        held = rows & (keys[:, 0] == ti) & (keys[:, 1] == pi)
+        kept = rows & ~held
+        w = np.zeros(n_pad)
+        w[:n][kept[rows]] = 1.0
+        if w_full is not None:
+            sigma = None if m.sigma is None else m.sigma[kept]
+            w[:n][kept[rows]] = (loss_weights(loss, m.value[kept], sigma, m.wo[kept, 2])["w"]
+                                 / w_full[kept[rows]])
+        plan.append((ti, pi, held, w))
+    folds = []
+    for start in range(0, len(plan), batch):
+        part = plan[start:start + batch]
+        W = np.stack([w for *_, w in part] + [part[0][3]] * (batch - len(part)))
+        loc = canonical_runs(space, local_fits(k, problem, [u0] * batch, weights=W))
+        for i, (ti, pi, held, _) in enumerate(part):
+            fold = {"theta_i": ti, "phi_i": pi, "rel": np.zeros(0), "parameters": None,
+                    "warnings": [], "error": None}
+            cost = float(loc["cost"][i]) if loc["end_finite"][i] else np.nan
+            stopped = lm_stop_reason(cost, int(loc["iters"][i]), bool(loc["rule_unmet"][i]),
+                                     int(lm_maxiter))
+            if stopped == Status.NON_FINITE:
+                fold["error"] = "no start reached a finite cost"
+            else:
+                native = loc["native"][i]
+                pred = _predict(space, native, m, base["in_chan"], order)[held[base["in_chan"]]]
+                fold["rel"], _ = relative_errors(pred, m.value[held])
+                fold["parameters"] = {p: float(v) for p, v in zip(space.names, native)}
+                u = loc["u"][i]
+                ls = SimpleNamespace(
+                    solver={"stopped": stopped, "max_iterations": int(lm_maxiter)},
+                    starts=[{"lm_stopped": stopped}], global_search={}, disagreement=None,
+                    at_bound=tuple(p for p, x in zip(space.names, u)
+                                   if x < 1e-6 or x > 1 - 1e-6))
+                fold["warnings"] = least_squares_warnings(ls)
+            folds.append(fold)
+    return folds
 
 
 def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, order=None,
@@ -136,14 +180,20 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
     per incidence: theta_i, phi_i, rel (held-out relative errors of the counted rows),
     parameters (the fold's fit), warnings, error (a fold that could not be fitted).
 
-    With ``fit`` (the channel's entry of the candidate's full fit) each fold is refitted by
-    Levenberg–Marquardt from the full fit's optimum and its equally good ends
-    (:func:`fold_starts`), in one batched call, without a global search of its own; without it, by the whole procedure
+    With ``fit`` (the channel's entry of the candidate's full fit) the folds are refitted
+    together by Levenberg–Marquardt from the full fit's optimum (:func:`batched_folds`), without
+    a global search of their own; without it, by the whole procedure
     (global search and multi-start Levenberg–Marquardt with ``starts`` and ``seed``)."""
     from fitlab.fitting.channel import least_squares_warnings
     from fitlab.fitting.least_squares import fit_least_squares
 
     base = _problem(m, cand, loss, rows, channel, order)
+    if fit is not None:
+        folds = batched_folds(m, base, rows, incidences_of(m, rows), fit,
+                              cand.request.lm_maxiter, order)
+        for fold in folds if on_fold is not None else ():
+            on_fold(fold)
+        return folds
     in_chan = base["in_chan"]
     keys = incidence_keys(m)
     folds = []
@@ -155,14 +205,9 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
         try:
             space, data_k, start_native = _channel_problem(m, base, kept, order)
             data = _masked(base["data"], data_k, kept[rows])
-            if fit is not None:
-                ls = fit_least_squares(space, data, base["loss"],
-                                       local_starts=fold_starts(fit, space.names),
-                                       lm_maxiter=cand.request.lm_maxiter)
-            else:
-                ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
-                                       n_starts=starts, seed=seed,
-                                       lm_maxiter=cand.request.lm_maxiter)
+            ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
+                                   n_starts=starts, seed=seed,
+                                   lm_maxiter=cand.request.lm_maxiter)
             if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
