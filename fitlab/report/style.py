@@ -64,15 +64,18 @@ def title_room(fig: Figure) -> list:
     return out
 
 
-def fit_titles(fig: Figure, dpi: float = PNG_DPI) -> None:
+def fit_titles(fig: Figure, dpi: float = PNG_DPI, laid_out: bool = False) -> bool:
     """Wrap every title that is wider than its room (:func:`title_room`, less 2%) onto more
     lines, so no title is cut at the figure's edges or runs past its axes; the layout engine
     then makes room for the extra lines. Measured at the PNG's resolution: hinted text is not
-    proportional to the dpi."""
+    proportional to the dpi. ``laid_out``: the figure was just drawn (its axes have their final
+    widths), so it is not laid out again here. Returns whether a title was wrapped."""
     previous = fig.dpi
     fig.set_dpi(dpi)
+    wrapped = False
     try:
-        fig.draw_without_rendering()  # lays the figure out: the axes' final widths
+        if not laid_out:
+            fig.draw_without_rendering()  # lays the figure out: the axes' final widths
         renderer = fig._get_renderer()
         for text, room in title_room(fig):
             room *= 0.98
@@ -80,6 +83,7 @@ def fit_titles(fig: Figure, dpi: float = PNG_DPI) -> None:
             width = text.get_window_extent(renderer).width
             if width <= room:
                 continue
+            wrapped = True
             n = max(10, int(len(words) * room / width))
             while True:
                 text.set_text(textwrap.fill(words, n, break_on_hyphens=False))
@@ -88,21 +92,29 @@ def fit_titles(fig: Figure, dpi: float = PNG_DPI) -> None:
                 n -= max(1, n // 12)
     finally:
         fig.set_dpi(previous)
+    return wrapped
+
+
+def _png(fig: Figure) -> bytes:
+    png = io.BytesIO()
+    fig.savefig(png, format="png", dpi=PNG_DPI, metadata={"Software": None})
+    return png.getvalue()
 
 
 def render(fig: Figure) -> tuple[bytes, bytes]:
     """(PNG bytes, SVG bytes) of ``fig``, identical for identical figures: no dates, no software
     version in the metadata, a fixed SVG hash salt. Titles wider than their axes (or the
-    figure) are wrapped first (:func:`fit_titles`)."""
+    figure) are wrapped (:func:`fit_titles`), measured on the PNG's own layout: the PNG is
+    drawn again only when one was."""
     with matplotlib.rc_context(RC):
-        fit_titles(fig)
-        png = io.BytesIO()
-        fig.savefig(png, format="png", dpi=PNG_DPI, metadata={"Software": None})
+        png = _png(fig)
+        if fit_titles(fig, laid_out=True):
+            png = _png(fig)  # laid out again, with room for the wrapped lines
         # The PNG's draw placed every axes; keep those positions rather than lay out again.
         fig.set_layout_engine("none")
         svg = io.BytesIO()
         fig.savefig(svg, format="svg", dpi=PNG_DPI, metadata={"Date": None, "Creator": None})
-    return png.getvalue(), svg.getvalue()
+    return png, svg.getvalue()
 
 
 def styled(fn):

@@ -664,7 +664,7 @@ def test_titles_fit_their_axes():
     from fitlab.report.lobes import Lobe, lobe_figure
     from fitlab.report.posterior import corner_figure
     from fitlab.report.summary import Curve, fit_figure
-    from fitlab.report.style import PNG_DPI, fit_titles, title_room
+    from fitlab.report.style import PNG_DPI, render, title_room
 
     x = np.linspace(-80, 80, 33)
     y = np.exp(-(x / 20) ** 2) + 0.01
@@ -677,7 +677,7 @@ def test_titles_fit_their_axes():
     figs.append(fit_figure([("reflection", [Curve("θi = 0°", x, y, x, y, x < 0)])],
                            ylabel="f (1/sr)", title="channel R (the others below)"))
     for fig in figs:
-        fit_titles(fig)  # as render() does before it saves the PNG
+        render(fig)  # wraps the long titles; keeps the PNG's layout
         fig.set_dpi(PNG_DPI)
         fig.draw_without_rendering()
         renderer = fig._get_renderer()
