@@ -240,59 +240,6 @@ def first_scattering(layers, params, wi):
     return first * gamma
 
 
-#: The single-scattering albedo (:func:`single_scattering_albedo`) is a quadrature over each
-#: layer's phase-function sample at the points of a centred Fibonacci lattice of this size (a
-#: Fibonacci number; ALBEDO_LATTICE_STEP the one before it). Its error, against 200,000-sample
-#: Monte Carlo over the contract's hard cases at θi up to 89.9°: below 0.009 (34 points: 0.025;
-#: 233 points: 0.005; steep near the horizon, the integrand converges slowly).
-ALBEDO_POINTS, ALBEDO_LATTICE_STEP = 89, 55
-
-
-def albedo_lattice(n=None, step=None):
-    """(n, 2) points (u0, u1) of a centred Fibonacci lattice in [0, 1)²."""
-    n, step = n or ALBEDO_POINTS, step or ALBEDO_LATTICE_STEP
-    j = np.arange(n)
-    return np.stack([(j + 0.5) / n, np.mod(j * step / n + 0.5 / n, 1.0)], axis=-1)
-
-
-def single_scattering_albedo(layers, params, w, same_side_only=False):
-    """A(ω) = ∫ f_ss(ω, ωo)|cos θo| dωo of the layers' single scattering, estimated per layer
-    by the mean of its phase-function sample's weight over :func:`albedo_lattice`. With the
-    phase density D(h)/(4σ(ω)) (eq. 4) or p_HG, layer k's weight f_k|cos θo|/p is
-    F · d_k(ω) · G_k/Tρ_k · attenuation (eq. 10 with G of eq. 12 or 14, §4.3): a smooth
-    function bounded by the layer's first-scattering mass γ_k(1 − e^{−d_k}) · attenuation
-    (:func:`first_scattering`), which the lattice integrates to within 0.01 (see
-    :data:`ALBEDO_POINTS`). ``same_side_only``: only ωo on ω's side (the layers over a
-    substrate scatter light from above upward only). Shape of ``w[..., 0]``."""
-    from fitlab._jax import jax
-
-    up = w[..., 2] > 0
-    d_w = depths(layers, params, w)
-    out_w = _outside(d_w, up)
-
-    def at(u):
-        u = jnp.broadcast_to(jnp.asarray(u, w.dtype), w.shape[:-1] + (2,))
-        total = jnp.zeros_like(w[..., 2])
-        for k, L in enumerate(layers):
-            wo = sample_phase(L, params, w, u)
-            d_o = depths(layers, params, wo)
-            up_o = wo[..., 2] > 0
-            G = jnp.where(up == up_o, phi(d_w[k] + d_o[k]),
-                          jnp.exp(-jnp.minimum(d_w[k], d_o[k])) * phi(jnp.abs(d_w[k] - d_o[k])))
-            att = jnp.exp(-(out_w[k] + _outside(d_o, up_o)[k]))
-            F = params[L.name("albedo")] * jnp.ones_like(G)
-            if L.flakes is not None:
-                h, ok = _half(w, wo)
-                F = jnp.where(ok, F * fresnel_schlick(dot(h, w), params[L.name("f0")]), 0.0)
-            weight = F * d_w[k] * G * att
-            if same_side_only:
-                weight = jnp.where(up == up_o, weight, 0.0)
-            total = total + weight
-        return total
-
-    return jnp.mean(jax.vmap(at)(jnp.asarray(albedo_lattice(), w.dtype)), axis=0)
-
-
 def delta_transmittance(layers, params, wi):
     """Weight e^{−Σ d_i(ωi)} of the unscattered transmission δ(ωo + ωi) (§4.4)."""
     return jnp.exp(-jnp.sum(depths(layers, params, wi), axis=0))
@@ -602,28 +549,12 @@ def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
         m = stack_mass(p, wi)
         return m if substrate is None else m + delta_transmittance(layers, p, wi)
 
-    above_only = substrate is not None
-    # the base's energy at ω: its single scattering's albedo, the declared delta transmission
-    # and, over a substrate, what reaches the substrate (its albedo ≤ 1 when it conserves energy)
-    seen = above_only or (delta if delta is not None else True)
-
-    def stack_albedo(p, w):
-        return single_scattering_albedo(layers, p, w, same_side_only=above_only)
-
-    def base_energy(p, w):
-        e = stack_albedo(p, w)
-        return e + delta_transmittance(layers, p, w) if seen else e
-
-    caps = base.capabilities
-    if substrate is not None:
-        caps = caps._replace(energy_conserving=substrate.capabilities.energy_conserving)
     name = canonical_name(kinds, substrate.name if substrate is not None else None,
                           None if multiple == "only" else delta, multiple)
     return ms.with_multiple(None if multiple == "only" else base, stack, multiple, name,
-                            transmits=substrate is None, above_only=above_only,
+                            transmits=substrate is None, above_only=substrate is not None,
                             extra=extra, stack_mass=stack_mass, base_mass=base_mass,
-                            capabilities=caps, stack_albedo=stack_albedo,
-                            base_energy=None if multiple == "only" else base_energy)
+                            capabilities=base.capabilities)
 
 
 def simulator_stack(kinds, channel_params) -> list[dict]:

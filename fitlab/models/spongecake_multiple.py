@@ -41,9 +41,6 @@ from fitlab.numerics import safe_div
 MODES = ("none", "lobe", "only", "learned")
 #: each branch of the sampling mixture gets at least this share
 _P_FLOOR = 0.05
-#: the energy budget keeps this much back for the error of the albedo quadratures
-#: (spongecake.ALBEDO_POINTS: each below 0.009; the base's and the lobe's may add up)
-ALBEDO_TOLERANCE = 0.01
 #: the modified parameters of a layer: its own with this suffix
 SUFFIX = "_ms"
 
@@ -76,7 +73,7 @@ def lobe_params(params, names):
 
 def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transmits: bool,
                   above_only: bool, extra: tuple[Parameter, ...], stack_mass, base_mass,
-                  capabilities: Capabilities, stack_albedo, base_energy=None) -> Model:
+                  capabilities: Capabilities) -> Model:
     """The model of ``mode`` ("lobe": base + approximation; "only": the approximation alone).
     ``stack``: the plain layers (no substrate, no delta) whose single scattering is the lobe;
     ``stack_mass(params, wi)`` / ``base_mass(params, wi)``: the sampling masses of the stack's
@@ -84,22 +81,9 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
     ``above_only``: the lobes apply to light from above leaving upward (a substrate below);
     ``extra``: the parameters of ``mode`` besides the base's (axes for "only", ``_ms`` copies,
     weights); ``capabilities``: the single-scattering model's (its delta is the result's only
-    for "lobe"); ``stack_albedo(params, w)``: the directional albedo of the stack's single
-    scattering (on ω's side only where ``above_only``), ``base_energy(params, w)``: the energy
-    the base model takes at ω (its albedo and declared delta; None without a base), which
-    bound the lobe (:func:`energy_scale`)."""
+    for "lobe")."""
     stack_names = stack.parameter_names
     has_T = transmits
-
-    def lobe_albedo(params, w):
-        """The albedo of the approximation before :func:`energy_scale`: W1·A(p', ω) + W2 + W2T."""
-        a = params["W1"] * stack_albedo(lobe_params(params, stack_names), w) + params["W2"]
-        return a + params["W2T"] if has_T else a
-
-    def scale(params, w):
-        budget = 1.0 - ALBEDO_TOLERANCE
-        return energy_scale(lobe_albedo(params, w),
-                            budget if base_energy is None else budget - base_energy(params, w))
 
     def on(wi, wo):
         if above_only:
@@ -113,10 +97,7 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
 
     def approx(params, wi, wo):
         f_ms = stack.eval(lobe_params(params, stack_names), wi, wo)
-        f = jnp.where(on(wi, wo), params["W1"] * f_ms, 0.0) + lambert(params, wi, wo)
-        # the smaller of the two directions' scales: symmetric, so reciprocity is kept, and at
-        # most s(ωi), so ωi's albedo stays within its budget
-        return jnp.minimum(scale(params, wi), scale(params, wo)) * f
+        return jnp.where(on(wi, wo), params["W1"] * f_ms, 0.0) + lambert(params, wi, wo)
 
     def eval(params, wi, wo, **opts):
         f = approx(params, wi, wo)
@@ -192,19 +173,11 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         eval=eval,
         sample=sample,
         pdf=pdf,
-        capabilities=capabilities,
+        capabilities=capabilities._replace(energy_conserving=False),
         reference=((base.reference if base is not None else stack.reference)
                    + "; multiple scattering: §5, a single-scattering lobe with modified "
                    "parameters weighted W1 and a Lambertian lobe W2 (+ W2T, transmission)"),
     )
-
-
-def energy_scale(lobe_albedo, budget):
-    """s = min(1, B/L): the factor that keeps the approximation's albedo L within the budget B
-    (clamped at 0) the base model leaves; B/max(L, B), so that s = 1 with a zero gradient
-    wherever L ≤ B, and 1 where both are 0."""
-    budget = jnp.maximum(budget, 0.0)
-    return safe_div(budget, jnp.maximum(lobe_albedo, budget), 1.0)
 
 
 def with_learned(lobe: Model, base: Model, name: str, lobe_of, provenance: str) -> Model:
