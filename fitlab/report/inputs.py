@@ -110,8 +110,9 @@ def load_data(record: dict, fit_path: Path, data_path=None, read_options: dict |
     names = [f["channel"] for f in record["fits"]]
     missing = [c for c in names if c not in m.channel_names]
     if missing:
-        raise InputFileError(data_path, f"lacks the fitted channel(s) {', '.join(missing)}",
-                             hint="give the data file the fit was made from")
+        raise InputFileError(fit_path, f"names the channel(s) {', '.join(missing)}, which "
+                             f"{data_path} lacks", column="fits.channel",
+                             hint="give the data file the fit was made from with --data")
     return m, str(data_path)
 
 
