@@ -373,6 +373,20 @@ def key_panels(inp, ch, preds) -> list:
     return [("all rows", out)]
 
 
+def _percentile_note(fits) -> str:
+    """How the percentile intervals the fits hold are made (bootstrap, MCMC): only those."""
+    from fitlab.report.goodness import has_bootstrap
+
+    kinds = [k for k, there in (
+        ("bootstrap", any(has_bootstrap(f) for f in fits)),
+        ("MCMC", any(p.get("posterior") for f in fits for p in f["parameters"].values())))
+        if there]
+    if not kinds:
+        return ""
+    what = " or ".join({"bootstrap": "the refits", "MCMC": "the posterior"}[k] for k in kinds)
+    return f"; {', '.join(kinds)}: 16th to 84th percentile of {what}"
+
+
 def lead_html(inp, preds, figure, warnings: int, value_label: str) -> str:
     """The first screen: verdict, model, parameters with their intervals, fit error, and the
     key figure of the first channel (``preds``: its predictions at its rows; ``figure``: the
@@ -398,10 +412,9 @@ def lead_html(inp, preds, figure, warnings: int, value_label: str) -> str:
     numeric = tuple(range(len(header) - 1))[1 + (len(fits) > 1):]
     out += '<div id="summary-parameters">' + table_html(header, rows, numeric=numeric) \
         + "</div>\n"
-    out += ('<p class="small">68% intervals: least squares, the best fit ± 1 standard error; '
-            "bootstrap, MCMC: 16th to 84th percentile of the refits or the posterior. Every "
-            'interval, the 95% ones and the bounds: <a href="#parameters-'
-            f'{esc(inp.channels[0].name)}">Parameters</a>.</p>\n')
+    out += ('<p class="small">68% intervals: least squares, the best fit ± 1 standard error'
+            + _percentile_note(fits) + '. Every interval, the 95% ones and the bounds: '
+            f'<a href="#parameters-{esc(inp.channels[0].name)}">Parameters</a>.</p>\n')
     multi = len(inp.channels) > 1
     errs = "".join((f"<br>channel {esc(ch.name)}: " if multi else " ")
                    + esc(fit_error_text(fit_error(ch.fit)))
