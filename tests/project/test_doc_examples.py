@@ -681,6 +681,23 @@ def test_block_is_classified(block):
             assert missing <= defined, f"{block.id}: {sorted(missing - defined)} undefined"
 
 
+def unit_text(unit) -> str:
+    """The source a unit runs (its blocks' lines, or its command lines)."""
+    return "\n".join(t for a in unit.argvs for t in (
+        [line for _, line in a.lines] if hasattr(a, "lines") else [" ".join(map(str, a))]))
+
+
+def _release_render_memory() -> None:
+    """Hand Dr.Jit's memory (its allocation cache and compiled kernels) back after a render."""
+    import sys
+
+    dr = sys.modules.get("drjit")
+    if dr is not None:
+        dr.sync_thread()
+        dr.flush_malloc_cache()
+        dr.flush_kernel_cache()
+
+
 @pytest.mark.parametrize("unit", [pytest.param(u, id=u.id, marks=[pytest.mark.slow] * u.slow)
                                   for u in all_units()])
 def test_example_runs(unit, work):
@@ -690,7 +707,16 @@ def test_example_runs(unit, work):
     folder = state["dir"]
     status, inputs = git_status(), {n: snapshot(folder / n) for n in INPUT_FOLDERS}
     before = set(files(folder))
-    run_unit(unit, state)
+    renders = "mitsuba" in unit_text(unit)
+    if renders:  # a Mitsuba render takes about 2.4 GB: not on top of the worker's compiled code
+        from conftest import _release_compiled_code
+
+        _release_compiled_code()
+    try:
+        run_unit(unit, state)
+    finally:
+        if renders:
+            _release_render_memory()
     for name in INPUT_FOLDERS:
         after = snapshot(folder / name)
         written = sorted(f"{name}/{k}" for k in set(inputs[name]) | set(after)
