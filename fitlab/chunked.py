@@ -93,55 +93,52 @@ def run_chunks(task, chunks, out_dir, *, workers: int = 2, scheduler: str | None
     if len(set(ids)) != len(ids):
         raise FitlabError("two chunks of this run have the same inputs; remove the duplicates")
     todo = [(cid, args) for cid, args in chunks if not marker_path(out, cid).exists()]
-    if todo and scheduler is None and workers == 1:
-        _run_here(task, todo, out, len(chunks), progress, desc)
-    elif todo:
-        from distributed import as_completed
-
-        client, cluster = client_for(workers, scheduler)
+    if todo:
         bar = None
-        try:
-            if progress:
-                from tqdm import tqdm
+        if progress:
+            from tqdm import tqdm
 
-                bar = tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc=desc,
-                           unit="chunk", file=sys.stderr, dynamic_ncols=True)
-            root = str(out.resolve())
-            futures = [client.submit(task, *args, root, cid, key=f"fitlab-{desc}-{cid}",
-                                     retries=retries, pure=False) for cid, args in todo]
-            for fut in as_completed(futures):
-                fut.result()
-                if bar is not None:
-                    bar.update(1)
+            bar = tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc=desc,
+                       unit="chunk", file=sys.stderr, dynamic_ncols=True)
+        done = (lambda: None) if bar is None else (lambda: bar.update(1))
+        try:
+            if scheduler is None and workers == 1:
+                _run_here(task, todo, out, done)
+            else:
+                _run_on_dask(task, todo, out, done, workers, scheduler, retries, desc)
         finally:
             if bar is not None:
                 bar.close()
-            client.close()
-            if cluster is not None:
-                cluster.close()
     remove_orphan_temporaries(out)
     remove_orphan_temporaries(out / "chunks")
     return {"chunks": len(chunks), "done_before": len(chunks) - len(todo),
             "done_now": len(todo), "records": [read_marker(out, cid) for cid in ids]}
 
 
-def _run_here(task, todo, out: Path, total: int, progress: bool, desc: str) -> None:
+def _run_here(task, todo, out: Path, done) -> None:
     """The chunks ``todo`` in this process, in order (one worker, no scheduler)."""
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    root = str(out.resolve())
+    for cid, args in todo:
+        task(*args, root, cid)
+        done()
 
-        bar = tqdm(total=total, initial=total - len(todo), desc=desc, unit="chunk",
-                   file=sys.stderr, dynamic_ncols=True)
+
+def _run_on_dask(task, todo, out: Path, done, workers, scheduler, retries, desc) -> None:
+    """The chunks ``todo`` on a Dask cluster (embedded, or the running ``scheduler``)."""
+    from distributed import as_completed
+
+    client, cluster = client_for(workers, scheduler)
     try:
         root = str(out.resolve())
-        for cid, args in todo:
-            task(*args, root, cid)
-            if bar is not None:
-                bar.update(1)
+        futures = [client.submit(task, *args, root, cid, key=f"fitlab-{desc}-{cid}",
+                                 retries=retries, pure=False) for cid, args in todo]
+        for fut in as_completed(futures):
+            fut.result()
+            done()
     finally:
-        if bar is not None:
-            bar.close()
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def remove_orphan_temporaries(folder: Path) -> None:
