@@ -122,7 +122,7 @@ def run(repeat=7, inner=5, subset=SUBSET, quiet=False):
     import jax
     import jax.numpy as jnp
 
-    from fitlab.fitting import least_squares as fls
+    from fitlab.fitting import least_squares as fls, searches
     from fitlab.fitting.space import z_from_unit
 
     info = machine()
@@ -131,7 +131,7 @@ def run(repeat=7, inner=5, subset=SUBSET, quiet=False):
     k = fls.kernels(space.static, loss)
     problem = fls.problem_of(space, data)
     u_start = space.to_unit(p.start_native)
-    starts_u = [np.asarray(u) for u in fls.halton(8, space.ndim)] + [u_start]
+    starts_u = [np.asarray(u) for u in searches.halton(8, space.ndim)] + [u_start]
 
     def fitlab_lm(us):
         out = fls.local_fits(k, problem, us)  # LM + each end's cost, residuals, Jacobian

@@ -11,6 +11,7 @@ from fitlab.cli.common import (add_channel, add_format, add_option, add_quiet, a
                                add_verbose, read_kwargs)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
+from fitlab.fitting.searches import add_global_search_option
 
 
 def add_parser(sub):
@@ -62,6 +63,7 @@ def add_parser(sub):
     p.add_argument("--starts", type=int, default=8,
                    help="Levenberg-Marquardt starts besides the global search's best, in "
                    "every fit and every fold (default 8)")
+    add_global_search_option(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--out", metavar="DIR",
                    help="write the tables, the report page and the candidates' parameter "
@@ -104,7 +106,8 @@ def run(args):
                      free=args.free or (), loss=args.loss, subset=args.fit_subset,
                      channels=[args.channel] if args.channel else None, cv=not args.no_cv,
                      mcmc=not args.no_mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
-                     starts=args.starts, seed=args.seed, progress=not args.quiet)
+                     starts=args.starts, seed=args.seed, global_search=args.global_search,
+                     progress=not args.quiet)
     if args.out:
         result = result.save(args.out, fits=not args.no_fits)
         if not args.no_report:

@@ -10,6 +10,7 @@ from fitlab.cli.common import (add_channel, add_format, add_model, add_option, a
                                add_read_options, add_verbose, read_kwargs)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
+from fitlab.fitting.searches import add_global_search_option
 from fitlab.fitting.status import Status, channel_statuses
 
 
@@ -17,7 +18,7 @@ def add_parser(sub):
     p = sub.add_parser(
         "fit", help="fit a model to measurements (least squares, global starts, optional MCMC)",
         description="Fit a registry model to a measurement file (data_formats/measurement_csv.md): "
-        "global search (nlopt MLSL) and multi-start Levenberg-Marquardt (jaxopt, vmapped over the starts), "
+        "a global scan of the parameter box and multi-start Levenberg-Marquardt (jaxopt, vmapped over the starts), "
         "covariance from the Jacobian, optional posterior sampling with emcee. Writes a parameter "
         "file (data_formats/fit_json.md). Compiled kernels are kept on disk for later runs, in "
         "$FITLAB_CACHE_DIR or else $XDG_CACHE_HOME/fitlab/xla or ~/.cache/fitlab/xla "
@@ -66,6 +67,7 @@ def add_parser(sub):
     p.add_argument("--starts", type=int, default=8,
                    help="low-discrepancy Levenberg-Marquardt starts besides the global search "
                    "(default 8)")
+    add_global_search_option(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--lm-maxiter", type=int, metavar="N",
                    help="step limit of each Levenberg-Marquardt run (default 200); raise it when "
@@ -219,6 +221,7 @@ def request_of(args, **overrides):
         channels=(args.channel,) if args.channel else None, share=_share_names(args.share),
         mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
         sampler=args.sampler, starts=args.starts, seed=args.seed,
+        global_search=args.global_search,
         aperture_order=args.aperture_order, bootstrap=args.bootstrap,
         lm_maxiter=args.lm_maxiter, walter_diagnostics=args.walter_diagnostics,
         progress=not args.quiet)

@@ -75,7 +75,10 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
     channel (``["alpha"]``: one geometry, the rest per channel; the channels are then fitted
     as one problem, see ``fitlab.fitting.joint``); mcmc: also sample the posterior
     with emcee (``mcmc_steps``, default 3000, and ``walkers``); starts: Levenberg–Marquardt
-    starts besides the global search's best (default 8); seed: every random choice;
+    starts besides the global search's best (default 8); global_search: how the first start is
+    found (``"scan"``, the default: the cost at a few hundred low-discrepancy points in one
+    compiled call; ``"mlsl"``: nlopt's MLSL, slower, for basins narrower than the scan's grid;
+    ``fitlab.fitting.least_squares.GLOBAL_SEARCHES``); seed: every random choice;
     walter_diagnostics: add Walter 2007 §6.1's empirical D; progress: report progress on
     stderr; aperture_order: the quadrature order over the rows' apertures (data that declare a
     detector cone, bin or source divergence: the fit predicts the aperture-averaged model), None

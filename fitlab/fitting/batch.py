@@ -6,9 +6,9 @@ the model, its options, the free parameters and their transforms, the loss and t
 count. Datasets (each channel of each measurement) are grouped by structure; every group is fitted
 in chunks of ``chunk`` datasets, each chunk with three batched calls:
 
-1. the global stage, a low-discrepancy scan: the cost at ``scan`` Halton points of the unit box
-   of every dataset (vmapped over datasets and points). It replaces the single fit's nlopt
-   MLSL, whose sequential local searches cannot be batched; its best point is the first start;
+1. the global stage, the single fit's default low-discrepancy scan (fitlab.fitting.searches):
+   the cost at ``scan`` Halton points of the unit box of every dataset (vmapped over datasets);
+   its best point is the first start;
 2. Levenberg–Marquardt (jaxopt, the single fit's own solver and kernel) from that point, the
    model's defaults and ``starts`` Halton points, vmapped over starts and datasets;
 3. per dataset the best end, its covariance noise² (JᵀJ)⁻¹ from the Jacobian at the optimum
@@ -28,9 +28,10 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab._jax import jax
-from fitlab.fitting.least_squares import (LM_MAXITER, FitData, cost_unit, halton, kernels,
-                                          lm_stop_reason, pad_to, padded_size)
+from fitlab.fitting.least_squares import (AT_BOUND_UNIT, LM_MAXITER, FitData, kernels,
+                                          lm_stop_reason, pad_to, padded_size, scan_costs)
 from fitlab.fitting.losses import has_absolute_noise
+from fitlab.fitting.searches import halton, scan_points
 from fitlab.fitting.space import FitSpace, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
@@ -100,10 +101,7 @@ def _batched(static, loss, maxiter):
     """The single fit's kernels vmapped over datasets: the scan's costs (points shared, problem
     per dataset) and the local stage (starts, weights and problem per dataset)."""
     local = kernels(static, loss, int(maxiter))["local_fn"]
-
-    def cost_points(U, problem):
-        return jax.vmap(lambda u: cost_unit(static, loss, u, problem))(U)
-
+    cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
             "batch_local": jax.jit(jax.vmap(local, in_axes=(0, 0, 0, 0)))}
 
@@ -126,7 +124,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
         # 1. global scan (the same low-discrepancy points in every dataset's unit box; the seed
         #    shifts the sequence, as the single fit's seed does its search)
-        U_scan = halton(scan, d, skip=1 + int(seed) * scan)
+        U_scan = scan_points(scan, d, seed)
         costs = np.asarray(k["batch_scan"](U_scan, problem))
         costs = np.where(np.isfinite(costs), costs, np.inf)
         best = np.argmin(costs, axis=1)
@@ -153,7 +151,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     stderr = np.sqrt(np.clip(np.einsum("bii->bi", cov), 0, None))
     u_end = pick(out["u"])
     names = p0.space.names
-    at_bound = [tuple(n for n, u in zip(names, row) if u < 1e-6 or u > 1 - 1e-6)
+    at_bound = [tuple(n for n, u in zip(names, row) if u < AT_BOUND_UNIT or u > 1 - AT_BOUND_UNIT)
                 for row in u_end]
     iters = pick(out["iters"])
     stopped = [lm_stop_reason(float(c), int(it), bool(ru), int(lm_maxiter))

@@ -77,9 +77,10 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
         space, data, start_native = channel_problem(m, model, options, fixed, loss, start, rows,
                                                     name, in_chan, order)
         log_line(quiet, f"fitting {model.name} to channel {name}: {int(rows.sum())} rows, free "
-                    f"{', '.join(space.names)}; loss {loss}; global search + {n_starts} starts")
+                    f"{', '.join(space.names)}; loss {loss}; global {request.global_search} + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
-                               seed=seed, lm_maxiter=request.lm_maxiter, progress=not quiet)
+                               seed=seed, lm_maxiter=request.lm_maxiter, progress=not quiet,
+                               search=request.global_search)
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == Status.NON_FINITE:
             raise non_finite_fit(f"{m.path}: channel {name}", len(ls.starts))
@@ -92,7 +93,8 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
             def refit(d, start_at):
                 return fit_least_squares(space, d, loss, start_native=start_at,
                                          n_starts=n_starts, seed=seed,
-                                         lm_maxiter=request.lm_maxiter, progress=not quiet)
+                                         lm_maxiter=request.lm_maxiter, progress=not quiet,
+                                         search=request.global_search)
 
             ls, data, aperture, more = _aperture.settle_order(
                 space, ls, data, m, rows, loss, order, auto=auto_order, refit=refit,

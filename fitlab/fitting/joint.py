@@ -237,10 +237,11 @@ def fit_joint(m, request, setup, rows_fit, chan_ids):
         for name, x in zip(sp.names, starts[c]):
             start_native[joint.static.coordinates(name)[c]] = x
     log(f"fitting {model.name} to channels {', '.join(names)} jointly: {sum(counts)} rows, "
-        f"shared {', '.join(share)}; {joint.ndim} free coordinates; loss {loss}; global search "
-        f"+ {n_starts} starts")
+        f"shared {', '.join(share)}; {joint.ndim} free coordinates; loss {loss}; global "
+        f"{request.global_search} + {n_starts} starts")
     ls = fit_least_squares(joint, data, loss, start_native=start_native, n_starts=n_starts,
-                           seed=seed, progress=not quiet, lm_maxiter=request.lm_maxiter)
+                           seed=seed, progress=not quiet, lm_maxiter=request.lm_maxiter,
+                           search=request.global_search)
     t_ls = time.perf_counter() - t0
     if ls.solver["stopped"] == Status.NON_FINITE:
         from fitlab.fitting.channel import non_finite_fit

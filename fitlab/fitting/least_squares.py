@@ -1,9 +1,15 @@
-"""Least squares: jaxopt Levenberg–Marquardt on jitted residuals, global starts with nlopt,
-covariance from the Jacobian at the optimum.
+"""Least squares: a global stage that picks the first start, jaxopt Levenberg–Marquardt on
+jitted residuals from it and from low-discrepancy starts, covariance from the Jacobian at the
+optimum.
 
-Three compiled kernels per fit structure: the cost, and the cost with its gradient (for the
-global search), and the local stage (Levenberg–Marquardt from every start at once, batched,
-then each end's cost, residuals and Jacobian in native units). They are cached by the fit's
+The global stage (fitlab.fitting.searches) is by default a *scan*: the cost at a few hundred
+Halton points of the unit box, all in one compiled call (:func:`scan_costs`; the batched fits,
+fitlab.fitting.batch, run the same scan vmapped over datasets); its best point is the first
+start. ``mlsl`` is nlopt's multi-level single linkage, one evaluation at a time.
+
+The compiled kernels per fit structure: the scan's costs, the cost and the cost with its
+gradient (for nlopt), and the local stage (Levenberg–Marquardt from every start at once,
+batched, then each end's cost, residuals and Jacobian in native units). They are cached by the fit's
 static structure (model, options, free names, transforms, loss): data, bounds and fixed values
 are arguments, and the rows are padded to a ladder of sizes (``padded_size``; the extra rows are
 masked out), so refitting new data of a similar size reuses the compilation (and ``fitlab fit``
@@ -14,18 +20,17 @@ from __future__ import annotations
 
 import functools
 import math
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import jaxopt
-import nlopt
 import numpy as np
 
 from fitlab._jax import jax, jnp
 from fitlab.fitting.exchange import canonical_runs
 from fitlab.fitting.losses import has_absolute_noise, residuals
-from fitlab.fitting.progress import bars_shown, line as progress_line
+from fitlab.fitting.progress import line as progress_line
+from fitlab.fitting.searches import DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, global_start
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
 
@@ -194,9 +199,10 @@ def _value_and_jacobian(f):
 
 @functools.lru_cache(maxsize=64)
 def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
-    """Jitted kernels for one static structure: ``value`` and ``value_and_grad`` (the cost, and
-    the cost and its gradient as one array [cost, gradient...], in the unit box, for the global
-    search) and ``local`` (LM from a batch of starts, then each end's cost, residuals and
+    """Jitted kernels for one static structure: ``scan`` (the cost at a batch of unit-box
+    points, :func:`scan_costs`), ``value`` and ``value_and_grad`` (the cost, and the cost and
+    its gradient as one array [cost, gradient...], in the unit box, for nlopt's search) and
+    ``local`` (LM from a batch of starts, then each end's cost, residuals and
     Jacobian in native units). ``local`` takes one row weight vector per start (the residuals
     are multiplied by it; ones for a fit): the block bootstrap (fitlab.fitting.resampling)
     refits a batch of resampled datasets, one per start, with the fit's own compilation."""
@@ -244,6 +250,7 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
         return jnp.concatenate([v[None], g])
 
     return {
+        "scan": jax.jit(functools.partial(scan_costs, static, loss)),
         "value": jax.jit(cost),
         "value_and_grad": jax.jit(value_and_grad),
         "local": jax.jit(local),
@@ -251,92 +258,23 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     }
 
 
-def _primes(d):
-    """The first d primes (one Halton base per dimension; a joint fit over channels has many)."""
-    out, k = [], 2
-    while len(out) < d:
-        if all(k % p for p in out if p * p <= k):
-            out.append(k)
-        k += 1
-    return out
+def scan_costs(static: StaticSpace, loss: str, U, problem):
+    """The cost at every point of ``U`` (P, d) of the unit box: one compiled call, a block of
+    points at a time (at most SCAN_BLOCK point-row pairs; all at once for small data)."""
+    rows = int(problem["data"].value.shape[0])
+    block = max(1, min(int(U.shape[0]), SCAN_BLOCK // max(rows, 1)))
+    return jax.lax.map(lambda u: cost_unit(static, loss, u, problem), U, batch_size=block)
 
 
-def halton(n, d, skip=1):
-    """First n points of the d-dimensional Halton sequence (a low-discrepancy start set)."""
-    primes = _primes(d)
-    out = np.empty((n, d))
-    for j, b in enumerate(primes):
-        for i in range(n):
-            k, f, x = i + skip, 1.0, 0.0
-            while k > 0:
-                f /= b
-                x += f * (k % b)
-                k //= b
-            out[i, j] = x
-    return out
-
-
-def progress_bar(enabled: bool, total: int, desc: str, unit: str):
-    """A tqdm bar on stderr (rate and time left), or None when progress is off (or brief and
-    stderr is no terminal: fitlab.fitting.progress)."""
-    if not enabled or not bars_shown():
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
-                mininterval=0.5, dynamic_ncols=True)
-
-
-def global_search(ndim, value_and_grad, problem, seed: int, maxeval: int, value=None,
-                  on_eval=None):
-    """nlopt multi-level single linkage over a low-discrepancy sequence (G_MLSL_LDS) with
-    gradient-based local searches (LD_LBFGS), over the unit box of the bounds.
-    ``value_and_grad(u, problem)`` returns one array, [cost, gradient...] (one transfer);
-    ``value(u, problem)``, if given, the cost alone, for the points where nlopt needs no
-    gradient (most of the low-discrepancy samples). ``on_eval()``, if given, is called after
-    every evaluation (progress)."""
-    evals, non_finite = [0], [0]
-    best = {"u": np.full(ndim, 0.5), "v": np.inf}
-
-    def objective(u, grad):
-        evals[0] += 1
-        if on_eval is not None:
-            on_eval()
-        if grad.size or value is None:
-            vg = np.asarray(value_and_grad(u, problem))
-            if grad.size:
-                grad[:] = np.nan_to_num(vg[1:], nan=0.0, posinf=0.0, neginf=0.0)
-            v = float(vg[0])
-        else:
-            v = float(np.asarray(value(u, problem)))
-        if not np.isfinite(v):
-            non_finite[0] += 1  # nlopt sees a huge cost instead (it cannot handle NaN)
-            return 1e300
-        if v < best["v"]:
-            best["u"], best["v"] = np.array(u, dtype=float), v
-        return v
-
-    nlopt.srand(int(seed))
-    opt = nlopt.opt(nlopt.G_MLSL_LDS, ndim)
-    local = nlopt.opt(nlopt.LD_LBFGS, ndim)
-    local.set_ftol_rel(1e-10)
-    local.set_maxeval(200)
-    opt.set_local_optimizer(local)
-    opt.set_lower_bounds(np.zeros(ndim))
-    opt.set_upper_bounds(np.ones(ndim))
-    opt.set_min_objective(objective)
-    opt.set_maxeval(int(maxeval))
-    x0 = np.full(ndim, 0.5)
-    try:
-        opt.optimize(x0)
-        status = str(opt.last_optimize_result())
-    except Exception as exc:  # nlopt stops a local search it cannot continue (roundoff, a
-        # failed line search); the best point evaluated so far is still a valid start.
-        status = f"stopped early ({type(exc).__name__}: {exc}); best evaluated point kept"
-    return np.clip(best["u"], 0, 1), {"algorithm": "nlopt G_MLSL_LDS + LD_LBFGS",
-                                      "evaluations": evals[0], "non_finite": non_finite[0],
-                                      "status": status,
-                                      "best_cost": best["v"] if np.isfinite(best["v"]) else None}
+def scan_rows(static: StaticSpace, data: FitData) -> FitData:
+    """The rows the scan evaluates: all of them up to SCAN_ROWS, else SCAN_ROWS rows evenly
+    spread over the data (in their order). A structure whose kernels depend on its row counts
+    (``static.rows_fixed``: a joint fit) scans every row."""
+    n = int(np.shape(data.value)[0])
+    if static.rows_fixed or n <= SCAN_ROWS:
+        return data
+    keep = np.unique(np.round(np.linspace(0, n - 1, SCAN_ROWS)).astype(int))
+    return jax.tree.map(lambda x: np.asarray(x)[keep], data)
 
 
 #: (static, loss, starts, rows) of the local stages compiled in this process.
@@ -366,17 +304,56 @@ def local_fits(k, problem, starts_u, weights=None):
     return {key: np.asarray(v) for key, v in out.items()}
 
 
+def lm_runs(loc: dict, lm_maxiter: int) -> list[dict]:
+    """Per start of the local stage's output ``loc``: its end ``u``, ``cost`` (inf where not
+    finite), ``iters``, ``stopped`` (one of LM_STOPPED) and ``index``."""
+    return [{"u": loc["u"][i],
+             "cost": (float(loc["cost"][i]) if np.isfinite(loc["cost"][i])
+                      and loc["end_finite"][i] else np.inf),
+             "iters": int(loc["iters"][i]),
+             "stopped": lm_stop_reason(float(loc["cost"][i]) if loc["end_finite"][i] else np.nan,
+                                       int(loc["iters"][i]), bool(loc["rule_unmet"][i]),
+                                       int(lm_maxiter)),
+             "index": i} for i in range(len(loc["cost"]))]
+
+
+#: A parameter this close to a bound (unit box) at the optimum is reported at the bound.
+AT_BOUND_UNIT = 1e-6
+#: A Levenberg–Marquardt end this close to a bound (unit box), but not at it, is refitted from
+#: the bound itself: LM moves in logit coordinates, where a cost that keeps falling towards a bound
+#: flattens out before it (Oren–Nayar's σ on Lambertian data, bound 0, ended at u ≈ 3e-6 from
+#: interior starts, with a meaningless standard error and no warning). From the bound it stays
+#: there when that is lower, and the fit says so (``at_bound``).
+NEAR_BOUND_UNIT = 1e-3
+
+
+def near_bounds(u) -> np.ndarray | None:
+    """``u`` with every coordinate within NEAR_BOUND_UNIT of a bound moved onto it; None when
+    none is, or each that is lies within AT_BOUND_UNIT already."""
+    u = np.asarray(u, dtype=float)
+    lo, hi = u < NEAR_BOUND_UNIT, u > 1.0 - NEAR_BOUND_UNIT
+    if not ((lo & (u >= AT_BOUND_UNIT)) | (hi & (u <= 1.0 - AT_BOUND_UNIT))).any():
+        return None
+    return np.where(lo, 0.0, np.where(hi, 1.0, u))
+
+
 def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native=None,
                       n_starts: int = 8, seed: int = 0,
                       global_maxeval: int | None = None,
-                      lm_maxiter: int = LM_MAXITER, progress: bool = False) -> LeastSquaresResult:
-    """Global search + multi-start LM + covariance. ``start_native`` (optional) is one more start;
-    ``lm_maxiter`` is each LM run's step limit; ``progress`` shows a bar with an estimate of the
-    time left for the global search, then the Levenberg–Marquardt stage, on stderr."""
+                      lm_maxiter: int = LM_MAXITER, progress: bool = False,
+                      search: str = DEFAULT_GLOBAL_SEARCH) -> LeastSquaresResult:
+    """Global stage (``search``, one of GLOBAL_SEARCHES; ``global_maxeval`` its evaluations,
+    None: its default) + multi-start LM + covariance. ``start_native`` (optional) is one more
+    start; ``lm_maxiter`` is each LM run's step limit; ``progress`` says what runs (nlopt's
+    search with a bar and an estimate of the time left), on stderr."""
     k = kernels(space.static, loss, int(lm_maxiter))
     n_rows = int(data.value.shape[0])
+    scan_data = scan_rows(space.static, data)
+    scanned_all = scan_data is data
     data = pad_rows(space.static, data)
     problem = problem_of(space, data)
+    scan_problem = problem if scanned_all else problem_of(space, pad_rows(space.static,
+                                                                          scan_data))
     d = space.ndim
     n_local = 1 + n_starts + (start_native is not None)
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -386,37 +363,31 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                None if data.weights is None else tuple(data.weights.shape))
         warm = None if key in _compiled_local else pool.submit(
             _compile_local, k, problem, n_local, d)
-        maxeval = global_maxeval or 150 * (d + 1)
-        bar = progress_bar(progress, maxeval, "  global search", "eval")
-        try:
-            u_glob, glob_info = global_search(d, k["value_and_grad"], problem, seed, maxeval,
-                                              value=k["value"],
-                                              on_eval=None if bar is None else bar.update)
-        finally:
-            if bar is not None:
-                bar.close()
+        U_glob, glob_info = global_start(search, k, problem, scan_problem,
+                                         int(scan_data.value.shape[0]), d, seed, n_starts,
+                                         global_maxeval, progress)
         if warm is not None:
             if progress and not warm.done():
                 progress_line("  compiling the Levenberg-Marquardt stage for this data shape "
                               "(once per shape; cached on disk)...")
             warm.result()
             _compiled_local.add(key)
-    starts_u = [u_glob] + list(halton(n_starts, d))
+    starts_u = list(U_glob)
     if start_native is not None:
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
     if progress:
         progress_line(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...")
     loc = canonical_runs(space, local_fits(k, problem, starts_u))  # one labelling of
     # interchangeable lobes (a sum that repeats a component: fitlab/fitting/exchange.py)
-    runs = [{"u0": np.asarray(u0), "u": loc["u"][i],
-             "cost": (float(loc["cost"][i]) if np.isfinite(loc["cost"][i])
-                      and loc["end_finite"][i] else np.inf),
-             "iters": int(loc["iters"][i]),
-             "stopped": lm_stop_reason(float(loc["cost"][i]) if loc["end_finite"][i] else np.nan,
-                                       int(loc["iters"][i]), bool(loc["rule_unmet"][i]),
-                                       int(lm_maxiter)),
-             "index": i} for i, u0 in enumerate(starts_u)]
+    runs = lm_runs(loc, lm_maxiter)
     best = min(runs, key=lambda r: r["cost"])
+    u_bound = near_bounds(best["u"]) if np.isfinite(best["cost"]) else None
+    if u_bound is not None:  # one more start: the best end moved onto the bounds it nears
+        again = canonical_runs(space, local_fits(k, problem, [u_bound] * len(starts_u)))
+        loc = {key: np.concatenate([v, again[key][:1]]) for key, v in loc.items()}
+        starts_u.append(u_bound)
+        runs = lm_runs(loc, lm_maxiter)
+        best = min(runs, key=lambda r: r["cost"])
     ib = best["index"]
     theta = loc["native"][ib]
     r = loc["residuals"][ib][:n_rows]  # the padding's rows are 0 (pad_rows)
@@ -426,7 +397,8 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     J = loc["jacobian"][ib][:n_rows]
     cov = noise**2 * np.linalg.pinv(J.T @ J)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
-    at_bound = tuple(p.name for p, u in zip(space.free, best["u"]) if u < 1e-6 or u > 1 - 1e-6)
+    at_bound = tuple(p.name for p, u in zip(space.free, best["u"])
+                     if u < AT_BOUND_UNIT or u > 1 - AT_BOUND_UNIT)
 
     def named(native):
         return {n: float(v) for n, v in zip(space.names, native)}

@@ -5,9 +5,9 @@ the batched least squares), and what the results become: a parameter file per da
 
 A dataset is one channel of one measurement. Datasets of one structure (model, options, free
 parameters, loss, padded row count) share compiled calls, ``chunk`` datasets at a time; others
-form groups of their own. The global stage is a Halton scan of the unit box (not the single
-fit's nlopt MLSL, which cannot be batched), so a batched fit and ``fitlab.fit`` of the same
-data agree where the optimum is unique (tested); MCMC, the bootstrap and the goodness-of-fit
+form groups of their own. The global stage is the single fit's default Halton scan of the unit
+box (fitlab.fitting.searches; nlopt's MLSL cannot be batched), so a batched fit and
+``fitlab.fit`` of the same data agree where the optimum is unique (tested); MCMC, the bootstrap and the goodness-of-fit
 checks are the single fit's (``fitlab.fit``).
 """
 

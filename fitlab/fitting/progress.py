@@ -45,4 +45,16 @@ def brief(on: bool = True):
             sys.stderr.flush()
 
 
-__all__ = ["bars_shown", "brief", "line"]
+
+def bar(enabled: bool, total: int, desc: str, unit: str):
+    """A tqdm bar on stderr (rate and time left), or None when progress is off (or inside
+    :func:`brief` where stderr is no terminal)."""
+    if not enabled or not bars_shown():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
+                mininterval=0.5, dynamic_ncols=True)
+
+
+__all__ = ["bar", "bars_shown", "brief", "line"]

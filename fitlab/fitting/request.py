@@ -116,6 +116,7 @@ class FitRequest:
     walkers: int | None = None
     sampler: str = "emcee"
     starts: int = STARTS
+    global_search: str = "scan"
     seed: int = 0
     aperture_order: int | None = None
     bootstrap: int | None = None
@@ -197,6 +198,11 @@ class FitRequest:
         if self.walkers is not None:
             set_(self, "walkers", _integer(self.walkers, name("walkers"), 2))
         set_(self, "starts", _integer(self.starts, name("starts"), 0))
+        from fitlab.fitting.searches import GLOBAL_SEARCHES
+
+        if self.global_search not in GLOBAL_SEARCHES:
+            raise FitlabError(f"{name('global_search')}: "
+                              f"{GLOBAL_SEARCHES.unknown(self.global_search)}")
         set_(self, "seed", _integer(self.seed, name("seed"), 0))
         if self.aperture_order is not None:
             from fitlab.aperture import MAX_ORDER, check_order
@@ -234,9 +240,11 @@ class FitRequest:
     def single_only(self) -> list[str]:
         """The settings set here that only a single fit offers (a batched fit of many datasets
         does not): ``share``, ``bootstrap``, ``aperture_order``, ``start``, ``channels``,
-        ``walter_diagnostics``."""
+        ``walter_diagnostics``, and a ``global_search`` other than the scan (a batched fit
+        always scans, fitlab.fitting.batch)."""
         return [f for f in ("share", "bootstrap", "aperture_order", "start", "channels",
-                            "walter_diagnostics") if getattr(self, f)]
+                            "walter_diagnostics") if getattr(self, f)] + (
+            ["global_search"] if self.global_search != "scan" else [])
 
 
 def as_request(model, settings: dict) -> FitRequest:

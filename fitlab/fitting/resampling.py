@@ -23,8 +23,9 @@ import numpy as np
 from fitlab._jax import jax
 from fitlab.fitting import goodness as gof
 from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_stop_reason,
-                                          pad_rows, problem_of, progress_bar, residuals_native)
+                                          pad_rows, problem_of, residuals_native)
 from fitlab.fitting.losses import has_absolute_noise
+from fitlab.fitting.progress import bar as progress_bar
 from fitlab.fitting.status import Status
 
 #: The bootstrap needs at least this many fitted incidence directions (blocks).

@@ -419,9 +419,9 @@ def predictive_quantiles(loss: str, model, noise, cos_o, floor: float,
     q = np.asarray(quantiles, float)[:, None] / 100.0
     lo, hi = np.repeat(lo[None, :], len(q), 0), np.repeat(hi[None, :], len(q), 0)
     for _ in range(QUANTILE_STEPS):
-        mid = 0.5 * (lo + hi)
-        cdf = np.stack([np.mean(ndtr(-_residual_of(loss, model, m[None, :], cos_o, floor)
-                                     / sigma), axis=0) for m in mid])
+        mid = 0.5 * (lo + hi)  # (Q, P): every quantile's CDF in one broadcast (Q, S, P)
+        cdf = np.mean(ndtr(-_residual_of(loss, model[None], mid[:, None, :], cos_o, floor)
+                           / sigma[None]), axis=1)
         below = cdf < q
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
     return 0.5 * (lo + hi)

@@ -161,8 +161,9 @@ def test_read_fit_rejects_other_versions(tmp_path):
 
 
 def test_least_squares_shows_progress_unless_quiet(tmp_path, capsys):
-    """Issue 14 item 6: the least-squares stage is not silent (a bar with the time left for the
-    global search, then the Levenberg-Marquardt stage); --quiet silences it."""
+    """Issue 14 item 6: the least-squares stage is not silent (what the global stage does: the
+    scan's one call, or nlopt's search with a bar and the time left; then the
+    Levenberg-Marquardt stage); --quiet silences it."""
     from fitlab.cli import main
 
     src = Path(__file__).resolve().parents[2] / "data_formats" / "examples" / "walter_rough_glass.csv"
@@ -170,7 +171,13 @@ def test_least_squares_shows_progress_unless_quiet(tmp_path, capsys):
             "--starts", "2", "--out", str(tmp_path / "f.json")]
     assert main(args + ["-v"]) == 0
     err = capsys.readouterr().err
+    assert "global scan: the cost at 768 points in one call" in err  # 2 free: 256 x 3
+    assert "Levenberg-Marquardt from 4 starts" in err
+    assert main(args + ["-v", "--global-search", "mlsl"]) == 0
+    err = capsys.readouterr().err
     assert "global search" in err and "eval" in err and "Levenberg-Marquardt from 4 starts" in err
+    g = json.loads((tmp_path / "f.json").read_text(encoding="utf-8"))["fits"][0]["global_search"]
+    assert g["algorithm"].startswith("nlopt G_MLSL_LDS") and g["evaluations"] > 0
     # by default progress is one status line on a terminal, and nothing in a file or pipe
     assert main(args) == 0
     err = capsys.readouterr().err

@@ -161,12 +161,13 @@ def test_bound_warns_at_once_and_skips_bootstrap(tmp_path):
 def test_iteration_limit_warns_at_once_and_skips_bootstrap(capsys, monkeypatch):
     import fitlab.fitting.least_squares as fls
 
-    def far_start(ndim, *args, **kwargs):  # every start far from the optimum (as in
-        return np.full(ndim, 0.05), {"algorithm": "test stub", "evaluations": 0,  # the
-                                     "non_finite": 0, "status": "skipped",  # failure tests)
-                                     "best_cost": None}
+    def far_start(search, k, problem, scan_problem, scan_rows, ndim, seed, starts, *args,
+                  **kwargs):  # every start far from the optimum (as in the failure tests)
+        return np.full((starts + 1, ndim), 0.05), {"algorithm": "test stub", "evaluations": 0,
+                                                   "non_finite": 0, "status": "skipped",
+                                                   "best_cost": None}
 
-    monkeypatch.setattr(fls, "global_search", far_start)
+    monkeypatch.setattr(fls, "global_start", far_start)
     r = fitlab.fit(WALTER, "rough_dielectric", starts=2, lm_maxiter=2, progress=True)
     err = capsys.readouterr().err
     boot = r.diagnostics()["bootstrap"]

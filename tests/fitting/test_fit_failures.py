@@ -16,6 +16,7 @@ import pytest
 from fitlab.export.paramfile import build_record
 from fitlab.fitting import least_squares as fls
 from fitlab.fitting import mcmc as fmcmc
+from fitlab.fitting import searches
 from fitlab.fitting.channel import FitWarning
 from fitlab.fitting.driver import fit_measurement
 from fitlab.fitting.request import FitRequest
@@ -56,11 +57,12 @@ def nan_where_albedo_above(monkeypatch):
 def _no_global_search(monkeypatch, u):
     """Replace the global search by a fixed, poor start (so that every LM start has work left)."""
 
-    def fixed_start(ndim, value_and_grad, problem, seed, maxeval, value=None, on_eval=None):
-        return np.full(ndim, u), {"algorithm": "test stub", "evaluations": 0, "non_finite": 0,
+    def fixed_start(search, k, problem, scan_problem, scan_rows, ndim, seed, starts, *args,
+                    **kwargs):
+        return np.concatenate([np.full((1, ndim), u), searches.halton(starts, ndim)]), {"algorithm": "test stub", "evaluations": 0, "non_finite": 0,
                                   "status": "skipped", "best_cost": None}
 
-    monkeypatch.setattr(fls, "global_search", fixed_start)
+    monkeypatch.setattr(fls, "global_start", fixed_start)
 
 
 # --------------------------------------------------------------------------------------------
@@ -125,20 +127,67 @@ def test_global_search_counts_non_finite_costs():
     def value(u, problem):
         return cost(np.asarray(u))[0]
 
-    u, info = fls.global_search(2, value_and_grad, None, seed=0, maxeval=300, value=value)
+    u, info = searches.global_search(2, value_and_grad, None, seed=0, maxeval=300, value=value)
     assert info["evaluations"] == calls["n"] > 0
     assert info["non_finite"] == calls["bad"] > 0
     np.testing.assert_allclose(u, 0.3, atol=1e-3)
     assert info["best_cost"] is not None and np.isfinite(info["best_cost"])
 
 
-def test_non_finite_costs_are_recorded_and_warned(oren_nayar_data, nan_where_albedo_above):
+def test_scan_counts_non_finite_costs_and_keeps_the_best_point():
+    """The scan evaluates every point once, in one call, and counts the NaN costs exactly."""
+    seen = []
+
+    def costs_at(U, problem):
+        seen.append(U)
+        c = np.sum((U - 0.3) ** 2, axis=1)
+        return np.where(U[:, 0] > 0.7, np.nan, c)
+
+    best, info = searches.scan_search(2, costs_at, None, seed=0, n_points=300, rows=7, keep=5)
+    (U,) = seen
+    assert U.shape == (300, 2) and info["evaluations"] == 300 and "7 rows" in info["algorithm"]
+    assert info["non_finite"] == int(np.sum(U[:, 0] > 0.7)) > 0
+    finite = U[U[:, 0] <= 0.7]
+    cost = np.sum((finite - 0.3) ** 2, axis=1)
+    np.testing.assert_array_equal(best, finite[np.argsort(cost)[:5]])  # the 5 best, best first
+    assert info["best_cost"] == pytest.approx(float(cost.min()))
+    # another seed scans another stretch of the sequence
+    assert not np.array_equal(searches.scan_points(300, 2, 1), U)
+    # nothing finite: the box's centre, said so
+    best, info = searches.scan_search(2, lambda U, p: np.full(len(U), np.nan), None, 0, 16, 7)
+    assert np.all(best == 0.5) and info["best_cost"] is None and info["non_finite"] == 16
+
+
+def test_scan_of_many_rows_evaluates_an_even_subset():
+    n = searches.SCAN_ROWS * 3 + 5
+    data = fls.FitData(np.zeros((n, 3)), np.zeros((n, 3)), np.arange(n, dtype=float),
+                       {"c": np.arange(n, dtype=float)})
+    sub = fls.scan_rows(_static(rows_fixed=False), data)
+    assert sub.value.shape == (searches.SCAN_ROWS,) and sub.value[0] == 0 and sub.value[-1] == n - 1
+    np.testing.assert_array_equal(sub.consts["c"], sub.value)  # every field the same rows
+    assert np.all(np.diff(sub.value) > 0)
+    assert fls.scan_rows(_static(rows_fixed=True), data) is data  # a joint fit scans all
+    small = data._replace(value=data.value[:100])
+    assert fls.scan_rows(_static(rows_fixed=False), small) is small
+
+
+def _static(rows_fixed):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(rows_fixed=rows_fixed)
+
+
+@pytest.mark.parametrize("search", ["scan", "mlsl"])
+def test_non_finite_costs_are_recorded_and_warned(oren_nayar_data, nan_where_albedo_above,
+                                                  search):
     m = oren_nayar_data
     nan_where_albedo_above(0.9)  # truth 0.6: the optimum is still reachable
     with pytest.warns(FitWarning, match="non-finite cost"):
-        res = fit_measurement(m, FitRequest("oren_nayar", starts=2, seed=0))
+        res = fit_measurement(m, FitRequest("oren_nayar", starts=2, seed=0,
+                                            global_search=search))
     fit = json.loads(json.dumps(build_record(res, m), allow_nan=False))["fits"][0]
     g = fit["global_search"]
+    assert g["algorithm"].startswith({"scan": "Halton scan", "mlsl": "nlopt"}[search])
     assert 0 < g["non_finite"] < g["evaluations"]
     assert any(f"at {g['non_finite']} of {g['evaluations']} evaluations" in w
                for w in fit["warnings"])

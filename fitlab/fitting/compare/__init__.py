@@ -123,8 +123,8 @@ class _Progress:
 def compare(measurement, models, *, fix: dict | None = None, free=(), options: dict | None = None,
             loss: str | None = None, subset=None, channels=None, cv: bool = True,
             mcmc: bool = True, mcmc_steps: int = 3000, walkers: int | None = None,
-            starts: int = 8, seed: int = 0, progress: bool = False,
-            throw: bool = False, angles: str | None = None, accept=(),
+            starts: int = 8, seed: int = 0, global_search: str = "scan",
+            progress: bool = False, throw: bool = False, angles: str | None = None, accept=(),
             quantity: str | None = None) -> "CompareResult":
     """Fit each of ``models`` to ``measurement`` (a Measurement or a path) and rank them by
     leave-one-incidence-out cross-validation (``cv``) and by PSIS-LOO and WAIC from the MCMC
@@ -133,8 +133,8 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     models: model names, :class:`Candidate` objects, dicts of Candidate's fields, or strings
     written as on the command line (``"NAME --fix P=V --option O=V --free P --label TEXT"``).
     fix, options, free: apply to every candidate that has the parameter or option (a
-    candidate's own settings win). loss, subset, channels, mcmc_steps, walkers, starts, seed:
-    as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
+    candidate's own settings win). loss, subset, channels, mcmc_steps, walkers, starts, seed,
+    global_search: as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
     likelihood). progress: a bar with the time left on stderr. What limits trust in the ranking is
     ``result.statuses(label, channel)`` and ``result.ok``; throw: raise a FitlabError naming it
     instead of returning a comparison that is not ``ok``. angles, accept, quantity: how a path
@@ -160,6 +160,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     loss = loss or ("chi2" if m.sigma is not None else "relative")
     settings = {"loss": loss, "subset": rows_fit, "mcmc": mcmc, "mcmc_steps": mcmc_steps,
                 "walkers": walkers, "starts": starts, "seed": seed, "bootstrap": 0,
+                "global_search": global_search,
                 "channels": tuple(m.channel_names[c] for c in chan_ids)}
     cands = resolve_candidates(models, fix, options, free, settings)
     fix = {k: float(v) for k, v in (fix or {}).items()}  # each checked by a candidate's request

@@ -207,7 +207,8 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
             data = _masked(base["data"], data_k, kept[rows])
             ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
                                    n_starts=starts, seed=seed,
-                                   lm_maxiter=cand.request.lm_maxiter)
+                                   lm_maxiter=cand.request.lm_maxiter,
+                                   search=cand.request.global_search)
             if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
