@@ -39,6 +39,7 @@ def test_closed_loop_recovers_a_gltf_material():
         assert img["ssim"] > 0.9999 and (img["psnr_db"] is None or img["psnr_db"] > 60), (t, img)
 
 
+@pytest.mark.slow  # 15-19 s of compilation; the quick tier converts a Lambertian (below)
 def test_rough_conductor_converts_to_a_metal_with_a_small_error():
     mat = material_from_model("rough_conductor", {"Y": {"alpha": 0.09, "n": 0.2, "k": 3.9}})
     model, params, errors = convert(mat)
