@@ -4,13 +4,18 @@ structure fitted in one compiled, vmapped call per chunk.
 A *structure* is what the least-squares kernels are compiled for (fitlab/fitting/least_squares):
 the model, its options, the free parameters and their transforms, the loss and the padded row
 count. Datasets (each channel of each measurement) are grouped by structure; every group is fitted
-in chunks of ``chunk`` datasets, each chunk with three batched calls:
+in chunks of ``chunk`` datasets, each chunk with a few batched calls:
 
 1. the global stage, the single fit's default low-discrepancy scan (fitlab.fitting.searches):
    the cost at ``scan`` Halton points of the unit box of every dataset (vmapped over datasets);
-   its best point is the first start;
-2. Levenberg–Marquardt (jaxopt, the single fit's own solver and kernel) from that point, the
-   model's defaults and ``starts`` Halton points, vmapped over starts and datasets;
+2. Levenberg–Marquardt from the scan's ``starts`` + 1 best points (the single fit's rule) and
+   the model's defaults, vmapped over starts and datasets, with the fixed-budget solver of
+   fitlab.fitting.lm_fixed (the single fit's damping and stopping rule; jaxopt's ``while_loop``
+   made every lane wait for the chunk's slowest, and evaluated the model three times a step):
+   ``STEPS`` steps a call, and the datasets whose best run has not met its stopping rule go on
+   from where it ended in further calls of the same compiled kernel, up to ``lm_maxiter``
+   steps; on the Walter benchmark (2,048 datasets, 2 vCPUs) 4.7x the jaxopt batch's fits/s
+   with the same optima;
 3. per dataset the best end, its covariance noise² (JᵀJ)⁻¹ from the Jacobian at the optimum
    (native units), the residual noise scale, which parameters sit at a bound, why LM stopped.
 
@@ -27,17 +32,24 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitlab._jax import jax
-from fitlab.fitting.least_squares import (AT_BOUND_UNIT, LM_MAXITER, FitData, kernels,
-                                          lm_stop_reason, pad_to, padded_size, scan_costs)
+from fitlab._jax import jax, jnp
+from fitlab.fitting.least_squares import (AT_BOUND_UNIT, LM_MAXITER, FitData, lm_stop_reason,
+                                          pad_to, padded_size, scan_costs)
 from fitlab.fitting.losses import has_absolute_noise
-from fitlab.fitting.searches import halton, scan_points
+from fitlab.fitting.searches import scan_points
 from fitlab.fitting.space import FitSpace, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
 #: the model's defaults.
 SCAN = 256
 STARTS = 4
+#: Levenberg–Marquardt steps per batched call (fitlab.fitting.lm_fixed): every lane runs this
+#: many (a lane that met its stopping rule stays put); a dataset whose best run has not met it
+#: goes on in further calls, up to lm_maxiter steps in all.
+STEPS = 30
+#: The ``solver.algorithm`` of a batched fit's parameter file.
+BATCH_LM_ALGORITHM = (f"fitlab fixed-budget Levenberg-Marquardt (Madsen-Nielsen stopping rule, "
+                      f"{STEPS} steps a call)")
 #: Datasets per batched call (memory: chunk × (starts + 2) × rows × free Jacobian entries).
 CHUNK = 1024
 
@@ -96,11 +108,45 @@ def _stack(problems: list[Problem], size: int) -> dict:
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *per)
 
 
+def fixed_local(static, loss, steps):
+    """The local stage of one dataset with the fixed-budget solver (fitlab.fitting.lm_fixed):
+    ``(Z0, U0, W, problem)`` -> the same record per start as the single fit's ``local``."""
+    from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_XTOL, ROW_WEIGHT,
+                                              _value_and_jacobian, residuals_native,
+                                              residuals_unit)
+    from fitlab.fitting.lm_fixed import lm_fixed
+    from fitlab.fitting.space import to_native, unit_from_z
+
+    r_and_jac_native = _value_and_jacobian(functools.partial(residuals_native, static, loss))
+
+    def r_z(z, problem):
+        return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
+
+    def one(z0, u0, w, problem):
+        problem = {**problem, ROW_WEIGHT: w}
+        sol = lm_fixed(r_z, z0, problem, steps=steps, xtol=LM_XTOL, gtol=LM_GTOL,
+                       tau=LM_DAMPING)
+        z = jnp.where(sol["finite"], sol["z"], z0)
+        theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
+        r, J = r_and_jac_native(theta, problem)
+        r, J = r * w, J * w[:, None]
+        return {"z": z, "iters": sol["iters"], "rule_unmet": ~sol["rule_met"],
+                "end_finite": sol["finite"], "u": unit_from_z(z), "native": theta,
+                "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
+                "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
+
+    def local(Z0, U0, W, problem):
+        return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
+
+    return local
+
+
 @functools.lru_cache(maxsize=32)
-def _batched(static, loss, maxiter):
-    """The single fit's kernels vmapped over datasets: the scan's costs (points shared, problem
-    per dataset) and the local stage (starts, weights and problem per dataset)."""
-    local = kernels(static, loss, int(maxiter))["local_fn"]
+def _batched(static, loss, steps):
+    """The kernels vmapped over datasets: the single fit's scan (points shared, problem per
+    dataset) and the local stage with the fixed-budget solver, ``steps`` steps a call (starts,
+    weights and problem per dataset)."""
+    local = fixed_local(static, loss, int(steps))
     cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
             "batch_local": jax.jit(jax.vmap(local, in_axes=(0, 0, 0, 0)))}
@@ -118,29 +164,46 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     p0 = problems[0]
     static, loss, d = p0.space.static, p0.loss, p0.space.ndim
     size = padded_size(max(p.n_rows for p in problems))
-    k = _batched(static, loss, lm_maxiter)
+    steps = min(int(lm_maxiter), STEPS)
+    k = _batched(static, loss, steps)
     problem = _stack(problems, size)
     B = len(problems)
-    with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
-        # 1. global scan (the same low-discrepancy points in every dataset's unit box; the seed
-        #    shifts the sequence, as the single fit's seed does its search)
-        U_scan = scan_points(scan, d, seed)
-        costs = np.asarray(k["batch_scan"](U_scan, problem))
-        costs = np.where(np.isfinite(costs), costs, np.inf)
-        best = np.argmin(costs, axis=1)
-        u_best = U_scan[best]
-        # 2. LM from the scan's best, the defaults and `starts` Halton points
-        u_default = np.stack([p.space.to_unit(p.start_native) for p in problems])
-        extra = np.broadcast_to(halton(starts, d, skip=1 + (int(seed) + 1) * 97), (B, starts, d))
-        U0 = np.concatenate([u_best[:, None], u_default[:, None], extra], axis=1)
-        U0 = np.clip(U0, 1e-6, 1 - 1e-6)
-        Z0 = z_from_unit(U0)
-        S = U0.shape[1]
-        W = np.ones((B, S, size))
-        out = k["batch_local"](Z0, U0, W, problem)
-    out = {key: np.asarray(v) for key, v in out.items()}
+    # 1. global scan (the same low-discrepancy points in every dataset's unit box; the seed
+    #    shifts the sequence, as the single fit's seed does its search)
+    U_scan = scan_points(scan, d, seed)
+    costs = np.asarray(k["batch_scan"](U_scan, problem))
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    # 2. LM from the scan's `starts` + 1 best points (the single fit's rule) and the defaults
+    order = np.argsort(costs, axis=1, kind="stable")[:, :starts + 1]
+    u_default = np.stack([p.space.to_unit(p.start_native) for p in problems])
+    U0 = np.clip(np.concatenate([U_scan[order], u_default[:, None]], axis=1), 1e-6, 1 - 1e-6)
+    S = U0.shape[1]
+    W = np.ones((B, S, size))
+    out = {key: np.array(v) for key, v in k["batch_local"](z_from_unit(U0), U0, W,
+                                                          problem).items()}  # writable
     cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
     ib = np.argmin(cost, axis=1)
+    # 3. the datasets whose best run has not met its stopping rule go on from where it ended,
+    #    `steps` more at a time, until it does or at least lm_maxiter steps are spent (the same
+    #    compiled call: those datasets packed into a chunk of the same size)
+    while True:
+        at = np.arange(B), ib
+        todo = np.flatnonzero(out["rule_unmet"][at] & out["end_finite"][at]
+                              & (out["iters"][at] < lm_maxiter))
+        if todo.size == 0:
+            break
+        for part in (todo[a:a + B] for a in range(0, todo.size, B)):
+            fill = np.concatenate([part, np.full(B - part.size, part[0])])
+            z = np.broadcast_to(out["z"][fill, ib[fill]][:, None], (B, S, d))
+            more = {key: np.asarray(v) for key, v in k["batch_local"](
+                z, out["u"][fill, ib[fill]][:, None].repeat(S, 1), W,
+                _stack([problems[i] for i in fill], size)).items()}
+            more["iters"] = more["iters"] + out["iters"][fill, ib[fill]][:, None]
+            more["start_native"] = np.broadcast_to(
+                out["start_native"][fill, ib[fill]][:, None], more["start_native"].shape)
+            for key in out:
+                out[key][part, ib[part]] = more[key][:part.size, 0]
+    cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
     pick = lambda a: a[np.arange(B), ib]  # noqa: E731
     theta, J, r = pick(out["native"]), pick(out["jacobian"]), pick(out["residuals"])
     n_rows = np.array([p.n_rows for p in problems])
@@ -174,5 +237,5 @@ def n_chunks(sizes: list[int], chunk: int) -> int:
     return sum(math.ceil(s / max(1, int(chunk))) for s in sizes)
 
 
-__all__ = ["SCAN", "STARTS", "CHUNK", "Problem", "BatchResult", "structure_of",
+__all__ = ["SCAN", "STARTS", "STEPS", "BATCH_LM_ALGORITHM", "CHUNK", "Problem", "BatchResult", "structure_of",
            "group", "fit_chunk", "chunks", "n_chunks"]

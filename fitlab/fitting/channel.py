@@ -9,7 +9,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitlab._jax import jax
 from fitlab.api import check_params
 from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData
@@ -224,9 +223,11 @@ def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
                          f"{space.ndim} free parameters ({', '.join(space.names)})")
     sigma = None if m.sigma is None else m.sigma[rows]
     consts = loss_weights(loss, m.value[rows], sigma, m.wo[rows, 2])
-    data = jax.device_put(FitData(np.asarray(m.wi[rows], float), np.asarray(m.wo[rows], float),
-                                  np.asarray(m.value[rows], float),
-                                  {k: np.asarray(v, float) for k, v in consts.items()}))
+    # host arrays: the kernels' arguments go to the device once per fit (least_squares.problem_of),
+    # and a batched fit stacks thousands of these on the host first
+    data = FitData(np.asarray(m.wi[rows], float), np.asarray(m.wo[rows], float),
+                   np.asarray(m.value[rows], float),
+                   {k: np.asarray(v, float) for k, v in consts.items()})
     if aperture_order is not None:
         from fitlab.fitting.aperture import with_nodes
 

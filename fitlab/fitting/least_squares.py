@@ -424,9 +424,14 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                               best["iters"], starts, disagreement, glob_info, solver, J)
 
 
-def lm_record(stopped: str, iterations: int, max_iterations: int) -> dict:
+#: The ``solver.algorithm`` of a single fit's parameter file.
+LM_ALGORITHM = "jaxopt LevenbergMarquardt (Madsen-Nielsen stopping rule)"
+
+
+def lm_record(stopped: str, iterations: int, max_iterations: int,
+              algorithm: str = LM_ALGORITHM) -> dict:
     """The parameter file's ``solver`` entry: how the best start's Levenberg–Marquardt run
     ended (data_formats/fit_json.md)."""
-    return {"algorithm": "jaxopt LevenbergMarquardt (Madsen-Nielsen stopping rule)",
+    return {"algorithm": algorithm,
             "stopped": stopped, "iterations": int(iterations),
             "max_iterations": int(max_iterations), "xtol": LM_XTOL, "gtol": LM_GTOL}

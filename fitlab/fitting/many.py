@@ -22,7 +22,8 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError
-from fitlab.fitting.batch import CHUNK, SCAN, STARTS, BatchResult, Problem, chunks, fit_chunk, group
+from fitlab.fitting.batch import (CHUNK, SCAN, STARTS, BATCH_LM_ALGORITHM, BatchResult, Problem,
+                                  chunks, fit_chunk, group)
 from fitlab.fitting.least_squares import LeastSquaresResult, lm_record
 from fitlab.fitting.status import Status, channel_statuses, trusted
 
@@ -214,7 +215,8 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
          "evaluations": int(settings["scan"]), "non_finite": 0, "status": "done",
          "best_cost": float(f.scan_cost) if np.isfinite(f.scan_cost) else None,
          "lm_starts": int(settings["starts"]) + 2, "local_minima_worse": None},
-        lm_record(f.lm_stopped, int(f.lm_iterations), int(settings["lm_maxiter"])))
+        lm_record(f.lm_stopped, int(f.lm_iterations), int(settings["lm_maxiter"]),
+                  algorithm=BATCH_LM_ALGORITHM))
 
 
 def _problems(measurements, request):

@@ -75,6 +75,54 @@ def test_a_fit_stopped_by_its_iteration_limit_is_not_ok(synthetic):
         fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1, throw=True)
 
 
+def test_fixed_budget_solver_matches_scipy_and_masks_converged_lanes():
+    """fitlab.fitting.lm_fixed on a nonlinear least-squares problem (y = a exp(-b x)): the
+    optimum of scipy.optimize.least_squares; a lane that met its stopping rule stays put (its
+    step count is below the budget and does not grow), one that did not reports it."""
+    import jax
+    import jax.numpy as jnp
+    from scipy.optimize import least_squares
+
+    from fitlab.fitting.lm_fixed import lm_fixed
+
+    x = np.linspace(0.0, 4.0, 40)
+    y = 2.0 * np.exp(-1.3 * x) + 0.01 * np.random.default_rng(0).standard_normal(40)
+
+    def residual(z, args):
+        return z[0] * jnp.exp(-z[1] * args) - y
+
+    want = least_squares(lambda z: z[0] * np.exp(-z[1] * x) - y, [1.0, 0.5], xtol=1e-14,
+                         ftol=1e-14, gtol=1e-14).x
+    Z0 = jnp.array([[1.0, 0.5], [5.0, 5.0]])
+    run = jax.jit(jax.vmap(lambda z0, steps: lm_fixed(residual, z0, jnp.asarray(x), steps=steps,
+                                                      xtol=1e-10, gtol=1e-10, tau=1e-6),
+                           in_axes=(0, None)), static_argnums=1)
+    out = run(Z0, 60)
+    assert np.all(np.asarray(out["rule_met"])) and np.all(np.asarray(out["finite"]))
+    np.testing.assert_allclose(np.asarray(out["z"]), np.stack([want, want]), rtol=1e-7)
+    iters = np.asarray(out["iters"])
+    assert np.all(iters < 60)
+    longer = run(Z0, 120)  # a converged lane does not move: same steps, same point
+    np.testing.assert_array_equal(np.asarray(longer["iters"]), iters)
+    np.testing.assert_array_equal(np.asarray(longer["z"]), np.asarray(out["z"]))
+    short = run(Z0, 2)
+    assert not np.any(np.asarray(short["rule_met"])) and np.all(np.asarray(short["iters"]) == 2)
+
+
+def test_a_dataset_past_one_call_goes_on_to_its_optimum(synthetic, monkeypatch):
+    """A dataset whose best run needs more than one call's steps continues in further calls
+    (fitlab.fitting.batch.STEPS) to the same optimum, its steps counted across them."""
+    from fitlab.fitting import batch
+
+    ms, _ = synthetic
+    ref = fitlab.fit_many(ms[:2], "rough_dielectric")
+    monkeypatch.setattr(batch, "STEPS", 3)
+    many = fitlab.fit_many(ms[:2], "rough_dielectric")
+    for a, b in zip(ref.fits, many.fits):
+        np.testing.assert_allclose(b.native, a.native, rtol=1e-7)
+        assert b.lm_stopped == "converged" and b.lm_iterations > 3
+
+
 def test_structures_are_grouped(synthetic):
     """The RGB file (chi2 loss: it has sigma; 4 rows) and the synthetic sets (relative loss,
     69 rows) are two structures; every channel is a dataset."""
