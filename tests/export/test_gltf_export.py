@@ -170,7 +170,7 @@ def test_refracting_dielectric_converts_with_a_warning():
     assert "KHR_materials_transmission" in doc["materials"][0]["extensions"]
     a = conv["albedo"]["30"]
     assert a["gltf_transmitted"][0] == pytest.approx(a["material_transmitted"][0], rel=0.1)
-    assert conv["relative_rms"] > 0.25 and "thin-walled" in conv["warnings"][0]
+    assert conv["relative_rms"] > 0.25 and any("thin-walled" in w for w in conv["warnings"])
 
 
 @pytest.mark.parametrize("model,values", [

@@ -103,8 +103,10 @@ def test_mcmc_stays_in_the_ordered_labelling(two_lobe_data):
     from fitlab.fitting.driver import fit_measurement
     from fitlab.fitting.request import FitRequest
 
+    # the default starts: with 2, LM from the global scan's 3 best points ends in a local
+    # minimum of this 5-parameter sum (cost 416 against 164; nlopt's MLSL found the optimum)
     res = fit_measurement(two_lobe_data, FitRequest(MODEL, fix={"k": 0.0, "k_2": 0.0}, seed=1,
-                                                    mcmc=True, mcmc_steps=200, starts=2),
+                                                    mcmc=True, mcmc_steps=200),
                           warn=False)
     ch = res["channels"][0]
     names = list(ch["space"].names)
