@@ -18,6 +18,12 @@ step evaluates the model for the residual, for the Jacobian and for the trial po
 
 A lane reports whether its stopping rule was met (``converged``), else it ran out of steps
 (``max_iterations``), and whether it ended finite.
+
+Why an own solver and not Optimistix's ``LevenbergMarquardt`` under vmap (the maintained
+library the project would otherwise use): measured on the same 2,048 datasets, starts and
+residuals (benchmarks/batched_lm.py, 2 vCPUs), this one is 2.8x (Walter: 12,807 against 4,506
+datasets/s) and 2.9x (Lambert + GGX conductor: 7,297 against 2,477) faster warm, compiles in
+half the time, and reaches the same optima to 4e-9 in the logit coordinates.
 """
 
 from __future__ import annotations
