@@ -33,11 +33,14 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab._jax import jax, jnp
-from fitlab.fitting.least_squares import (AT_BOUND_UNIT, LM_MAXITER, FitData, lm_stop_reason,
-                                          pad_to, padded_size, scan_costs)
+from fitlab.fitting.least_squares import (AT_BOUND_UNIT, LM_DAMPING, LM_GTOL, LM_MAXITER,
+                                          LM_XTOL, ROW_WEIGHT, FitData,
+                                          lm_stop_reason, pad_to, padded_size, residuals_native,
+                                          residuals_unit, scan_costs)
+from fitlab.fitting.lm_fixed import lm_fixed, value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.searches import scan_points
-from fitlab.fitting.space import FitSpace, z_from_unit
+from fitlab.fitting.space import FitSpace, to_native, unit_from_z, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
 #: the model's defaults.
@@ -111,13 +114,7 @@ def _stack(problems: list[Problem], size: int) -> dict:
 def fixed_local(static, loss, steps):
     """The local stage of one dataset with the fixed-budget solver (fitlab.fitting.lm_fixed):
     ``(Z0, U0, W, problem)`` -> the same record per start as the single fit's ``local``."""
-    from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_XTOL, ROW_WEIGHT,
-                                              _value_and_jacobian, residuals_native,
-                                              residuals_unit)
-    from fitlab.fitting.lm_fixed import lm_fixed
-    from fitlab.fitting.space import to_native, unit_from_z
-
-    r_and_jac_native = _value_and_jacobian(functools.partial(residuals_native, static, loss))
+    r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
 
     def r_z(z, problem):
         return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]

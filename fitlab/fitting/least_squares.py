@@ -1,11 +1,11 @@
-"""Least squares: a global stage that picks the first start, jaxopt Levenberg–Marquardt on
-jitted residuals from it and from low-discrepancy starts, covariance from the Jacobian at the
-optimum.
+"""Least squares: a global stage that picks the starts, jaxopt Levenberg–Marquardt on jitted
+residuals from every start at once, covariance from the Jacobian at the optimum.
 
 The global stage (fitlab.fitting.searches) is by default a *scan*: the cost at a few hundred
 Halton points of the unit box, all in one compiled call (:func:`scan_costs`; the batched fits,
-fitlab.fitting.batch, run the same scan vmapped over datasets); its best point is the first
-start. ``mlsl`` is nlopt's multi-level single linkage, one evaluation at a time.
+fitlab.fitting.batch, run the same scan vmapped over datasets); Levenberg–Marquardt starts from
+its best points. ``mlsl`` is nlopt's multi-level single linkage, one evaluation at a time, then
+its best point and Halton points.
 
 The compiled kernels per fit structure: the scan's costs, the cost and the cost with its
 gradient (for nlopt), and the local stage (Levenberg–Marquardt from every start at once,
@@ -28,6 +28,7 @@ import numpy as np
 
 from fitlab._jax import jax, jnp
 from fitlab.fitting.exchange import canonical_runs
+from fitlab.fitting.lm_fixed import value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.progress import line as progress_line
 from fitlab.fitting.searches import DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, global_start
@@ -183,20 +184,6 @@ def cost_unit(static, loss, u, problem):
     return 0.5 * jnp.sum(r * r)
 
 
-def _value_and_jacobian(f):
-    """x -> (f(x), ∂f/∂x) in one forward-mode pass."""
-
-    def both(x, *args):
-        def f2(y):
-            v = f(y, *args)
-            return v, v
-
-        J, v = jax.jacfwd(f2, has_aux=True)(x)
-        return v, J
-
-    return both
-
-
 @functools.lru_cache(maxsize=64)
 def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     """Jitted kernels for one static structure: ``scan`` (the cost at a batch of unit-box
@@ -207,7 +194,7 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     are multiplied by it; ones for a fit): the block bootstrap (fitlab.fitting.resampling)
     refits a batch of resampled datasets, one per start, with the fit's own compilation."""
 
-    r_and_jac_native = _value_and_jacobian(functools.partial(residuals_native, static, loss))
+    r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
 
     def r_z(z, problem):
         return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]

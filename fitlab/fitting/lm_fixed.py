@@ -31,18 +31,29 @@ from __future__ import annotations
 from fitlab._jax import jax, jnp
 
 
+def value_and_jacobian(f):
+    """x -> (f(x), ∂f/∂x) in one forward-mode pass."""
+
+    def both(x, *args):
+        def f2(y):
+            v = f(y, *args)
+            return v, v
+
+        J, v = jax.jacfwd(f2, has_aux=True)(x)
+        return v, J
+
+    return both
+
+
 def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: float):
     """Minimise ½‖residual(z, args)‖² from ``z0`` (p,) in at most ``steps`` steps. Returns
     ``z``, ``cost``, ``iters`` (steps taken before the rule was met, else ``steps``),
     ``rule_met`` and ``finite``. Traceable: vmap it over starts and datasets."""
 
-    def r_and_j(z):
-        def f(y):
-            r = residual(y, args)
-            return r, r
+    both = value_and_jacobian(residual)
 
-        J, r = jax.jacfwd(f, has_aux=True)(z)
-        return r, J
+    def r_and_j(z):
+        return both(z, args)
 
     r0, J0 = r_and_j(z0)
     A0 = J0.T @ J0
@@ -80,4 +91,4 @@ def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: f
             "finite": finite}
 
 
-__all__ = ["lm_fixed"]
+__all__ = ["lm_fixed", "value_and_jacobian"]
