@@ -51,6 +51,8 @@ class Fitted(NamedTuple):
     scan_cost: float
     #: the posterior (NUTS, batched over the datasets) when fitted with mcmc=True
     mcmc: object = None
+    #: Levenberg–Marquardt starts run (2, more where the first two disagreed: batch.fit_chunk)
+    lm_starts: int = 2
 
 
 def _statuses_of(f: Fitted) -> tuple[Status, ...]:
@@ -214,7 +216,7 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
         {"algorithm": "batched Halton scan (fitlab.fitting.batch)",
          "evaluations": int(settings["scan"]), "non_finite": 0, "status": "done",
          "best_cost": float(f.scan_cost) if np.isfinite(f.scan_cost) else None,
-         "lm_starts": int(settings["starts"]) + 2, "local_minima_worse": None},
+         "lm_starts": int(f.lm_starts), "local_minima_worse": None},
         lm_record(f.lm_stopped, int(f.lm_iterations), int(settings["lm_maxiter"]),
                   algorithm=BATCH_LM_ALGORITHM))
 
@@ -366,7 +368,7 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
                                  res.covariance[k], float(res.cost[k]), int(res.dof[k]),
                                  float(res.noise_scale[k]), int(res.iterations[k]),
                                  res.stopped[k], res.at_bound[k], res.residuals[k],
-                                 float(res.scan_cost[k]), posts[k])
+                                 float(res.scan_cost[k]), posts[k], int(res.lm_starts[k]))
             if bar is not None:
                 bar.update(len(idx))
     finally:

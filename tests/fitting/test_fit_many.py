@@ -123,6 +123,23 @@ def test_a_dataset_past_one_call_goes_on_to_its_optimum(synthetic, monkeypatch):
         assert b.lm_stopped == "converged" and b.lm_iterations > 3
 
 
+def test_more_starts_only_where_the_first_two_disagree(synthetic, monkeypatch):
+    """fit_chunk runs LM from the scan's best point and the defaults; where those end apart it
+    runs the scan's next best points too, two at a time. Here they agree (2 starts each); made
+    to disagree, every dataset runs 2 + 4 starts and reaches the same optimum."""
+    from fitlab.fitting import batch
+
+    ms, _ = synthetic
+    ref = fitlab.fit_many(ms[:3], "rough_dielectric")
+    assert [f.lm_starts for f in ref.fits] == [2, 2, 2]
+    assert next(iter(ref.records()))[1]["fits"][0]["global_search"]["lm_starts"] == 2
+    monkeypatch.setattr(batch, "_agree", lambda out, d: np.zeros(len(out["cost"]), bool))
+    more = fitlab.fit_many(ms[:3], "rough_dielectric", starts=4)
+    assert [f.lm_starts for f in more.fits] == [6, 6, 6]
+    for a, b in zip(ref.fits, more.fits):
+        np.testing.assert_allclose(b.native, a.native, rtol=1e-7)
+
+
 def test_structures_are_grouped(synthetic):
     """The RGB file (chi2 loss: it has sigma; 4 rows) and the synthetic sets (relative loss,
     69 rows) are two structures; every channel is a dataset."""
