@@ -34,16 +34,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitlab._jax import jax, jnp
-from fitlab.fitting.least_squares import (AT_BOUND_UNIT, DISTINCT_UNIT, EQUAL_COST_RTOL,
-                                          LM_DAMPING, LM_GTOL, LM_MAXITER,
-                                          LM_XTOL, ROW_WEIGHT, FitData,
-                                          lm_stop_reason, pad_to, padded_size, residuals_native,
-                                          residuals_unit, scan_costs)
-from fitlab.fitting.lm_fixed import lm_fixed, value_and_jacobian
+from fitlab._jax import jax
+from fitlab.fitting.least_squares import (DISTINCT_UNIT, EQUAL_COST_RTOL, LM_DAMPING, LM_GTOL,
+                                          LM_MAXITER, LM_XTOL, FitData, local_stage,
+                                          lm_stop_reason, names_at_bound, pad_to, padded_size,
+                                          residuals_z, scan_costs)
+from fitlab.fitting.lm_fixed import lm_fixed
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.searches import scan_points
-from fitlab.fitting.space import FitSpace, to_native, unit_from_z, z_from_unit
+from fitlab.fitting.space import FitSpace, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
 #: the model's defaults.
@@ -56,7 +55,7 @@ STEPS = 30
 #: The ``solver.algorithm`` of a batched fit's parameter file.
 BATCH_LM_ALGORITHM = (f"fitlab fixed-budget Levenberg-Marquardt (Madsen-Nielsen stopping rule, "
                       f"{STEPS} steps a call)")
-#: Datasets per batched call (memory: chunk × (starts + 2) × rows × free Jacobian entries).
+#: Datasets per batched call (memory: chunk × 2 starts × rows × free Jacobian entries).
 CHUNK = 1024
 
 
@@ -116,30 +115,16 @@ def _stack(problems: list[Problem], size: int) -> dict:
 
 
 def fixed_local(static, loss, steps):
-    """The local stage of one dataset with the fixed-budget solver (fitlab.fitting.lm_fixed):
-    ``(Z0, U0, W, problem)`` -> the same record per start as the single fit's ``local``."""
-    r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
+    """The single fit's local stage (least_squares.local_stage) with the fixed-budget solver
+    (fitlab.fitting.lm_fixed), ``steps`` steps a call."""
+    residual = functools.partial(residuals_z, static, loss)
 
-    def r_z(z, problem):
-        return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
-
-    def one(z0, u0, w, problem):
-        problem = {**problem, ROW_WEIGHT: w}
-        sol = lm_fixed(r_z, z0, problem, steps=steps, xtol=LM_XTOL, gtol=LM_GTOL,
+    def run_lm(z0, problem):
+        sol = lm_fixed(residual, z0, problem, steps=steps, xtol=LM_XTOL, gtol=LM_GTOL,
                        tau=LM_DAMPING)
-        z = jnp.where(sol["finite"], sol["z"], z0)
-        theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
-        r, J = r_and_jac_native(theta, problem)
-        r, J = r * w, J * w[:, None]
-        return {"z": z, "iters": sol["iters"], "rule_unmet": ~sol["rule_met"],
-                "end_finite": sol["finite"], "u": unit_from_z(z), "native": theta,
-                "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
-                "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
+        return sol["z"], sol["iters"], ~sol["rule_met"]
 
-    def local(Z0, U0, W, problem):
-        return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
-
-    return local
+    return local_stage(static, loss, run_lm)
 
 
 @functools.lru_cache(maxsize=32)
@@ -153,13 +138,14 @@ def _batched(static, loss, steps):
             "batch_local": jax.jit(jax.vmap(local, in_axes=(0, 0, 0, 0)))}
 
 
-def _run_pairs(k, problems, size, which, U0, z=None, stacked=None) -> dict:
-    """The local stage of the datasets ``problems[which]`` from two starts each (``U0``:
-    (len(which), 2, d) in the unit box; ``z``, if given, (len(which), d) logit points both lanes
-    start from instead), packed into calls of len(problems) datasets (padded with copies of
-    the first, whose results are dropped): one compiled kernel for every call of a chunk.
-    ``stacked``: the stacked problems when ``which`` is all of them, in order."""
-    B = len(problems)
+def _run_pairs(k, stacked, which, U0, z=None) -> dict:
+    """The local stage of the datasets ``which`` of the chunk's stacked problems ``stacked``
+    from two starts each (``U0``: (len(which), 2, d) in the unit box; ``z``, if given,
+    (len(which), d) logit points both lanes start from instead), packed into calls of the
+    chunk's size (padded with copies of the first, whose results are dropped): one compiled
+    kernel for every call of a chunk."""
+    B = int(np.shape(stacked["data"].value)[0])
+    size = int(np.shape(stacked["data"].value)[1])
     parts = []
     for a in range(0, len(which), B):
         part = which[a:a + B]
@@ -168,14 +154,14 @@ def _run_pairs(k, problems, size, which, U0, z=None, stacked=None) -> dict:
         zz = z_from_unit(u) if z is None else np.broadcast_to(
             np.concatenate([z[a:a + B], np.repeat(z[a:a + 1], B - part.size, axis=0)])[:, None],
             u.shape)
-        whole = stacked if stacked is not None and part.size == B else _stack(
-            [problems[i] for i in fill], size)
+        whole = stacked if np.array_equal(fill, np.arange(B)) else jax.tree.map(
+            lambda x: x[fill], stacked)
         got = k["batch_local"](zz, u, np.ones(u.shape[:2] + (size,)), whole)
         parts.append({key: np.asarray(v)[:part.size] for key, v in got.items()})
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 
 
-def _agree(out: dict, d: int) -> np.ndarray:
+def _agree(out: dict) -> np.ndarray:
     """Per dataset: its two runs ended finite, at costs within EQUAL_COST_RTOL and points
     within DISTINCT_UNIT of each other (the single fit's rule for "a different optimum")."""
     cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
@@ -217,14 +203,14 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     lanes = np.clip(lanes, 1e-6, 1 - 1e-6)
     if lanes.shape[1] % 2:  # an odd count: the last pair repeats its start
         lanes = np.concatenate([lanes, lanes[:, -1:]], axis=1)
-    run = functools.partial(_run_pairs, k, problems, size)
-    first = run(np.arange(B), lanes[:, :2], stacked=problem)
+    run = functools.partial(_run_pairs, k, problem)
+    first = run(np.arange(B), lanes[:, :2])
     out = {key: np.concatenate([v, np.zeros((B, lanes.shape[1] - 2) + v.shape[2:], v.dtype)],
                                axis=1) for key, v in first.items()}
     out["cost"][:, 2:] = np.inf
     out["end_finite"][:, 2:] = False
     n_lanes = np.full(B, 2)
-    apart = ~_agree(first, d)
+    apart = ~_agree(first)
     for j in range(2, lanes.shape[1], 2):
         todo = np.flatnonzero(apart)
         if todo.size:
@@ -261,8 +247,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     stderr = np.sqrt(np.clip(np.einsum("bii->bi", cov), 0, None))
     u_end = pick(out["u"])
     names = p0.space.names
-    at_bound = [tuple(n for n, u in zip(names, row) if u < AT_BOUND_UNIT or u > 1 - AT_BOUND_UNIT)
-                for row in u_end]
+    at_bound = [names_at_bound(names, row) for row in u_end]
     iters = pick(out["iters"])
     stopped = [lm_stop_reason(float(c), int(it), bool(ru), int(lm_maxiter))
                for c, it, ru in zip(np.where(np.isfinite(pick(cost)), pick(cost), np.nan),

@@ -184,6 +184,47 @@ def cost_unit(static, loss, u, problem):
     return 0.5 * jnp.sum(r * r)
 
 
+def residuals_z(static: StaticSpace, loss: str, z, problem):
+    """The residuals at logit coordinates ``z`` of the unit box, times the start's row weights
+    (``problem[ROW_WEIGHT]``): what Levenberg–Marquardt minimises."""
+    return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
+
+
+def local_stage(static: StaticSpace, loss: str, run_lm):
+    """``(Z0, U0, W, problem)`` -> per start (vmapped): Levenberg–Marquardt by ``run_lm(z0,
+    problem)`` -> (end, steps, rule_unmet), then the end's cost, residuals and Jacobian in native
+    units. The single fit's solver (jaxopt, :func:`kernels`) and the batched fits' (fixed
+    budget, fitlab.fitting.batch) share it."""
+    r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
+
+    def one(z0, u0, w, problem):
+        problem = {**problem, ROW_WEIGHT: w}
+        z_end, iters, rule_unmet = run_lm(z0, problem)
+        # A flat cost (every residual's Jacobian exactly 0, e.g. a lobe so narrow that the
+        # model is 0 at every measured direction: Beckmann's D underflows to 0 there) makes the
+        # damping μ = τ max diag(JᵀJ) zero and the first step 0/0 = NaN. Such a run ends where
+        # it started, marked by end_finite = False (lm_stopped "non_finite").
+        end_finite = jnp.all(jnp.isfinite(z_end))
+        z = jnp.where(end_finite, z_end, z0)
+        theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
+        r, J = r_and_jac_native(theta, problem)
+        r, J = r * w, J * w[:, None]
+        return {"z": z, "iters": iters, "rule_unmet": rule_unmet, "end_finite": end_finite,
+                "u": unit_from_z(z), "native": theta, "cost": 0.5 * jnp.sum(r * r),
+                "residuals": r, "jacobian": J,
+                "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
+
+    def local(Z0, U0, W, problem):
+        return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
+
+    return local
+
+
+def names_at_bound(names, u) -> tuple[str, ...]:
+    """The names whose unit-box coordinate in ``u`` lies within AT_BOUND_UNIT of a bound."""
+    return tuple(n for n, x in zip(names, u) if x < AT_BOUND_UNIT or x > 1 - AT_BOUND_UNIT)
+
+
 @functools.lru_cache(maxsize=64)
 def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     """Jitted kernels for one static structure: ``scan`` (the cost at a batch of unit-box
@@ -194,41 +235,22 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
     are multiplied by it; ones for a fit): the block bootstrap (fitlab.fitting.resampling)
     refits a batch of resampled datasets, one per start, with the fit's own compilation."""
 
-    r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
-
-    def r_z(z, problem):
-        return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
-
     # jaxopt's Levenberg–Marquardt (Madsen–Nielsen stopping rule, Cholesky on the materialized
     # JᵀJ), vmapped over the starts.
-    solver = jaxopt.LevenbergMarquardt(residual_fun=r_z, maxiter=maxiter,
-                                       damping_parameter=LM_DAMPING,
+    solver = jaxopt.LevenbergMarquardt(residual_fun=functools.partial(residuals_z, static, loss),
+                                       maxiter=maxiter, damping_parameter=LM_DAMPING,
                                        stop_criterion="madsen-nielsen", xtol=LM_XTOL, gtol=LM_GTOL,
                                        solver="cholesky", materialize_jac=True,
                                        implicit_diff=False, jit=True)
 
-    def one(z0, u0, w, problem):
-        problem = {**problem, ROW_WEIGHT: w}
+    def run_lm(z0, problem):
         sol = solver.run(z0, problem)
         # jaxopt's own stopping test (its loop's condition): still true after the loop means
         # the step limit, not the Madsen–Nielsen rule, ended the run.
-        rule_unmet = solver._cond_fun(((sol.params, sol.state), ((problem,), {})))
-        # A flat cost (every residual's Jacobian exactly 0, e.g. a lobe so narrow that the
-        # model is 0 at every measured direction: Beckmann's D underflows to 0 there) makes
-        # jaxopt's damping μ = τ max diag(JᵀJ) zero and its first step 0/0 = NaN. Such a run
-        # ends where it started, marked by end_finite = False (lm_stopped "non_finite").
-        end_finite = jnp.all(jnp.isfinite(sol.params))
-        z = jnp.where(end_finite, sol.params, z0)
-        theta = to_native(static, unit_from_z(z), problem["lo"], problem["hi"])
-        r, J = r_and_jac_native(theta, problem)
-        r, J = r * w, J * w[:, None]
-        return {"z": z, "iters": sol.state.iter_num, "rule_unmet": rule_unmet,
-                "end_finite": end_finite, "u": unit_from_z(z),
-                "native": theta, "cost": 0.5 * jnp.sum(r * r), "residuals": r, "jacobian": J,
-                "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
+        return (sol.params, sol.state.iter_num,
+                solver._cond_fun(((sol.params, sol.state), ((problem,), {}))))
 
-    def local(Z0, U0, W, problem):
-        return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
+    local = local_stage(static, loss, run_lm)
 
     cost = functools.partial(cost_unit, static, loss)
 
@@ -384,8 +406,7 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     J = loc["jacobian"][ib][:n_rows]
     cov = noise**2 * np.linalg.pinv(J.T @ J)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
-    at_bound = tuple(p.name for p, u in zip(space.free, best["u"])
-                     if u < AT_BOUND_UNIT or u > 1 - AT_BOUND_UNIT)
+    at_bound = names_at_bound(space.names, best["u"])
 
     def named(native):
         return {n: float(v) for n, v in zip(space.names, native)}

@@ -1,4 +1,4 @@
-"""The global stage of a fit: how the first Levenberg–Marquardt start is found, by name
+"""The global stage of a fit: where Levenberg–Marquardt starts, by name
 (``fitlab fit --global-search``, ``fitlab.fit(..., global_search=)``).
 
 - ``scan`` (the default): the cost at 256 Halton points of the unit box of the bounds per free

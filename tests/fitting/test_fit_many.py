@@ -133,7 +133,7 @@ def test_more_starts_only_where_the_first_two_disagree(synthetic, monkeypatch):
     ref = fitlab.fit_many(ms[:3], "rough_dielectric")
     assert [f.lm_starts for f in ref.fits] == [2, 2, 2]
     assert next(iter(ref.records()))[1]["fits"][0]["global_search"]["lm_starts"] == 2
-    monkeypatch.setattr(batch, "_agree", lambda out, d: np.zeros(len(out["cost"]), bool))
+    monkeypatch.setattr(batch, "_agree", lambda out: np.zeros(len(out["cost"]), bool))
     more = fitlab.fit_many(ms[:3], "rough_dielectric", starts=4)
     assert [f.lm_starts for f in more.fits] == [6, 6, 6]
     for a, b in zip(ref.fits, more.fits):
