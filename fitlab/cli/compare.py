@@ -12,6 +12,7 @@ from fitlab.cli.common import (add_channel, add_format, add_option, add_quiet, a
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
 from fitlab.fitting.searches import add_global_search_option
+from fitlab.fitting.solvers import add_local_solver_option
 
 
 def add_parser(sub):
@@ -64,6 +65,7 @@ def add_parser(sub):
                    help="Levenberg-Marquardt starts besides the global search's best, in "
                    "every fit and every fold (default 8)")
     add_global_search_option(p)
+    add_local_solver_option(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--out", metavar="DIR",
                    help="write the tables, the report page and the candidates' parameter "
@@ -107,6 +109,7 @@ def run(args):
                      channels=[args.channel] if args.channel else None, cv=not args.no_cv,
                      mcmc=not args.no_mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
                      starts=args.starts, seed=args.seed, global_search=args.global_search,
+                     local_solver=args.local_solver,
                      progress=not args.quiet)
     if args.out:
         result = result.save(args.out, fits=not args.no_fits)

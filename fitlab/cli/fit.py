@@ -11,6 +11,7 @@ from fitlab.cli.common import (add_channel, add_format, add_model, add_option, a
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
 from fitlab.fitting.searches import add_global_search_option
+from fitlab.fitting.solvers import add_local_solver_option
 from fitlab.fitting.status import Status, channel_statuses
 
 
@@ -68,6 +69,7 @@ def add_parser(sub):
                    help="low-discrepancy Levenberg-Marquardt starts besides the global search "
                    "(default 8)")
     add_global_search_option(p)
+    add_local_solver_option(p)
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--lm-maxiter", type=int, metavar="N",
                    help="step limit of each Levenberg-Marquardt run (default 200); raise it when "
@@ -221,7 +223,7 @@ def request_of(args, **overrides):
         channels=(args.channel,) if args.channel else None, share=_share_names(args.share),
         mcmc=args.mcmc, mcmc_steps=args.mcmc_steps, walkers=args.walkers,
         sampler=args.sampler, starts=args.starts, seed=args.seed,
-        global_search=args.global_search,
+        global_search=args.global_search, local_solver=args.local_solver,
         aperture_order=args.aperture_order, bootstrap=args.bootstrap,
         lm_maxiter=args.lm_maxiter, walter_diagnostics=args.walter_diagnostics,
         progress=not args.quiet)

@@ -78,7 +78,10 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
     starts besides the global search's best (default 8); global_search: how the first start is
     found (``"scan"``, the default: the cost at a few hundred low-discrepancy points in one
     compiled call; ``"mlsl"``: nlopt's MLSL, slower, for basins narrower than the scan's grid;
-    ``fitlab.fitting.least_squares.GLOBAL_SEARCHES``); seed: every random choice;
+    ``fitlab.fitting.searches.GLOBAL_SEARCHES``); local_solver: the Levenberg–Marquardt
+    implementation (``"fitlab"``, the default: one forward-mode pass a step; ``"jaxopt"``:
+    jaxopt's, the reference, about 3x slower; ``fitlab.fitting.solvers.LOCAL_SOLVERS``);
+    seed: every random choice;
     walter_diagnostics: add Walter 2007 §6.1's empirical D; progress: report progress on
     stderr; aperture_order: the quadrature order over the rows' apertures (data that declare a
     detector cone, bin or source divergence: the fit predicts the aperture-averaged model), None

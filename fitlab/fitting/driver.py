@@ -80,7 +80,7 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
                     f"{', '.join(space.names)}; loss {loss}; global {request.global_search} + {n_starts} starts")
         ls = fit_least_squares(space, data, loss, start_native=start_native, n_starts=n_starts,
                                seed=seed, lm_maxiter=request.lm_maxiter, progress=not quiet,
-                               search=request.global_search)
+                               search=request.global_search, solver=request.local_solver)
         t_ls = time.perf_counter() - t0
         if ls.solver["stopped"] == Status.NON_FINITE:
             raise non_finite_fit(f"{m.path}: channel {name}", len(ls.starts))
@@ -94,7 +94,8 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
                 return fit_least_squares(space, d, loss, start_native=start_at,
                                          n_starts=n_starts, seed=seed,
                                          lm_maxiter=request.lm_maxiter, progress=not quiet,
-                                         search=request.global_search)
+                                         search=request.global_search,
+                                         solver=request.local_solver)
 
             ls, data, aperture, more = _aperture.settle_order(
                 space, ls, data, m, rows, loss, order, auto=auto_order, refit=refit,

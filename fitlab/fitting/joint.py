@@ -241,7 +241,7 @@ def fit_joint(m, request, setup, rows_fit, chan_ids):
         f"{request.global_search} + {n_starts} starts")
     ls = fit_least_squares(joint, data, loss, start_native=start_native, n_starts=n_starts,
                            seed=seed, progress=not quiet, lm_maxiter=request.lm_maxiter,
-                           search=request.global_search)
+                           search=request.global_search, solver=request.local_solver)
     t_ls = time.perf_counter() - t0
     if ls.solver["stopped"] == Status.NON_FINITE:
         from fitlab.fitting.channel import non_finite_fit
@@ -329,7 +329,8 @@ def joint_bootstrap(m, joint: FitSpace, data: FitData, loss, ls, rows_list, requ
         + f" resamples of {len(keys)} incidences (all channels jointly)")
     res = block_bootstrap(joint, data, loss, ls, block, replicates=int(n), seed=request.seed,
                           batch=len(ls.starts), progress=request.progress,
-                          lm_maxiter=request.lm_maxiter, adaptive=adaptive)
+                          lm_maxiter=request.lm_maxiter, solver=request.local_solver,
+                          adaptive=adaptive)
     log(f"  bootstrap: {res['stop_reason']}")
     return res
 

@@ -1,5 +1,6 @@
-"""Least squares: a global stage that picks the starts, jaxopt Levenberg–Marquardt on jitted
-residuals from every start at once, covariance from the Jacobian at the optimum.
+"""Least squares: a global stage that picks the starts, Levenberg–Marquardt (fitlab.fitting.
+solvers: fitlab's own by default, jaxopt's as the reference) on jitted residuals from every
+start at once, covariance from the Jacobian at the optimum.
 
 The global stage (fitlab.fitting.searches) is by default a *scan*: the cost at a few hundred
 Halton points of the unit box, all in one compiled call (:func:`scan_costs`; the batched fits,
@@ -23,7 +24,6 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
-import jaxopt
 import numpy as np
 
 from fitlab._jax import jax, jnp
@@ -32,10 +32,11 @@ from fitlab.fitting.lm_fixed import value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.progress import line as progress_line
 from fitlab.fitting.searches import DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, global_start
+from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER, LOCAL_SOLVERS, algorithm
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
 
-#: jaxopt Levenberg–Marquardt settings: step limit, Madsen–Nielsen tolerances on the step and
+#: Levenberg–Marquardt settings (both solvers): step limit, Madsen–Nielsen tolerances on the step and
 #: the gradient, and the initial damping relative to the largest diagonal element of JᵀJ.
 LM_MAXITER = 200
 #: The largest step limit a user may ask for (each step solves a small linear system per start).
@@ -87,8 +88,8 @@ LM_STOPPED = (Status.CONVERGED, Status.MAX_ITERATIONS, Status.NON_FINITE)
 
 def lm_stop_reason(cost: float, iterations: int, rule_unmet: bool,
                    max_iterations: int) -> Status:
-    """One of LM_STOPPED. A NaN gradient also ends jaxopt's loop (its stopping test compares
-    NaN), so a non-finite end is named before the iteration count is looked at."""
+    """One of LM_STOPPED. A NaN gradient also ends the solvers' loops (their stopping tests
+    compare NaN), so a non-finite end is named before the iteration count is looked at."""
     if not np.isfinite(cost):
         return Status.NON_FINITE
     if rule_unmet and iterations >= max_iterations:
@@ -193,8 +194,8 @@ def residuals_z(static: StaticSpace, loss: str, z, problem):
 def local_stage(static: StaticSpace, loss: str, run_lm):
     """``(Z0, U0, W, problem)`` -> per start (vmapped): Levenberg–Marquardt by ``run_lm(z0,
     problem)`` -> (end, steps, rule_unmet), then the end's cost, residuals and Jacobian in native
-    units. The single fit's solver (jaxopt, :func:`kernels`) and the batched fits' (fixed
-    budget, fitlab.fitting.batch) share it."""
+    units. The single fit's solvers (:func:`kernels`) and the batched fits' (fixed budget,
+    fitlab.fitting.batch) share it."""
     r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
 
     def one(z0, u0, w, problem):
@@ -226,30 +227,18 @@ def names_at_bound(names, u) -> tuple[str, ...]:
 
 
 @functools.lru_cache(maxsize=64)
-def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER):
+def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER,
+            solver: str = DEFAULT_LOCAL_SOLVER):
     """Jitted kernels for one static structure: ``scan`` (the cost at a batch of unit-box
     points, :func:`scan_costs`), ``value`` and ``value_and_grad`` (the cost, and the cost and
     its gradient as one array [cost, gradient...], in the unit box, for nlopt's search) and
-    ``local`` (LM from a batch of starts, then each end's cost, residuals and
-    Jacobian in native units). ``local`` takes one row weight vector per start (the residuals
-    are multiplied by it; ones for a fit): the block bootstrap (fitlab.fitting.resampling)
-    refits a batch of resampled datasets, one per start, with the fit's own compilation."""
-
-    # jaxopt's Levenberg–Marquardt (Madsen–Nielsen stopping rule, Cholesky on the materialized
-    # JᵀJ), vmapped over the starts.
-    solver = jaxopt.LevenbergMarquardt(residual_fun=functools.partial(residuals_z, static, loss),
-                                       maxiter=maxiter, damping_parameter=LM_DAMPING,
-                                       stop_criterion="madsen-nielsen", xtol=LM_XTOL, gtol=LM_GTOL,
-                                       solver="cholesky", materialize_jac=True,
-                                       implicit_diff=False, jit=True)
-
-    def run_lm(z0, problem):
-        sol = solver.run(z0, problem)
-        # jaxopt's own stopping test (its loop's condition): still true after the loop means
-        # the step limit, not the Madsen–Nielsen rule, ended the run.
-        return (sol.params, sol.state.iter_num,
-                solver._cond_fun(((sol.params, sol.state), ((problem,), {}))))
-
+    ``local`` (LM by ``solver``, a name of fitlab.fitting.solvers.LOCAL_SOLVERS, from a batch of
+    starts, then each end's cost, residuals and Jacobian in native units). ``local`` takes one
+    row weight vector per start (the residuals are multiplied by it; ones for a fit): the block
+    bootstrap (fitlab.fitting.resampling) refits a batch of resampled datasets, one per start,
+    with the fit's own compilation."""
+    run_lm = LOCAL_SOLVERS[solver].make(functools.partial(residuals_z, static, loss),
+                                        int(maxiter), LM_XTOL, LM_GTOL, LM_DAMPING)
     local = local_stage(static, loss, run_lm)
 
     cost = functools.partial(cost_unit, static, loss)
@@ -350,12 +339,14 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                       n_starts: int = 8, seed: int = 0,
                       global_maxeval: int | None = None,
                       lm_maxiter: int = LM_MAXITER, progress: bool = False,
-                      search: str = DEFAULT_GLOBAL_SEARCH) -> LeastSquaresResult:
+                      search: str = DEFAULT_GLOBAL_SEARCH,
+                      solver: str = DEFAULT_LOCAL_SOLVER) -> LeastSquaresResult:
     """Global stage (``search``, one of GLOBAL_SEARCHES; ``global_maxeval`` its evaluations,
     None: its default) + multi-start LM + covariance. ``start_native`` (optional) is one more
-    start; ``lm_maxiter`` is each LM run's step limit; ``progress`` says what runs (nlopt's
+    start; ``lm_maxiter`` is each LM run's step limit, ``solver`` its implementation (a name
+    of fitlab.fitting.solvers.LOCAL_SOLVERS); ``progress`` says what runs (nlopt's
     search with a bar and an estimate of the time left), on stderr."""
-    k = kernels(space.static, loss, int(lm_maxiter))
+    k = kernels(space.static, loss, int(lm_maxiter), solver)
     n_rows = int(data.value.shape[0])
     scan_data = scan_rows(space.static, data)
     scanned_all = scan_data is data
@@ -368,7 +359,7 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
         # compiles outside the GIL, so with two cores the two compilations overlap).
-        key = (space.static, loss, int(lm_maxiter), n_local, int(data.value.shape[0]),
+        key = (space.static, loss, int(lm_maxiter), solver, n_local, int(data.value.shape[0]),
                None if data.weights is None else tuple(data.weights.shape))
         warm = None if key in _compiled_local else pool.submit(
             _compile_local, k, problem, n_local, d)
@@ -427,17 +418,13 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
             "optima": [named(loc["native"][rr["index"]]) for rr in distinct],
         }
     glob_info = dict(glob_info, lm_starts=len(runs), local_minima_worse=len(worse))
-    solver = lm_record(best["stopped"], best["iters"], int(lm_maxiter))
+    solver = lm_record(best["stopped"], best["iters"], int(lm_maxiter), algorithm(solver))
     return LeastSquaresResult(theta, cost, r, cov, stderr, noise, dof, at_bound,
                               best["iters"], starts, disagreement, glob_info, solver, J)
 
 
-#: The ``solver.algorithm`` of a single fit's parameter file.
-LM_ALGORITHM = "jaxopt LevenbergMarquardt (Madsen-Nielsen stopping rule)"
-
-
 def lm_record(stopped: str, iterations: int, max_iterations: int,
-              algorithm: str = LM_ALGORITHM) -> dict:
+              algorithm: str = algorithm(DEFAULT_LOCAL_SOLVER)) -> dict:
     """The parameter file's ``solver`` entry: how the best start's Levenberg–Marquardt run
     ended (data_formats/fit_json.md)."""
     return {"algorithm": algorithm,

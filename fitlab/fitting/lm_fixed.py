@@ -45,26 +45,24 @@ def value_and_jacobian(f):
     return both
 
 
-def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: float):
-    """Minimise ½‖residual(z, args)‖² from ``z0`` (p,) in at most ``steps`` steps. Returns
-    ``z``, ``cost``, ``iters`` (steps taken before the rule was met, else ``steps``),
-    ``rule_met`` and ``finite``. Traceable: vmap it over starts and datasets."""
-
+def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
+    """(initial state at z0, one step) of the solver: the shared body of :func:`lm_fixed` and
+    :func:`lm_until`."""
     both = value_and_jacobian(residual)
 
     def r_and_j(z):
         return both(z, args)
 
-    r0, J0 = r_and_j(z0)
-    A0 = J0.T @ J0
-    g0 = J0.T @ r0
-    mu0 = tau * jnp.max(jnp.diag(A0))
-    eye = jnp.eye(z0.shape[0], dtype=z0.dtype)
-    state0 = dict(z=z0, r=r0, A=A0, g=g0, cost=0.5 * jnp.sum(r0 * r0), mu=mu0,
-                  nu=jnp.asarray(2.0, z0.dtype),
-                  done=jnp.max(jnp.abs(g0)) <= gtol, iters=jnp.asarray(0, jnp.int32))
+    def init(z0):
+        r0, J0 = r_and_j(z0)
+        A0 = J0.T @ J0
+        g0 = J0.T @ r0
+        return dict(z=z0, r=r0, A=A0, g=g0, cost=0.5 * jnp.sum(r0 * r0),
+                    mu=tau * jnp.max(jnp.diag(A0)), nu=jnp.asarray(2.0, z0.dtype),
+                    done=jnp.max(jnp.abs(g0)) <= gtol, iters=jnp.asarray(0, jnp.int32))
 
-    def body(_, s):
+    def step(s):
+        eye = jnp.eye(s["z"].shape[0], dtype=s["z"].dtype)
         h = jnp.linalg.solve(s["A"] + s["mu"] * eye, -s["g"])
         small = jnp.linalg.norm(h) <= xtol * (jnp.linalg.norm(s["z"]) + xtol)
         z_t = s["z"] + h
@@ -85,10 +83,31 @@ def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: f
             iters=s["iters"] + 1)
         return jax.tree.map(lambda old, nw: jnp.where(s["done"], old, nw), s, new)
 
-    s = jax.lax.fori_loop(0, int(steps), body, state0)
+    return init, step
+
+
+def _result(s):
     finite = jnp.all(jnp.isfinite(s["z"])) & jnp.isfinite(s["cost"])
     return {"z": s["z"], "cost": s["cost"], "iters": s["iters"], "rule_met": s["done"],
             "finite": finite}
 
 
-__all__ = ["lm_fixed", "value_and_jacobian"]
+def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: float):
+    """Minimise ½‖residual(z, args)‖² from ``z0`` (p,) in at most ``steps`` steps, a
+    ``fori_loop`` of exactly ``steps`` (a lane that met the rule stays put). Returns ``z``,
+    ``cost``, ``iters`` (steps taken before the rule was met, else ``steps``), ``rule_met``
+    and ``finite``. Traceable: vmap it over starts and datasets."""
+    init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
+    return _result(jax.lax.fori_loop(0, int(steps), lambda _, s: step(s), init(z0)))
+
+
+def lm_until(residual, z0, args, *, maxiter: int, xtol: float, gtol: float, tau: float):
+    """:func:`lm_fixed` as a ``while_loop`` that ends when the stopping rule is met or after
+    ``maxiter`` steps: vmapped over a few starts (the single fit), the batch ends with its
+    slowest start, not at a budget."""
+    init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
+    return _result(jax.lax.while_loop(lambda s: ~s["done"] & (s["iters"] < maxiter), step,
+                                      init(z0)))
+
+
+__all__ = ["lm_fixed", "lm_until", "value_and_jacobian"]

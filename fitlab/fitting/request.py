@@ -117,6 +117,7 @@ class FitRequest:
     sampler: str = "emcee"
     starts: int = STARTS
     global_search: str = "scan"
+    local_solver: str = "fitlab"
     seed: int = 0
     aperture_order: int | None = None
     bootstrap: int | None = None
@@ -203,6 +204,11 @@ class FitRequest:
         if self.global_search not in GLOBAL_SEARCHES:
             raise FitlabError(f"{name('global_search')}: "
                               f"{GLOBAL_SEARCHES.unknown(self.global_search)}")
+        from fitlab.fitting.solvers import LOCAL_SOLVERS
+
+        if self.local_solver not in LOCAL_SOLVERS:
+            raise FitlabError(f"{name('local_solver')}: "
+                              f"{LOCAL_SOLVERS.unknown(self.local_solver)}")
         set_(self, "seed", _integer(self.seed, name("seed"), 0))
         if self.aperture_order is not None:
             from fitlab.aperture import MAX_ORDER, check_order
@@ -240,11 +246,13 @@ class FitRequest:
     def single_only(self) -> list[str]:
         """The settings set here that only a single fit offers (a batched fit of many datasets
         does not): ``share``, ``bootstrap``, ``aperture_order``, ``start``, ``channels``,
-        ``walter_diagnostics``, and a ``global_search`` other than the scan (a batched fit
-        always scans, fitlab.fitting.batch)."""
+        ``walter_diagnostics``, a ``global_search`` other than the scan and a
+        ``local_solver`` other than fitlab's (a batched fit always scans and runs fitlab's
+        solver with a fixed budget, fitlab.fitting.batch)."""
         return [f for f in ("share", "bootstrap", "aperture_order", "start", "channels",
                             "walter_diagnostics") if getattr(self, f)] + (
-            ["global_search"] if self.global_search != "scan" else [])
+            ["global_search"] if self.global_search != "scan" else []) + (
+            ["local_solver"] if self.local_solver != "fitlab" else [])
 
 
 def as_request(model, settings: dict) -> FitRequest:

@@ -26,6 +26,7 @@ from fitlab.fitting.least_squares import (LM_MAXITER, kernels, local_fits, lm_st
                                           pad_rows, problem_of, residuals_native)
 from fitlab.fitting.losses import has_absolute_noise
 from fitlab.fitting.progress import bar as progress_bar
+from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER
 from fitlab.fitting.status import Status
 
 #: The bootstrap needs at least this many fitted incidence directions (blocks).
@@ -127,8 +128,8 @@ def skip_reason(ls) -> tuple[Status, str] | None:
 
 
 def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int, batch: int,
-                    lm_maxiter: int = LM_MAXITER, progress: bool = False,
-                    adaptive: bool = True) -> dict:
+                    lm_maxiter: int = LM_MAXITER, solver: str = DEFAULT_LOCAL_SOLVER,
+                    progress: bool = False, adaptive: bool = True) -> dict:
     """At most ``replicates`` refits of the channel on incidence-resampled data (``block``: the
     block index of each fitted row), ``batch`` at a time (the fit's number of
     Levenberg–Marquardt starts, so that the fit's compiled stage is reused); with ``adaptive``
@@ -138,7 +139,7 @@ def block_bootstrap(space, data, loss, ls, block, *, replicates: int, seed: int,
     (Status.CONVERGED: the intervals settled; Status.MAX_ITERATIONS: the cap came first; None
     without ``adaptive``), stop_reason (a sentence), seconds}."""
     t0 = time.perf_counter()
-    k = kernels(space.static, loss, int(lm_maxiter))
+    k = kernels(space.static, loss, int(lm_maxiter), solver)
     padded = pad_rows(space.static, data)  # the fit's own padded rows (and compilation)
     problem = problem_of(space, padded)
     block = np.asarray(block)
@@ -292,7 +293,8 @@ def channel_misfit(m, rows, space, data, loss, ls, chain, request, *,
                 + f" resamples of {len(keys)} incidences")
             res = block_bootstrap(space, data, loss, ls, block, replicates=int(bootstrap),
                                   seed=seed, batch=len(ls.starts),
-                                  lm_maxiter=request.lm_maxiter, progress=request.progress,
+                                  lm_maxiter=request.lm_maxiter, solver=request.local_solver,
+                                  progress=request.progress,
                                   adaptive=adaptive)
             seconds = res["seconds"]
             log(f"  bootstrap: {res['stop_reason']}")

@@ -164,8 +164,8 @@ def test_a_failed_fold_is_a_status(synthetic, monkeypatch):
 
     real = crossval.batched_folds
 
-    def flaky(m, base, rows, incs, fit, lm_maxiter, order=None):
-        folds = real(m, base, rows, incs, fit, lm_maxiter, order)
+    def flaky(m, base, rows, incs, fit, lm_maxiter, order=None, solver=None):
+        folds = real(m, base, rows, incs, fit, lm_maxiter, order, solver)
         if base["model"].name == "lambertian":  # its second fold could not be fitted
             folds[1] = {**folds[1], "rel": np.zeros(0), "parameters": None,
                         "error": "made to fail"}

@@ -72,6 +72,8 @@ def test_request_is_frozen_and_normalised():
     ({"lm_maxiter": True}, "lm_maxiter must be an integer from 1"),
     ({"global_search": "sacn"}, "global_search: unknown global search 'sacn'; did you mean "
                                 "'scan'?"),
+    ({"local_solver": "jaxpot"}, "local_solver: unknown local solver 'jaxpot'; did you mean "
+                                 "'jaxopt'?"),
 ])
 def test_every_setting_is_checked_with_a_message_that_names_it(settings, says):
     with pytest.raises(FitlabError) as err:
@@ -100,7 +102,8 @@ def test_fit_many_refuses_what_only_a_single_fit_offers():
     m = fitlab.read(WALTER)
     for settings in ({"share": ["alpha"]}, {"bootstrap": 20}, {"start": {"alpha": 0.1}},
                      {"channels": ["Y"]}, {"aperture_order": 2},
-                     {"walter_diagnostics": True}, {"global_search": "mlsl"}):
+                     {"walter_diagnostics": True}, {"global_search": "mlsl"},
+                     {"local_solver": "jaxopt"}):
         with pytest.raises(FitlabError, match="not with " + next(iter(settings))):
             fitlab.fit_many([m], "rough_dielectric", **settings)
     with pytest.raises(FitlabError, match="samples its posteriors with NUTS"):

@@ -124,7 +124,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
             loss: str | None = None, subset=None, channels=None, cv: bool = True,
             mcmc: bool = True, mcmc_steps: int = 3000, walkers: int | None = None,
             starts: int = 8, seed: int = 0, global_search: str = "scan",
-            progress: bool = False, throw: bool = False, angles: str | None = None, accept=(),
+            local_solver: str = "fitlab", progress: bool = False, throw: bool = False, angles: str | None = None, accept=(),
             quantity: str | None = None) -> "CompareResult":
     """Fit each of ``models`` to ``measurement`` (a Measurement or a path) and rank them by
     leave-one-incidence-out cross-validation (``cv``) and by PSIS-LOO and WAIC from the MCMC
@@ -134,7 +134,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     written as on the command line (``"NAME --fix P=V --option O=V --free P --label TEXT"``).
     fix, options, free: apply to every candidate that has the parameter or option (a
     candidate's own settings win). loss, subset, channels, mcmc_steps, walkers, starts, seed,
-    global_search: as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
+    global_search, local_solver: as in :func:`fitlab.fit` (one loss for all: the ELPDs of different losses are not the same
     likelihood). progress: a bar with the time left on stderr. What limits trust in the ranking is
     ``result.statuses(label, channel)`` and ``result.ok``; throw: raise a FitlabError naming it
     instead of returning a comparison that is not ``ok``. angles, accept, quantity: how a path
@@ -160,7 +160,7 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
     loss = loss or ("chi2" if m.sigma is not None else "relative")
     settings = {"loss": loss, "subset": rows_fit, "mcmc": mcmc, "mcmc_steps": mcmc_steps,
                 "walkers": walkers, "starts": starts, "seed": seed, "bootstrap": 0,
-                "global_search": global_search,
+                "global_search": global_search, "local_solver": local_solver,
                 "channels": tuple(m.channel_names[c] for c in chan_ids)}
     cands = resolve_candidates(models, fix, options, free, settings)
     fix = {k: float(v) for k, v in (fix or {}).items()}  # each checked by a candidate's request

@@ -108,7 +108,7 @@ def _problem(m, cand: Resolved, loss, rows, channel, order=None):
     return {**base, "space": space, "data": data, "start_native": start_native}
 
 
-def batched_folds(m, base, rows, incs, fit: dict, lm_maxiter, order=None):
+def batched_folds(m, base, rows, incs, fit: dict, lm_maxiter, order=None, solver=None):
     """Every leave-one-incidence-out fold of one candidate refitted at once: each fold is one
     lane of the full fit's compiled Levenberg–Marquardt stage (as many lanes per call as the
     full fit had starts), started at the full fit's optimum, its data the full fit's rows with
@@ -123,9 +123,10 @@ def batched_folds(m, base, rows, incs, fit: dict, lm_maxiter, order=None):
     from fitlab.fitting.least_squares import (kernels, local_fits, lm_stop_reason, pad_rows,
                                               problem_of)
     from fitlab.fitting.losses import loss_weights
+    from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER
 
     space, data, loss = base["space"], base["data"], base["loss"]
-    k = kernels(space.static, loss, int(lm_maxiter))
+    k = kernels(space.static, loss, int(lm_maxiter), solver or DEFAULT_LOCAL_SOLVER)
     padded = pad_rows(space.static, data)
     problem = problem_of(space, padded)
     n_pad, n = int(padded.value.shape[0]), int(rows.sum())
@@ -190,7 +191,7 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
     base = _problem(m, cand, loss, rows, channel, order)
     if fit is not None:
         folds = batched_folds(m, base, rows, incidences_of(m, rows), fit,
-                              cand.request.lm_maxiter, order)
+                              cand.request.lm_maxiter, order, cand.request.local_solver)
         for fold in folds if on_fold is not None else ():
             on_fold(fold)
         return folds
@@ -208,7 +209,8 @@ def cross_validate(m, cand: Resolved, loss, rows, channel, *, seed=0, starts=8, 
             ls = fit_least_squares(space, data, base["loss"], start_native=start_native,
                                    n_starts=starts, seed=seed,
                                    lm_maxiter=cand.request.lm_maxiter,
-                                   search=cand.request.global_search)
+                                   search=cand.request.global_search,
+                                   solver=cand.request.local_solver)
             if ls.solver["stopped"] == Status.NON_FINITE:
                 raise ValueError("no start reached a finite cost")
             pred = _predict(space, ls.native, m, in_chan, order)[held[in_chan]]
