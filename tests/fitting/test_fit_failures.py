@@ -296,22 +296,31 @@ def test_cli_prints_the_warnings(tmp_path, capsys, nan_where_albedo_above):
 
 
 @pytest.mark.slow
-def test_flat_cost_starts_do_not_poison_the_fit(tmp_path):
+@pytest.mark.parametrize("solver", ["fitlab", "jaxopt"])
+def test_flat_cost_starts_do_not_poison_the_fit(tmp_path, solver):
     """Beckmann data (issue 13: simulated Beckmann interfaces crashed the fit-file writer):
     starts at α ≲ 1e-3 see a model that is exactly 0 at every measured direction (Beckmann's D
-    underflows), so every Jacobian entry is 0 and jaxopt's first LM step is 0/0. Those starts
-    end where they began, marked non_finite, the fit comes from the others, a warning says
-    so, and the parameter file is valid JSON. (The global scan's starts lie where the cost is
+    underflows), so every Jacobian entry is 0. fitlab's solver stops there at once (‖Jᵀr‖∞ = 0
+    meets its rule: the start ends where it began, a worse local minimum); jaxopt's first step is
+    0/0, and the start ends marked non_finite, with a warning. Either way the fit comes from the
+    others and the parameter file is valid JSON. (The global scan's starts lie where the cost is
     lowest, never there: the flat start is the user's ``start``.)"""
     m = synthetic("rough_dielectric", {"alpha": 0.3, "eta": 1.5}, thetas_i=(0.0, 30.0),
                   thetas_o=tuple(range(7, 180, 10)), options={"distribution": "beckmann"})
     res = fit_measurement(m, FitRequest("rough_dielectric", options={"distribution": "beckmann"},
-                                        fix={"eta": 1.5}, start={"alpha": 2e-4}), warn=False)
+                                        fix={"eta": 1.5}, start={"alpha": 2e-4},
+                                        local_solver=solver), warn=False)
     ls = res["channels"][0]["ls"]
-    lost = [s for s in ls.starts if s["lm_stopped"] == "non_finite"]
-    assert lost and all(s["end"] is None and s["cost"] is None for s in lost)
+    flat = [s for s in ls.starts if s["start"]["alpha"] == pytest.approx(2e-4)]
+    assert len(flat) == 1
+    if solver == "jaxopt":
+        assert flat[0]["lm_stopped"] == "non_finite"
+        assert flat[0]["end"] is None and flat[0]["cost"] is None
+        assert any("ended at NaN or inf" in w for w in res["channels"][0]["warnings"])
+    else:
+        assert flat[0]["lm_stopped"] == "converged" and flat[0]["lm_iterations"] == 0
+        assert flat[0]["end"] == flat[0]["start"] and flat[0]["cost"] > 10 * ls.cost
     assert ls.native[0] == pytest.approx(0.3, rel=0.02)
-    assert any("ended at NaN or inf" in w for w in res["channels"][0]["warnings"])
     rec = build_record(res, m)
     json.loads(json.dumps(rec, allow_nan=False))  # writable: no NaN anywhere
 
