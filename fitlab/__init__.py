@@ -1,7 +1,8 @@
 """fitlab: BSDF measurement fitting and tabulation in JAX.
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
-immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked once), :func:`fit_many` (many datasets at once, batched),
+immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked once), :func:`fit_many` (many datasets at once, batched), :func:`fit_maps` (a capture stack
+fitted texel by texel into texture maps),
 :func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
 held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
 glTF 2.0), :func:`write_report` (the HTML report of a fit or of a comparison), and
@@ -32,6 +33,7 @@ _SOURCES = {
     "Candidate": "fitlab.fitting.compare",
     "export_material": "fitlab.export.renderers",
     "fit_many": "fitlab.fitting.many", "ManyResult": "fitlab.fitting.many",
+    "fit_maps": "fitlab.fitting.maps", "MapsResult": "fitlab.fitting.maps",
     "eval_bsdf": "fitlab.api", "sample_bsdf": "fitlab.api", "pdf_bsdf": "fitlab.api",
     "MODELS": "fitlab.models", "get_model": "fitlab.models", "register_model": "fitlab.models",
     "tradeoffs": "fitlab.tradeoffs", "Tradeoffs": "fitlab.tradeoffs",

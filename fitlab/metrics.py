@@ -75,6 +75,30 @@ def fit_error(pred, value, theta_i, phi_i, floor: float = REL_ERR_FLOOR) -> dict
             "per_incidence": per}
 
 
+def fit_error_rms_many(pred, value, rows, theta_i, phi_i, floor: float = REL_ERR_FLOOR):
+    """:func:`fit_error`'s pooled ``rms_relative_error`` of many datasets on the same rows at
+    once (the texels of a capture stack, ``fitlab fit-maps``): ``pred`` and ``value`` (N, n),
+    ``rows`` (N, n) the rows each dataset was fitted to, ``theta_i``/``phi_i`` (n,) shared.
+    The same rule, array by array: per dataset and incidence, rows below ``floor`` × the
+    largest |value| among its rows given are left out. NaN where no row counts."""
+    pred, value = np.asarray(pred, float), np.asarray(value, float)
+    rows = np.asarray(rows, bool)
+    keys = incidence_keys(theta_i, phi_i)
+    total = np.zeros(value.shape[0])
+    count = np.zeros(value.shape[0], dtype=np.int64)
+    absval = np.where(rows, np.abs(np.nan_to_num(value)), 0.0)
+    for ti, pi in (np.unique(keys, axis=0) if keys.size else ()):
+        sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
+        top = absval[:, sel].max(axis=1, keepdims=True)
+        keep = rows[:, sel] & (absval[:, sel] >= floor * top) & (absval[:, sel] != 0)
+        v = np.where(keep, value[:, sel], 1.0)
+        rel = np.where(keep, (pred[:, sel] - v) / v, 0.0)
+        total += np.sum(rel * rel, axis=1)
+        count += keep.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, np.sqrt(total / np.maximum(count, 1)), np.nan)
+
+
 def fit_error_of(statistics: dict) -> dict | None:
     """A parameter file's fit error (``statistics.fit_error``), or, for a file written before it
     existed, its older figure ``rms_relative_error_fit`` described by that file's own rule (1%

@@ -13,7 +13,7 @@ from fitlab.cli.common import Parser
 from fitlab.errors import FitlabError
 
 #: The subcommands, in the order ``fitlab --help`` lists them: fitlab.cli.<name>.
-COMMANDS = ("models", "eval", "fit", "compare", "report", "info", "convert", "export", "lut", "simulate",
+COMMANDS = ("models", "eval", "fit", "fit-maps", "compare", "report", "info", "convert", "export", "lut", "simulate",
             "tradeoffs", "multiple-lobe", "learn-lobe")
 
 

@@ -22,7 +22,10 @@ def add_parser(sub):
         epilog="example: fitlab report fits/walter_rough_glass.json --chain "
         "fits/walter_rough_glass_chain.npz --out reports/walter_rough_glass/",
     )
-    p.add_argument("fit", metavar="FIT.json", help="parameter file written by `fitlab fit --out`")
+    p.add_argument("fit", metavar="FIT.json",
+                   help="parameter file written by `fitlab fit --out`, or a folder written by "
+                   "`fitlab fit-maps` (its maps with colour bars, the fit error and status maps, "
+                   "histograms and a few texels against their readings)")
     p.add_argument("--data", metavar="FILE",
                    help="the data file (default: the path recorded in FIT.json; its SHA-256 "
                    "must match the recorded one)")
@@ -50,6 +53,13 @@ def add_parser(sub):
 
 def run(args):
     from fitlab.report import build_report
+    from fitlab.report.texture_maps import build_maps_report, is_maps_folder
+
+    if is_maps_folder(args.fit):
+        summary = build_maps_report(args.fit, args.out, progress=not args.quiet)
+        if not args.quiet:
+            print(f"open {summary['index']} in a browser", file=sys.stderr)
+        return 0
 
     summary = build_report(args.fit, args.out, data_path=args.data, chain_path=args.chain,
                            luts=args.lut or (), discover_luts=not args.no_lut_discovery,

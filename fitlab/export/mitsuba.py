@@ -334,6 +334,8 @@ def _xml_value(name: str, value, indent: str) -> list[str]:
         return [f'{indent}<transform name={quoteattr(name)}>',
                 f'{indent}    <lookat origin="{vec(la["origin"])}" target="{vec(la["target"])}" '
                 f'up="{vec(la["up"])}"/>', f"{indent}</transform>"]
+    if isinstance(value, dict) and _TAGS.get(value.get("type")) == "texture":
+        return _xml_object(value, indent, name=name)  # a texture property is named
     if isinstance(value, dict):
         return _xml_object(value, indent)
     raise TypeError(f"no XML form for {name}={value!r}")
@@ -345,12 +347,15 @@ _TAGS = {"roughconductor": "bsdf", "roughdielectric": "bsdf", "diffuse": "bsdf",
          "path": "integrator", "direct": "integrator", "perspective": "sensor",
          "orthographic": "sensor", "independent": "sampler", "hdrfilm": "film", "box": "rfilter",
          "sphere": "shape", "rectangle": "shape", "constant": "emitter",
-         "directional": "emitter"}
+         "directional": "emitter", "bitmap": "texture"}
 
 
-def _xml_object(obj: dict, indent: str, *, id: str | None = None) -> list[str]:
+def _xml_object(obj: dict, indent: str, *, id: str | None = None,
+                name: str | None = None) -> list[str]:
     kind = obj["type"]
     attrs = f" type={quoteattr(kind)}"
+    if name is not None:
+        attrs = f" name={quoteattr(name)}" + attrs
     if id is not None:
         attrs += f" id={quoteattr(id)}"
     tag = _TAGS.get(kind)

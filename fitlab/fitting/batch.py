@@ -97,11 +97,15 @@ def structure_of(p: Problem):
             tuple(sorted(np.asarray(v).shape[1:] for v in p.data.consts.values())))
 
 
-def group(problems: list[Problem]) -> list[list[int]]:
-    """Indices of ``problems`` grouped by structure, in first-seen order."""
+def group(problems: list[Problem], *, joint: bool = False) -> list[list[int]]:
+    """Indices of ``problems`` grouped by structure, in first-seen order. ``joint``: joint
+    problems over channels (fitlab.fitting.joint, ``static.rows_fixed``) are accepted; their
+    structure holds their rows per channel, so a group's are the same and are not padded
+    (``fitlab fit-maps --share``: every texel on the same images, a missing reading a row of
+    ROW_MASK 0)."""
     out: dict = {}
     for i, p in enumerate(problems):
-        if p.space.static.rows_fixed:
+        if p.space.static.rows_fixed and not joint:
             raise ValueError("fit_many: a joint fit over channels (share=) is one problem per "
                              "measurement; fit them with fitlab.fit")
         out.setdefault(structure_of(p), []).append(i)
@@ -183,7 +187,10 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
         problems = list(problems) + [problems[-1]] * (batch - n_real)
     p0 = problems[0]
     static, loss, d = p0.space.static, p0.loss, p0.space.ndim
-    size = padded_size(max(p.n_rows for p in problems))
+    # a joint group (rows_fixed): the rows as given, the same in every problem of the group
+    # (rows left out carry ROW_MASK 0; n_rows counts the others, for the degrees of freedom)
+    size = (int(np.shape(p0.data.value)[0]) if static.rows_fixed
+            else padded_size(max(p.n_rows for p in problems)))
     steps = min(int(lm_maxiter), STEPS)
     k = _batched(static, loss, steps)
     problem = _stack(problems, size)

@@ -41,11 +41,21 @@ class Status(StrEnum):
     APERTURE_INACCURATE = "aperture_inaccurate"
     #: a cross-validation fold of a comparison could not be fitted (the model is ranked last)
     FOLDS_FAILED = "folds_failed"
+    #: nothing to fit: a texel of a capture stack with no reading (NaN in every image), too few
+    #: readings for its free parameters, or only zeros (fitlab fit-maps)
+    NO_DATA = "no_data"
 
     @property
     def ok(self) -> bool:
         """Whether a fit with this status can be used as it stands."""
         return self is Status.CONVERGED
+
+    @property
+    def code(self) -> int:
+        """The status as a number (``status.exr`` of ``fitlab fit-maps``): 0 converged, then
+        the members in the order above, 1, 2, …; a new member goes last, so codes never
+        change (data_formats/stack.md, "Status codes")."""
+        return list(Status).index(self)
 
     @property
     def advice(self) -> str:
@@ -72,6 +82,8 @@ _ADVICE = {
     Status.BOOTSTRAP_FAILED: "read the least-squares uncertainty with care, or refit with "
                              "fewer free parameters",
     Status.APERTURE_INACCURATE: "refit with a higher aperture order (--aperture-order)",
+    Status.NO_DATA: "nothing was fitted there: check the images at that texel (NaN is no "
+                     "reading), or fit fewer parameters (--fix)",
     Status.FOLDS_FAILED: "read the fold's error in the comparison's warnings; give the candidate "
                          "a start (--start inside its --model) or fix a parameter (--fix)",
 }

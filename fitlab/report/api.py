@@ -17,11 +17,16 @@ def write_report(result, out_dir, *, data=None, chain=None, renderers: bool = Fa
     report's summary (``index``: the page).
 
     ``result``: a :class:`~fitlab.FitResult` (not yet saved: saved there first as ``fit.json``
-    and ``chain.npz``), a parameter file's path, or a :class:`~fitlab.CompareResult` (its tables
+    and ``chain.npz``), a parameter file's path, a ``fitlab fit-maps`` folder (its map report,
+    fitlab/report/texture_maps.py), or a :class:`~fitlab.CompareResult` (its tables
     saved there first if they are not). For a fit, ``data`` and ``chain`` name its measurement
     and chain files when the record does not find them, and ``renderers`` adds the hand-off
     section (``fitlab report --renderers``)."""
     out_dir = Path(out_dir)
+    from fitlab.report.texture_maps import build_maps_report, is_maps_folder
+
+    if isinstance(result, (str, Path)) and is_maps_folder(result):  # a fitlab fit-maps folder
+        return build_maps_report(result, out_dir, progress=progress)
     if isinstance(result, CompareResult):
         if result.path is None or Path(result.path).resolve() != out_dir.resolve():
             result = result.save(out_dir)

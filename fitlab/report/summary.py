@@ -142,6 +142,7 @@ PROBLEMS = {
     Status.APERTURE_INACCURATE: lambda fit: "the aperture quadrature moves the optimum beyond "
                                             "its tolerance",
     Status.FOLDS_FAILED: lambda fit: "a cross-validation fold could not be fitted",
+    Status.NO_DATA: lambda fit: "there was nothing to fit (no readings)",
 }
 
 

@@ -151,6 +151,8 @@ SHELL_LINES = (
 #: reader of fitlab's, or why none runs.
 DATA_BLOCKS = {
     ("README.md", "fitlab/          the package"): "skip: the repository's layout, not code",
+    ("data_formats/stack.md", "STACK/"): "skip: a stack folder's layout (examples/stack/ is "
+                                         "the valid one, tests/fitting/test_fit_maps.py reads it)",
     ("data_formats/directions_csv.md", "# fitlab direction file"): "directions",
     ("data_formats/input_validation.md", "fitlab info: error: sample.bsdf"):
         "skip: error messages (each is tested in tests/io/test_hostile_inputs.py)",
