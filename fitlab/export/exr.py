@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,7 @@ import numpy as np
 from fitlab.version import __version__
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.validate import check_allocation, quote
-from fitlab.io.atomic import temporary_beside
+from fitlab.io.exr_image import write_channels
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import path_for_record, read_bytes, sha256_of
 from fitlab.lut import (KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN,
@@ -71,8 +70,6 @@ def header_attributes(table: Table, path=None) -> dict:
 
 def write_exr(path, table: Table) -> None:
     """Write ``table`` to ``path`` atomically (nothing is left behind on failure)."""
-    import OpenEXR
-
     path = Path(path)
     if not path.parent.exists():
         raise FitlabError(f"{path}: the output folder {path.parent} does not exist; create it first")
@@ -82,18 +79,7 @@ def write_exr(path, table: Table) -> None:
         raise FitlabError(f"{path}: refusing to write a table with NaN or Inf values")
     channels = {name: np.ascontiguousarray(values[:, :, k].astype(np_type))
                 for k, name in enumerate(table.channels)}
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              **header_attributes(table, path)}
-    fd, tmp = temporary_beside(path, suffix=".tmp.exr")  # mode from the umask
-    os.close(fd)
-    try:
-        with OpenEXR.File(header, channels) as f:
-            f.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    write_channels(path, channels, header_attributes(table, path))
 
 
 def _open(path, header_only: bool):

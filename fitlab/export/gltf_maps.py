@@ -27,6 +27,8 @@ import zlib
 
 import numpy as np
 
+from fitlab.export.gltf_material import pack_buffers
+
 FOLDER = "gltf"
 DOCUMENT = "material.gltf"
 
@@ -108,12 +110,7 @@ def gltf_maps(conv, model_name: str) -> tuple[dict, dict]:
                                  "spec": "data_formats/stack.md"}}}
     pos, nrm, uv, idx = _plane(H, W)
     blobs = [pos.tobytes(), nrm.tobytes(), uv.tobytes(), idx.tobytes()]
-    offsets, data = [], b""
-    for blob in blobs:
-        data += b"\0" * (-len(data) % 4)
-        offsets.append(len(data))
-        data += blob
-    data += b"\0" * (-len(data) % 4)
+    offsets, data = pack_buffers(blobs)
     views = [{"buffer": 0, "byteOffset": o, "byteLength": len(b),
               "target": 34963 if k == 3 else 34962} for k, (o, b) in enumerate(zip(offsets,
                                                                                     blobs))]

@@ -256,6 +256,17 @@ def _offers(params: dict, name: str) -> bool:
     return name in params[next(iter(params))]
 
 
+def pack_buffers(blobs: list[bytes]) -> tuple[list[int], bytes]:
+    """(byte offsets, one buffer) of ``blobs`` laid end to end, each starting at a multiple of
+    4 bytes and the buffer padded to one (glTF 2.0, 3.6.2.4 "Data alignment")."""
+    offsets, data = [], b""
+    for blob in blobs:
+        data += b"\0" * (-len(data) % 4)
+        offsets.append(len(data))
+        data += blob
+    return offsets, data + b"\0" * (-len(data) % 4)
+
+
 def gltf_document(material: Material, model: str, params: dict, conversion: dict) -> dict:
     """The glTF 2.0 document: the fitted material on a preview sphere."""
 
@@ -294,12 +305,7 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
     blobs = [pos.tobytes(), nrm.tobytes(), idx.tobytes()]
     if anisotropic:  # KHR_materials_anisotropy needs a tangent space: TANGENT along +u (φ)
         blobs.append(_sphere_tangents(*SPHERE).tobytes())
-    offsets, data = [], b""
-    for blob in blobs:
-        data += b"\0" * (-len(data) % 4)
-        offsets.append(len(data))
-        data += blob
-    data += b"\0" * (-len(data) % 4)
+    offsets, data = pack_buffers(blobs)
     doc = {
         "asset": {"version": "2.0", "generator": f"fitlab {__version__}"},
         "scene": 0,

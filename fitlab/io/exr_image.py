@@ -75,17 +75,24 @@ def write_image(path, planes: dict, attributes: dict | None = None) -> None:
     """Write ``planes`` ({channel: (height, width) array}) as a float32 OpenEXR image at
     ``path``, atomically (a temporary file beside it, then a rename); ``attributes``: string
     header attributes (e.g. ``fitlab.quantity``)."""
-    import OpenEXR
-
     path = Path(path)
     if not path.parent.exists():
         raise FitlabError(f"{path}: the output folder {path.parent} does not exist; create it "
                           "first")
     channels = {name: np.ascontiguousarray(np.asarray(v, dtype=np.float32))
                 for name, v in planes.items()}
+    write_channels(path, channels, {k: str(v) for k, v in (attributes or {}).items()})
+
+
+def write_channels(path, channels: dict, attributes: dict) -> None:
+    """Write ``channels`` ({name: (height, width) array of the pixel type}) with the header
+    ``attributes`` as a ZIP-compressed scanline OpenEXR at ``path``, atomically (a temporary
+    file beside it, then a rename; nothing is left behind on failure)."""
+    import OpenEXR
+
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              **{k: str(v) for k, v in (attributes or {}).items()}}
-    fd, tmp = temporary_beside(path, suffix=".tmp.exr")
+              **attributes}
+    fd, tmp = temporary_beside(path, suffix=".tmp.exr")  # mode from the umask
     os.close(fd)
     try:
         with OpenEXR.File(header, channels) as f:
@@ -97,4 +104,5 @@ def write_image(path, planes: dict, attributes: dict | None = None) -> None:
         raise
 
 
-__all__ = ["CHANNEL_SETS", "image_header", "read_image", "check_size", "write_image"]
+__all__ = ["CHANNEL_SETS", "image_header", "read_image", "check_size", "write_image",
+           "write_channels"]

@@ -15,11 +15,10 @@ from fitlab.errors import FitlabError
 from fitlab.metrics import REL_ERR_FLOOR, fit_error, fit_error_of, fit_error_text
 from fitlab.io.atomic import atomic_open
 from fitlab.report import geometry as geo
-from fitlab.report.html import (FigureEntry, document, esc, figure_html, note_html, paragraph,
-                                table_html, warning_html)
+from fitlab.report.html import (document, esc, note_html, paragraph, table_html, warning_html)
 from fitlab.report.inputs import (BAND_SAMPLES, data_prediction, load_inputs, model_f,
                                   prediction, predictive_band)
-from fitlab.report.style import render
+from fitlab.report.style import Figures
 from fitlab.report.summary import CSS as SUMMARY_CSS, lead_html
 from fitlab.version import __version__
 
@@ -53,20 +52,14 @@ def _angle_tag(x):
     return f"{x:g}".replace(".", "p").replace("-", "m")
 
 
-class _Report:
+class _Report(Figures):
     """Collects figures (rendered at once) and HTML sections."""
 
-    def __init__(self, progress):
-        self.figures: list[FigureEntry] = []
-        self.say = progress
+    figure = Figures.add
 
-    def figure(self, name, fig, caption, alt, half=False):
-        png, svg = render(fig)
-        fig.clear()
-        entry = FigureEntry(name, caption, alt, png, svg)
-        self.figures.append(entry)
-        self.say(f"report: figure {len(self.figures)}: {name}.png")
-        return figure_html(entry, half)
+    @property
+    def figures(self) -> list:
+        return self.entries
 
 
 # --------------------------------------------------------------------------------------------

@@ -12,9 +12,8 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.io.atomic import atomic_open
-from fitlab.report.html import (FigureEntry, document, figure_html, note_html, paragraph,
-                                table_html, warning_html)
-from fitlab.report.style import new_figure, render, styled
+from fitlab.report.html import (document, note_html, paragraph, table_html, warning_html)
+from fitlab.report.style import Figures, new_figure, styled
 from fitlab.version import __version__
 
 #: Colours of the candidates, in the candidates' order (matplotlib's tab10).
@@ -121,20 +120,6 @@ def pareto_figure(ch, labels, good_k):
         ax.set_xticks(x, ticks, rotation=45, ha="right")
     fig.legend(loc="outside lower center", ncols=2, fontsize=7)
     return fig
-
-
-class _Figures:
-    def __init__(self, say):
-        self.entries: list[FigureEntry] = []
-        self.say = say
-
-    def add(self, name, fig, caption, alt):
-        png, svg = render(fig)
-        fig.clear()
-        entry = FigureEntry(name, caption, alt, png, svg)
-        self.entries.append(entry)
-        self.say(f"report: figure {len(self.entries)}: {name}.png")
-        return figure_html(entry)
 
 
 def _ranking_table(ch, cands):
@@ -301,7 +286,7 @@ def build_compare_report(result, out_dir, *, progress: bool = False) -> dict:
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     rec = result.record
     labels = [c["label"] for c in rec["candidates"]]
-    figs = _Figures(say)
+    figs = Figures(say)
     multi = len(rec["channels"]) > 1
     sample = rec["data"].get("sample") or Path(rec["data"]["path"]).name
     title = f"Model comparison: {len(labels)} models on {sample}"

@@ -127,3 +127,22 @@ def styled(fn):
             return fn(*args, **kwargs)
 
     return wrapper
+
+
+class Figures:
+    """A report's figures, rendered as they are added (:func:`render`: PNG and SVG), each
+    returned as its HTML (fitlab.report.html.figure_html); ``say`` reports each one."""
+
+    def __init__(self, say):
+        self.entries: list = []
+        self.say = say
+
+    def add(self, name, fig, caption, alt, half=False) -> str:
+        from fitlab.report.html import FigureEntry, figure_html
+
+        png, svg = render(fig)
+        fig.clear()
+        entry = FigureEntry(name, caption, alt, png, svg)
+        self.entries.append(entry)
+        self.say(f"report: figure {len(self.entries)}: {name}.png")
+        return figure_html(entry, half)

@@ -17,9 +17,8 @@ from matplotlib.ticker import MaxNLocator
 
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.atomic import atomic_open
-from fitlab.report.html import (FigureEntry, document, figure_html, note_html, paragraph,
-                                table_html)
-from fitlab.report.style import CMAP_VALUES, new_figure, render, styled
+from fitlab.report.html import (document, note_html, paragraph, table_html)
+from fitlab.report.style import CMAP_VALUES, Figures, new_figure, styled
 
 #: Texels whose readings are plotted against the model: the best, the median and the worst fit
 #: error among the converged texels, and the first texel of each other status.
@@ -141,20 +140,6 @@ def _scan_figure(rows, readings, preds, title):
     return fig
 
 
-class _Figures:
-    def __init__(self, say):
-        self.entries: list[FigureEntry] = []
-        self.say = say
-
-    def add(self, name, fig, caption, alt):
-        png, svg = render(fig)
-        fig.clear()
-        entry = FigureEntry(name, caption, alt, png, svg)
-        self.entries.append(entry)
-        self.say(f"report: figure {len(self.entries)}: {name}.png")
-        return figure_html(entry)
-
-
 def _texels(status, rms):
     """(y, x, why) of the texels whose readings are plotted."""
     out = []
@@ -218,7 +203,7 @@ def build_maps_report(folder, out_dir, *, progress: bool = True) -> dict:
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     rec = _read_record(folder)
     channels = rec["stack"]["channels"]
-    figs = _Figures(say)
+    figs = Figures(say)
     values, sections = {}, []
     for p, spec in rec["parameters"].items():
         values[p] = _image(folder, spec["file"], spec["channels"])
