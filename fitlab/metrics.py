@@ -21,8 +21,15 @@ def relative_errors(pred, value, floor: float = REL_ERR_FLOOR):
     pred, value = np.asarray(pred), np.asarray(value)
     if not value.size:
         return (pred - value)[:0], np.zeros(value.shape, bool)
-    keep = (np.abs(value) >= floor * np.max(np.abs(value))) & (value != 0)
+    keep = floor_mask(np.abs(value), floor)
     return (pred[keep] - value[keep]) / value[keep], keep
+
+
+def floor_mask(absval, floor: float = REL_ERR_FLOOR):
+    """The rows a relative error counts, along the last axis: |value| ≥ ``floor`` × the largest
+    |value| and value ≠ 0 (``absval``: |value|, 0 where a row is not scored)."""
+    absval = np.asarray(absval)
+    return (absval >= floor * np.max(absval, axis=-1, keepdims=True)) & (absval != 0)
 
 
 #: How a fit's error leaves rows out (data_formats/fit_json.md, "The fit error"): a row is not
@@ -89,8 +96,7 @@ def fit_error_rms_many(pred, value, rows, theta_i, phi_i, floor: float = REL_ERR
     absval = np.where(rows, np.abs(np.nan_to_num(value)), 0.0)
     for ti, pi in (np.unique(keys, axis=0) if keys.size else ()):
         sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
-        top = absval[:, sel].max(axis=1, keepdims=True)
-        keep = rows[:, sel] & (absval[:, sel] >= floor * top) & (absval[:, sel] != 0)
+        keep = rows[:, sel] & floor_mask(absval[:, sel], floor)
         v = np.where(keep, value[:, sel], 1.0)
         rel = np.where(keep, (pred[:, sel] - v) / v, 0.0)
         total += np.sum(rel * rel, axis=1)
