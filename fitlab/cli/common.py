@@ -131,8 +131,9 @@ def add_read_options(p):
                    + " (`fitlab info FILE` shows what each finds)")
     p.add_argument("--quantity", choices=QUANTITIES,
                    help="what the values are, replacing the file's '# quantity:' line "
-                   "(fitlab's CSV): bsdf (f, 1/sr), bsdf_cos (f|cos theta_o|), radiance_factor "
-                   "(pi f), relative (f up to a scale)")
+                   "(fitlab's CSV; required for a spectral scan CSV, which does not state it): "
+                   "bsdf (f, 1/sr), bsdf_cos (f|cos theta_o|), radiance_factor (pi f), relative "
+                   "(f up to a scale)")
 
 
 def read_kwargs(args) -> dict:

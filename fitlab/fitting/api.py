@@ -39,7 +39,8 @@ def read(path, format: str | None = None, *, angles: str | None = None, accept=(
     fit's notes); ``angles="radians"``: the file's angles are radians, converted to degrees;
     ``quantity``: what the values are (``bsdf``, ``bsdf_cos``, ``radiance_factor``,
     ``relative``), replacing the file's ``# quantity:`` line. ``angles`` and ``quantity`` apply to
-    fitlab's measurement CSV (data_formats/measurement_csv.md, "Sanity gates")."""
+    fitlab's measurement CSV (data_formats/measurement_csv.md, "Sanity gates"); ``quantity``
+    also to the spectral scan CSV, which requires it (data_formats/spectral_scan_csv.md)."""
     from fitlab.io.formats import read_any
 
     return read_any(path, format, angles=angles, accept=accept, quantity=quantity)

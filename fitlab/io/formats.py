@@ -27,6 +27,7 @@ READER_MODULES = (
     "fitlab.io.pgii",
     "fitlab.io.zemax",
     "fitlab.io.rgl",
+    "fitlab.io.spectral_scan",
     "fitlab.io.measurement",
 )
 

@@ -369,8 +369,7 @@ def notes(m) -> list[str]:
     if opts.get("angles") == "radians":
         out.append(f"{m.path}: angles read as radians (--angles radians), converted to degrees")
     if opts.get("quantity"):
-        out.append(f"{m.path}: values read as {opts['quantity']} (--quantity), not as the file "
-                   "states")
+        out.append(f"{m.path}: values read as {opts['quantity']} (declared by --quantity)")
     out += [f"{m.path}: accepted by --accept {a.split(':', 1)[0]}: {a.split(': ', 1)[1]}"
             for a in m.accepted]
     return out

@@ -310,9 +310,9 @@ def _melt_channels(table):
 #: ``source_divergence_deg`` say degrees in their names and stay degrees).
 ANGLE_COLUMNS = DIRECTION_COLUMNS + ("theta_o_lo", "theta_o_hi", "phi_o_lo", "phi_o_hi")
 #: Stored quantity → the factor the value is divided by to give f (or f times a scale).
-_TO_F = {"bsdf": lambda wi, wo: np.ones(len(wi)), "bsdf_cos": lambda wi, wo: np.abs(wo[:, 2]),
-         "bsdf_cos_i": lambda wi, wo: np.abs(wi[:, 2]),
-         "radiance_factor": lambda wi, wo: np.full(len(wi), np.pi)}
+TO_F = {"bsdf": lambda wi, wo: np.ones(len(wi)), "bsdf_cos": lambda wi, wo: np.abs(wo[:, 2]),
+        "bsdf_cos_i": lambda wi, wo: np.abs(wi[:, 2]),
+        "radiance_factor": lambda wi, wo: np.full(len(wi), np.pi)}
 
 
 def _radians_to_degrees(table) -> None:
@@ -495,7 +495,7 @@ def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
     wo = degrees_to_direction(long["theta_o"], long["phi_o"])
     # Convert to one internal quantity: f (or f times an unknown scale).
     stored = quantity if quantity != "relative" else relative_to
-    factor = _TO_F[stored](wi, wo)
+    factor = TO_F[stored](wi, wo)
     value = value / factor
     if sigma is not None:
         sigma = sigma / factor
@@ -629,15 +629,22 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
     return out.getvalue()
 
 
-def _detect(head: bytes, path) -> bool:
+def first_line(head: bytes) -> str | None:
+    """The first line of a text file's ``head`` that is neither empty nor a ``#`` comment,
+    stripped (None if there is none): where a CSV format's detection looks for its header."""
     text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
     for line in text.splitlines():
         s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        return s.replace(" ", "").startswith(("theta_i", "phi_i", "theta_o", "phi_o")) or \
-            "theta_i" in s.split(",")
-    return False
+        if s and not s.startswith("#"):
+            return s
+    return None
+
+
+def _detect(head: bytes, path) -> bool:
+    s = first_line(head)
+    return s is not None and (s.replace(" ", "").startswith(("theta_i", "phi_i", "theta_o",
+                                                             "phi_o"))
+                              or "theta_i" in s.split(","))
 
 
 def describe_measurement(path, format_name: str = "csv", accept=(), angles: str = "degrees",
