@@ -2,11 +2,11 @@
 ``fitlab.fit(..., local_solver=)``).
 
 - ``fitlab`` (the default): fitlab.fitting.lm_fixed's solver as a ``while_loop`` that ends when
-  every start met its stopping rule (or at the step limit): one forward-mode pass a step (the
-  residuals and the Jacobian at the trial point together), vmapped over the starts. The batched
+  the start met its stopping rule (or at the step limit): one forward-mode pass a step (the
+  residuals and the Jacobian at the trial point together), the starts one after another. The batched
   fits (fitlab.fitting.batch) run the same step with a fixed budget.
 - ``jaxopt``: jaxopt's ``LevenbergMarquardt`` (the reference the default is measured against),
-  vmapped over the starts: it evaluates the model for the residual, the Jacobian and the trial
+  the starts one after another: it evaluates the model for the residual, the Jacobian and the trial
   point separately.
 
 Both use the same damping, the same stopping rule (Madsen & Nielsen 2010, Algorithm 3.16:
