@@ -8,8 +8,9 @@ hand-off, written all or nothing.
 * ``status.exr`` (Y): ``Status.code`` per texel, 0 converged;
 * ``maps.json``: model, conventions, settings, provenance, the files and the status counts;
 * ``mitsuba.xml`` with ``mitsuba/*.exr`` where Mitsuba 3 evaluates the model natively
-  (fitlab/export/mitsuba.py's translation, made for every texel: a property that varies over
-  the texels becomes a ``bitmap`` texture of its values, one that does not stays a number);
+  (fitlab/export/mitsuba.py's translation, made for every texel at once on arrays over the
+  texels: a property that varies over the texels becomes a ``bitmap`` texture of its values,
+  one that does not stays a number);
 * with ``gltf``: ``material.gltf`` (its PNG textures embedded) and ``gltf/conversion_rms.exr``
   (fitlab/export/gltf_maps.py).
 
@@ -112,12 +113,114 @@ def _set(obj, path, value):
     obj[path[-1]] = value
 
 
+def _texels_material(result, seen):
+    """The material of every fitted texel at once (``seen``: (H, W) which), its values
+    arrays over those texels in row-major order (fitlab.export.material.Material)."""
+    from fitlab.export.material import Material
+
+    channels = {}
+    for k, c in enumerate(result.channel_names):
+        params = dict(result.fixed)
+        for p, arr in result.values.items():
+            params[p] = arr[:, :, 0 if arr.shape[2] == 1 else k][seen].astype(float)
+        channels[c] = params
+    return Material(result.model, dict(result.options), channels, RECORD)
+
+
+def _batch_handoff(result):
+    """:func:`mitsuba_handoff` from one translation of every fitted texel at once (the
+    translation on arrays over the texels: fitlab/export/mitsuba.py), or None where that
+    cannot say the same (a refusal, a form that changes, a spectrum: the texel by texel
+    translation says why)."""
+    from fitlab.export.material import ExportError
+    from fitlab.export.mitsuba import native_bsdf
+
+    seen = np.ones(result.shape, dtype=bool)
+    for arr in result.values.values():
+        seen &= np.all(np.isfinite(arr), axis=2)
+    if not seen.any():
+        return None
+    try:
+        bsdf = native_bsdf(_texels_material(result, seen))
+    except ExportError:
+        return None
+    leaves = {}
+    for path, obj in _batch_leaves(bsdf):
+        if obj is None:
+            return None
+        leaves[path] = obj
+    T = int(seen.sum())
+    first = json.loads(json.dumps(_first_texel(bsdf)))
+    textures, scene = {}, json.loads(json.dumps(first))
+    for p, (kind, v) in leaves.items():
+        if kind == "fixed":
+            continue
+        flat = np.stack([np.broadcast_to(np.asarray(a, float), (T,)) for a in v], axis=1)
+        width = flat.shape[1]
+        if np.all(flat == flat[0]):  # the same at every texel: a number stays a number
+            v0 = flat[0]
+            _set(scene, p, float(v0[0]) if width == 1 else {"type": "rgb",
+                                                            "value": [float(a) for a in v0]})
+            continue
+        arr = np.zeros(result.shape + (width,))
+        arr[seen] = flat
+        arr[~seen] = flat[0]
+        name = f"{MITSUBA_FOLDER}/{'.'.join(p)}.exr"
+        textures[name] = arr
+        _set(scene, p, {"type": "bitmap", "filename": name, "raw": True,
+                        "filter_type": "nearest"})
+    return scene, textures
+
+
+def _batch_leaves(obj, path=()):
+    """:func:`_leaves` of a translation of many texels: a number is a float or an array over
+    the texels; (path, None) where an array sits elsewhere (a spectrum's pairs)."""
+    if isinstance(obj, dict) and obj.get("type") == "rgb":
+        yield path, ("rgb", tuple(obj["value"]))
+        return
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _batch_leaves(v, path + (k,))
+        return
+    if isinstance(obj, np.ndarray) or (isinstance(obj, float) and not isinstance(obj, bool)):
+        yield path, ("float", (obj,))
+        return
+    yield path, (None if _has_array(obj) else ("fixed", obj))
+
+
+def _has_array(obj) -> bool:
+    if isinstance(obj, np.ndarray):
+        return True
+    if isinstance(obj, (list, tuple)):
+        return any(_has_array(x) for x in obj)
+    if isinstance(obj, dict):
+        return any(_has_array(x) for x in obj.values())
+    return False
+
+
+def _first_texel(obj):
+    """A translation of many texels at its first texel (JSON-ready)."""
+    if isinstance(obj, dict):
+        return {k: _first_texel(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_first_texel(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return float(obj[0])
+    return obj
+
+
 def mitsuba_handoff(result):
     """(scene dict with ``bitmap`` textures, {texture file: (H, W, k) array}) of the model's
     native Mitsuba 3 translation at every fitted texel, or (None, reason) where it has none.
-    Texels not fitted take the first fitted texel's values (status.exr marks them)."""
+    Texels not fitted take the first fitted texel's values (status.exr marks them). One
+    translation on arrays over the texels (:func:`_batch_handoff`); texel by texel where that
+    cannot say the same."""
     from fitlab.export.material import ExportError
     from fitlab.export.mitsuba import native_bsdf
+
+    batch = _batch_handoff(result)
+    if batch is not None:
+        return batch
 
     H, W = result.shape
     first, form, per = None, None, {}

@@ -46,21 +46,23 @@ class Material(NamedTuple):
 
     def values(self, name: str) -> np.ndarray:
         """Parameter ``name`` per channel: an RGB triple (a grey material repeats its one
-        value), or one value per wavelength of a spectral material."""
-        vals = [float(self.channels[c][name]) for c in self.channels]
+        value), or one value per wavelength of a spectral material. A material of many texels
+        (fitlab/export/maps.py: its values arrays over the texels) gives (channels, texels)."""
+        vals = [np.asarray(self.channels[c][name], dtype=float) for c in self.channels]
         return np.asarray(vals * 3 if len(vals) == 1 else vals, dtype=float)
 
     def scalar(self, name: str, *, what: str) -> float:
         """Parameter ``name`` where a format needs one value for every channel; refused (with
         ``what`` the format's name) when the channels differ."""
         v = self.values(name)
-        if np.ptp(v) > 1e-12 * max(1.0, float(np.max(np.abs(v)))):
+        if np.any(np.ptp(v, axis=0) > 1e-12 * np.maximum(1.0, np.max(np.abs(v), axis=0))):
+            at = lambda x: np.ravel(x)[np.argmax(np.ravel(np.ptp(v, axis=0)))]  # noqa: E731
             raise ExportError(
                 f"{what} takes one value of {name!r} for every colour channel, but this material "
-                f"has {', '.join(f'{c}={self.channels[c][name]:.6g}' for c in self.channels)}; "
-                "fit the channels with that parameter shared (fitlab fit --share "
+                f"has {', '.join(f'{c}={at(self.channels[c][name]):.6g}' for c in self.channels)}"
+                "; fit the channels with that parameter shared (fitlab fit --share "
                 f"{name}), or export one channel with --channel")
-        return float(v[0])
+        return float(v[0]) if v.ndim == 1 else v[0]
 
 
 def wavelengths_of(names: tuple) -> np.ndarray | None:

@@ -43,15 +43,25 @@ PLUGIN_HINT = ("export it for fitlab's Mitsuba plugin instead (fitlab export ...
 
 
 def _num(x: float) -> float:
-    """A plain Python float (shortest repr round-trips: same input, same bytes)."""
-    return float(x)
+    """A plain Python float (shortest repr round-trips: same input, same bytes); a material of
+    many texels (fitlab/export/maps.py) keeps its array over the texels."""
+    return float(x) if np.ndim(x) == 0 else np.asarray(x, dtype=float)
+
+
+def _alike(flags) -> bool:
+    """``flags`` as one bool: a material of many texels must agree at every texel (else the
+    translation's form would change from texel to texel, refused)."""
+    flags = np.asarray(flags, dtype=bool)
+    if flags.ndim and flags.any() != flags.all():
+        raise ExportError("Mitsuba's translation of the model changes form from texel to texel")
+    return bool(flags.all())
 
 
 def _spectrum(material: Material, values) -> float | dict:
     """One number when the channels agree, else Mitsuba's ``rgb`` value or, for a spectral
     material, its ``spectrum`` of (wavelength in nm, value) pairs."""
     v = np.asarray(values, dtype=float)
-    if np.ptp(v) == 0.0:
+    if _alike(np.ptp(v, axis=0) == 0.0):
         return _num(v[0])
     wl = material.wavelengths_nm
     if wl is not None:
@@ -91,7 +101,7 @@ def _rough_conductor(material: Material, scale: float = 1.0) -> dict:
            "eta": _spectrum(material, material.values("n")),
            "k": _spectrum(material, material.values("k")),
            "sample_visible": True}
-    if scale != 1.0:
+    if _alike(np.not_equal(scale, 1.0)):
         out["specular_reflectance"] = _num(scale)
     return out
 
@@ -102,7 +112,7 @@ def _rough_dielectric(material: Material, scale: float = 1.0) -> dict:
            **_widths(material, "Mitsuba's roughdielectric"),
            "int_ior": _num(material.scalar("eta", what="Mitsuba's roughdielectric (int_ior)")),
            "ext_ior": 1.0, "sample_visible": True}
-    if scale != 1.0:
+    if _alike(np.not_equal(scale, 1.0)):
         out["specular_reflectance"] = _num(scale)
         out["specular_transmittance"] = _num(scale)
     return out
@@ -137,7 +147,7 @@ def _coated(material: Material, scale: float = 1.0) -> dict:
     if np.any(material.values("coat_tau") != 0.0):
         _refuse(material.model, "its coat absorbs (coat_tau > 0); Mitsuba's plastic coat is "
                 "clear")
-    if scale != 1.0:
+    if np.any(np.not_equal(scale, 1.0)):
         _refuse(material.model, "a plastic cannot be scaled inside a sum")
     albedo = inner.parameters_with_role("albedo")[0].name
     out = {"type": "plastic",
@@ -184,8 +194,11 @@ def _largest_scale(material: Material) -> float:
     if model.translation("mitsuba") not in NATIVE:
         return 1.0
     if model.capabilities.lambertian:
-        top = float(np.max(material.values(model.parameters_with_role("albedo")[0].name)))
-        return np.inf if top == 0.0 else 1.0 / top
+        top = np.max(material.values(model.parameters_with_role("albedo")[0].name), axis=0)
+        if np.ndim(top) == 0:
+            return np.inf if top == 0.0 else 1.0 / float(top)
+        with np.errstate(divide="ignore"):
+            return np.where(top == 0.0, np.inf, 1.0 / top)
     return np.inf
 
 
@@ -193,19 +206,20 @@ def blend_weights(parts: list[Material]) -> np.ndarray:
     """Weights w_k (Σ w_k = 1) of a sum's components in a blend: component k is scaled by
     1/w_k, so w_k ≥ 1/(its largest scale); what is left is shared by the components that can
     be scaled without limit (else in proportion to the smallest weights)."""
-    w_min = np.array([1.0 / _largest_scale(p) for p in parts])
-    left = 1.0 - w_min.sum()
-    if left < 0.0:
+    largest = [_largest_scale(p) for p in parts]
+    shape = np.broadcast(*largest).shape  # () or a material of many texels' (texels,)
+    largest = np.array([np.broadcast_to(x, shape) for x in largest])
+    w_min = 1.0 / largest
+    left = 1.0 - w_min.sum(axis=0)
+    if np.any(left < 0.0):
         raise ExportError(f"a blend of {' + '.join(p.model for p in parts)} would need "
                           "reflectances above 1 (the components reflect more than all light "
                           f"together); {PLUGIN_HINT}")
-    free = ~np.isfinite([_largest_scale(p) for p in parts])
-    if free.any():
-        share = free / free.sum()
-    elif w_min.sum() > 0.0:
-        share = w_min / w_min.sum()
-    else:
-        share = np.full(len(parts), 1.0 / len(parts))
+    free = ~np.isfinite(largest)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(free.any(axis=0), free / free.sum(axis=0),
+                         np.where(w_min.sum(axis=0) > 0.0, w_min / w_min.sum(axis=0),
+                                  1.0 / len(parts)))
     w = w_min + left * share
     if np.any(w <= 0.0):
         raise ExportError(f"a component of {' + '.join(p.model for p in parts)} would get no "
@@ -223,7 +237,7 @@ def _translate(material: Material, scale: float = 1.0) -> dict:
         # blendbsdf's ``weight`` is that of its second child (1 − weight for the first).
         bsdf = _translate(parts[-1], scale / w[-1])
         for j in range(len(parts) - 2, -1, -1):
-            rest = float(w[j + 1:].sum())
+            rest = _num(w[j + 1:].sum(axis=0))
             bsdf = {"type": "blendbsdf", "weight": _num(rest / (w[j] + rest)),
                     "bsdf_0": _translate(parts[j], scale / w[j]), "bsdf_1": bsdf}
         return bsdf

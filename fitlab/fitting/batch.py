@@ -7,7 +7,10 @@ count. Datasets (each channel of each measurement) are grouped by structure; eve
 in chunks of ``chunk`` datasets, each chunk with a few batched calls:
 
 1. the global stage, the single fit's default low-discrepancy scan (fitlab.fitting.searches):
-   the cost at ``scan`` Halton points of the unit box of every dataset (vmapped over datasets);
+   the cost at ``scan`` Halton points of the unit box of every dataset (vmapped over datasets;
+   where every dataset of the chunk has the same directions, bounds and fixed values and no
+   free scale, as the texels of a map fit, the model's values at the points once per chunk
+   and each dataset's cost from them: :func:`shared_scan_costs`, the same costs);
 2. Levenberg–Marquardt from two starts per dataset, the scan's best point and the model's
    defaults, and only where those two end apart (a different optimum by the single fit's rule,
    or one not finite) from the scan's next ``starts`` best points too, two at a time (on both
@@ -34,15 +37,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitlab._jax import jax
+from fitlab._jax import jax, jnp
 from fitlab.fitting.least_squares import (DISTINCT_UNIT, EQUAL_COST_RTOL, LM_DAMPING, LM_GTOL,
-                                          LM_MAXITER, LM_XTOL, FitData, local_stage,
+                                          LM_MAXITER, LM_XTOL, ROW_MASK, FitData, local_stage,
                                           lm_stop_reason, names_at_bound, pad_to, padded_size,
-                                          residuals_z, scan_costs)
+                                          predict_data, residuals_z, scan_costs)
 from fitlab.fitting.lm_fixed import lm_fixed
-from fitlab.fitting.losses import has_absolute_noise
-from fitlab.fitting.searches import scan_points
-from fitlab.fitting.space import FitSpace, z_from_unit
+from fitlab.fitting.losses import has_absolute_noise, residuals
+from fitlab.fitting.searches import SCAN_BLOCK, scan_points
+from fitlab.fitting.space import SCALE, FitSpace, to_native, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
 #: the model's defaults.
@@ -113,9 +116,39 @@ def group(problems: list[Problem], *, joint: bool = False) -> list[list[int]]:
 
 
 def _stack(problems: list[Problem], size: int) -> dict:
-    """The kernels' ``problem`` argument with a leading dataset axis."""
+    """The kernels' ``problem`` argument with a leading dataset axis. Problems that share
+    their space and direction arrays (fitlab.fitting.maps: texels on one set of rows) are
+    stacked at once: their values and loss constants stacked, the rest broadcast."""
+    p0 = problems[0]
+    d0 = p0.data
+    if all(p.space is p0.space and p.data.wi is d0.wi and p.data.wo is d0.wo
+           and p.data.weights is d0.weights and p.data.consts.keys() == d0.consts.keys()
+           for p in problems):
+        return _stack_shared(problems, size)
     per = [{**p.space.arrays(), "data": pad_to(p.data, size)} for p in problems]
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *per)
+
+
+def _stack_shared(problems: list[Problem], size: int) -> dict:
+    """:func:`_stack` of problems with one space and one set of direction arrays: the same
+    arrays as padding each (least_squares.pad_to) and stacking them."""
+    B, p0 = len(problems), problems[0]
+    first = pad_to(p0.data, size)
+    n = int(np.shape(p0.data.value)[0])
+    extra = size - n
+
+    def rows(get):  # (B, n, ...) padded with copies of the last row, as pad_to pads
+        x = np.stack([np.asarray(get(p)) for p in problems])
+        return np.concatenate([x, np.repeat(x[:, -1:], extra, axis=1)], axis=1) if extra else x
+
+    consts = {k: rows(lambda p, k=k: p.data.consts[k]) for k in p0.data.consts if k != ROW_MASK}
+    mask = np.stack([np.asarray(p.data.consts.get(ROW_MASK, np.ones(n)), dtype=np.float64)
+                     for p in problems])
+    consts[ROW_MASK] = np.concatenate([mask, np.zeros((B, extra))], axis=1)
+    every = lambda x: np.broadcast_to(np.asarray(x), (B,) + np.shape(x))  # noqa: E731
+    data = FitData(every(first.wi), every(first.wo), rows(lambda p: p.data.value), consts,
+                   None if first.weights is None else every(first.weights))
+    return {**jax.tree.map(every, p0.space.arrays()), "data": data}
 
 
 def fixed_local(static, loss, steps):
@@ -131,14 +164,53 @@ def fixed_local(static, loss, steps):
     return local_stage(static, loss, run_lm)
 
 
+def shared_scan_costs(static, loss: str, U, problem):
+    """The scan's costs (datasets, points) of a chunk whose datasets share their directions,
+    aperture weights, bounds and fixed values (:func:`shares_scan`), so that the model's
+    predictions at the points are the same in every dataset: computed once per point, then each
+    dataset's cost there from its own values and loss constants (fitlab.fitting.losses
+    ``residuals``, times its ROW_MASK), as the single fit's scan (least_squares.scan_costs)
+    computes it. A block of points at a time: at most SCAN_BLOCK point-row pairs of residuals
+    over the chunk."""
+    d = problem["data"]
+    B, rows = (int(n) for n in d.value.shape[:2])
+    first = FitData(d.wi[0], d.wo[0], d.value[0], {},
+                    None if d.weights is None else d.weights[0])
+    lo, hi = problem["lo"][0], problem["hi"][0]
+    fixed = jax.tree.map(lambda x: x[0], problem["fixed"])
+
+    def at(u):
+        m = predict_data(static, to_native(static, u, lo, hi), fixed, first)  # (rows,)
+        r = jax.vmap(lambda v, c: residuals(loss, m, v, c))(d.value, d.consts)  # (B, rows)
+        if ROW_MASK in d.consts:
+            r = r * d.consts[ROW_MASK]
+        return 0.5 * jnp.sum(r * r, axis=-1)
+
+    block = max(1, min(int(U.shape[0]), SCAN_BLOCK // max(B * rows, 1)))
+    return jax.lax.map(at, U, batch_size=block).T
+
+
+def shares_scan(static, stacked: dict) -> bool:
+    """Whether every dataset of a chunk's stacked problems has the first one's directions,
+    aperture weights, bounds and fixed values (its predictions at the scan's points are the
+    first's), and no free ``scale`` (a per-dataset factor of the predictions)."""
+    if SCALE in static.names:
+        return False
+    d = stacked["data"]
+    same = lambda x: x is None or bool(np.all(np.asarray(x) == np.asarray(x)[:1]))  # noqa: E731
+    return all(same(x) for x in (d.wi, d.wo, d.weights, stacked["lo"],
+                                              stacked["hi"], *stacked["fixed"].values()))
+
+
 @functools.lru_cache(maxsize=32)
 def _batched(static, loss, steps):
     """The kernels vmapped over datasets: the single fit's scan (points shared, problem per
-    dataset) and the local stage with the fixed-budget solver, ``steps`` steps a call (starts,
-    weights and problem per dataset)."""
+    dataset), the shared scan (:func:`shared_scan_costs`) and the local stage with the
+    fixed-budget solver, ``steps`` steps a call (starts, weights and problem per dataset)."""
     local = fixed_local(static, loss, int(steps))
     cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
+            "shared_scan": jax.jit(functools.partial(shared_scan_costs, static, loss)),
             "batch_local": jax.jit(jax.vmap(local, in_axes=(0, 0, 0, 0)))}
 
 
@@ -197,14 +269,18 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     B = len(problems)
     # 1. global scan (the same low-discrepancy points in every dataset's unit box; the seed
     #    shifts the sequence, as the single fit's seed does its search)
+    #    (a chunk on one set of directions: the model's predictions once per point)
     U_scan = scan_points(scan, d, seed)
-    costs = np.asarray(k["batch_scan"](U_scan, problem))
+    scan_kernel = k["shared_scan"] if shares_scan(static, problem) else k["batch_scan"]
+    costs = np.asarray(scan_kernel(U_scan, problem))
     costs = np.where(np.isfinite(costs), costs, np.inf)
     # 2. LM from two starts per dataset: the scan's best point and the model's defaults; where
     #    those two end apart (a different optimum, or one not finite), from the scan's next
     #    `starts` best points too, two at a time (the same compiled call of two lanes)
     order = np.argsort(costs, axis=1, kind="stable")[:, :starts + 1]
-    u_default = np.stack([p.space.to_unit(p.start_native) for p in problems])
+    u_default = (p0.space.to_unit(np.stack([p.start_native for p in problems]))
+                 if all(p.space is p0.space for p in problems)
+                 else np.stack([p.space.to_unit(p.start_native) for p in problems]))
     lanes = np.concatenate([U_scan[order[:, :1]], u_default[:, None],
                             U_scan[order[:, 1:]]], axis=1)
     lanes = np.clip(lanes, 1e-6, 1 - 1e-6)
@@ -278,4 +354,4 @@ def n_chunks(sizes: list[int], chunk: int) -> int:
 
 
 __all__ = ["SCAN", "STARTS", "STEPS", "BATCH_LM_ALGORITHM", "CHUNK", "Problem", "BatchResult", "structure_of",
-           "group", "fit_chunk", "chunks", "n_chunks"]
+           "group", "fit_chunk", "chunks", "n_chunks", "shared_scan_costs", "shares_scan"]

@@ -170,6 +170,61 @@ def _texel_problems(t, m, rows_fit, request, setup):
     return [Problem(joint, data, x0, loss, sum(f[4] for f in found), (t, None))]
 
 
+def _regular_problems(texels, readings, template, rows_fit, request, setup):
+    """(t, the Problems of texel t) of ``texels``, whose readings are all finite and fitted on
+    the same rows ``rows_fit`` (no per-texel subset, no relative scale): the first one's
+    Problems made by :func:`_texel_problems` (the single fit's ``channel_problem``), every
+    other's the same with its own values and the loss's constants of them
+    (fitlab.fitting.losses ``loss_weights``, as channel_problem computes them), sharing the
+    first's space and direction arrays (fitlab.fitting.batch stacks them at once)."""
+    from fitlab.fitting.least_squares import ROW_MASK
+    from fitlab.fitting.losses import loss_weights
+
+    loss = setup[4]
+    C = len(template.channel_names)
+    chans = [template.channel == c for c in range(C)]
+    rows = [ch & rows_fit for ch in chans]
+    # a channel with only zeros on its fitted rows: nothing to fit (as _texel_problems says)
+    empty = np.zeros(len(texels), dtype=bool)
+    for r in rows:
+        empty |= ~np.any(readings[np.ix_(texels, np.flatnonzero(r))] != 0, axis=1)
+    first = next((t for t, e in zip(texels, empty) if not e), None)
+    proto = [] if first is None else _texel_problems(
+        first, template._replace(value=readings[first]), rows_fit, request, setup)
+    if not proto:
+        return [(t, []) for t in texels]
+    share = bool(request.share)
+    cos = [template.wo[ch if share else r, 2] for ch, r in zip(chans, rows)]
+    out = []
+    for t, e in zip(texels, empty):
+        if e:
+            out.append((t, []))
+            continue
+        if t == first:
+            out.append((t, proto))
+            continue
+        parts = []
+        for ch, r, co in zip(chans, rows, cos):
+            if share:  # every row of the channel, a row not fitted the channel's mean
+                v = np.where(r[ch], readings[t, ch], np.mean(readings[t, r]))
+            else:
+                v = readings[t, r]
+            parts.append((v, loss_weights(loss, v, None, co)))
+        if share:
+            p = proto[0]
+            value = np.concatenate([v for v, _ in parts])
+            consts = {k: np.concatenate([w[k] for _, w in parts]) for k in parts[0][1]}
+            consts[ROW_MASK] = p.data.consts[ROW_MASK]
+            out.append((t, [p._replace(data=p.data._replace(value=value, consts=consts),
+                                       key=(t, None))]))
+        else:
+            out.append((t, [p._replace(data=p.data._replace(value=v, consts={
+                **{k: np.asarray(x, float) for k, x in w.items()},
+                **({ROW_MASK: p.data.consts[ROW_MASK]} if ROW_MASK in p.data.consts else {})}),
+                key=(t, c)) for c, (p, (v, w)) in enumerate(zip(proto, parts))]))
+    return out
+
+
 def check_maps_request(request, *, scan: int, chunk: int):
     """``request`` if a map fit can do it: what a batched fit offers (fitlab.fitting.many.
     check_batch), ``share`` besides (one joint problem per texel), no MCMC."""
@@ -257,9 +312,17 @@ def fit_maps(stack, model, *, out_dir=None, gltf: bool = False, workers: int | N
     per_texel = isinstance(request.subset, str) and _uses_value(request.subset)
     base = None if per_texel else rows_of(request.subset, template)[1]
     say(f"{H} x {W} texels, {n} images, {C} channel{'s' if C > 1 else ''}: setting up the fits")
-    problems, no_data = [], np.zeros(H * W, dtype=bool)
+    problems, no_data = [None] * (H * W), np.zeros(H * W, dtype=bool)
     rows_used = np.zeros((H * W, C * n), dtype=bool)
-    for t in range(H * W):
+    regular = (np.zeros(H * W, dtype=bool) if per_texel or template.is_relative
+               else np.all(finite, axis=1))
+    if np.any(regular):  # every reading finite: one structure, the values substituted
+        rows_used[regular] = base
+        for t, got in _regular_problems(np.flatnonzero(regular), readings, template, base,
+                                        request, setup):
+            no_data[t] = not got
+            problems[t] = got
+    for t in np.flatnonzero(~regular):
         m = template._replace(value=np.where(finite[t], readings[t], 0.0))
         if per_texel:
             try:
@@ -272,7 +335,8 @@ def fit_maps(stack, model, *, out_dir=None, gltf: bool = False, workers: int | N
         rows_used[t] = mask & finite[t]
         got = _texel_problems(t, m, rows_used[t], request, setup)
         no_data[t] = not got
-        problems += got
+        problems[t] = got
+    problems = [p for got in problems for p in got]
     groups = group(problems, joint=bool(share))
     work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
     bar = progress.bar(request.progress, len(problems), "texel fits", "fit")
@@ -327,6 +391,7 @@ def _assemble(stack, request, setup, fits, no_data, readings, rows_used, *, scan
     stderr = {p: np.full((T, width[p]), np.nan) for p in free}
     status = np.where(no_data, Status.NO_DATA.code, 0).astype(np.int32)
     fitted = np.zeros((T, C), dtype=bool)
+    statuses = {}
     for (t, c), (problem, names, native, err, stopped, at_bound) in fits.items():
         chans = range(C) if c is None else [c]
         for ch in chans:
@@ -338,10 +403,13 @@ def _assemble(stack, request, setup, fits, no_data, readings, rows_used, *, scan
                 values[p][t, col] = native[k]
                 stderr[p][t, col] = err[k]
             fitted[t, ch] = True
-        found = channel_statuses({"solver": {"stopped": stopped},
-                                  "parameters": {nm: {"at_bound": nm in at_bound}
-                                                 for nm in names}})
-        bad = [s for s in found if not s.ok]
+        how = (stopped, tuple(at_bound), names)  # a few distinct ones over the texels
+        if how not in statuses:
+            found = channel_statuses({"solver": {"stopped": stopped},
+                                      "parameters": {nm: {"at_bound": nm in at_bound}
+                                                     for nm in names}})
+            statuses[how] = [s for s in found if not s.ok]
+        bad = statuses[how]
         if bad and status[t] == 0:
             status[t] = bad[0].code
     rms = _fit_errors(stack, model, options, fixed, values, width, fitted, rows_used, readings)

@@ -128,6 +128,71 @@ def test_mitsuba_scene_with_bitmap_textures(runs):
     assert scene is not None
 
 
+def test_mitsuba_translation_on_arrays_is_the_texel_by_texel_one(runs, monkeypatch):
+    """The hand-off translates every texel at once (arrays over the texels); texel by texel
+    it is the same scene and the same textures, value for value."""
+    from fitlab.export import maps
+
+    _, r = runs
+    scene, textures = maps.mitsuba_handoff(r)
+    monkeypatch.setattr(maps, "_batch_handoff", lambda result: None)
+    ref_scene, ref_textures = maps.mitsuba_handoff(r)
+    assert scene == ref_scene and sorted(textures) == sorted(ref_textures)
+    for name, arr in ref_textures.items():
+        assert np.array_equal(textures[name], arr), name
+
+
+def test_shared_scan_and_texel_setup_are_the_per_dataset_ones(monkeypatch):
+    """Every texel is on the same rows: fit_chunk computes the scan's predictions once per
+    chunk (fitlab.fitting.batch.shared_scan_costs), with the per-dataset scan's costs and
+    fits; the texels' problems, made from one (fitlab.fitting.maps._regular_problems), are
+    those made texel by texel."""
+    from fitlab.fitting import batch, maps
+    from fitlab.fitting.channel import resolve_fit
+    from fitlab.fitting.request import as_request
+    from fitlab.io.stack import read_stack
+
+    seen = []
+    real = batch.fit_chunk
+    monkeypatch.setattr(batch, "fit_chunk", lambda ps, **kw: seen.append((ps, kw)) or real(
+        ps, **kw))
+    fitlab.fit_maps(STACK, MODEL, fix={"n": 0.2, "k": 3.9}, share=["alpha"])
+    (problems, kw), = seen
+    p0 = problems[0]
+    stacked = batch._stack(problems, int(np.shape(p0.data.value)[0]))
+    assert batch.shares_scan(p0.space.static, stacked)
+    k = batch._batched(p0.space.static, p0.loss, batch.STEPS)
+    U = batch.scan_points(kw["scan"], p0.space.ndim, kw["seed"])
+    shared = np.asarray(k["shared_scan"](U, stacked))
+    each = np.asarray(k["batch_scan"](U, stacked))
+    np.testing.assert_allclose(shared, each, rtol=1e-12, atol=0)
+    once = real(problems, **kw)
+    monkeypatch.setattr(batch, "shares_scan", lambda static, stacked: False)
+    np.testing.assert_array_equal(real(problems, **kw).native, once.native)  # the same fits
+    # texel by texel: the same problems as the regular path made
+    stack = read_stack(STACK)
+    request = as_request(MODEL, {"fix": {"n": 0.2, "k": 3.9}, "share": ["alpha"], "starts": 4})
+    template = maps._template(stack)
+    setup = resolve_fit(template, request)
+    readings = np.transpose(stack.values, (0, 1, 3, 2)).reshape(16, -1).astype(float)
+    regular = [p for p in problems if np.all(np.isfinite(readings[p.key[0]]))]
+    assert len(regular) > 2
+    for p in regular:
+        t = p.key[0]
+        q, = maps._texel_problems(t, template._replace(value=readings[t]),
+                                  np.ones(readings.shape[1], bool), request, setup)
+        for a, b in zip(jax_leaves(p.data), jax_leaves(q.data)):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(p.start_native, q.start_native)
+        assert p.n_rows == q.n_rows and p.space.static == q.space.static
+
+
+def jax_leaves(tree):
+    from fitlab._jax import jax
+
+    return [np.asarray(x) for x in jax.tree.leaves(tree)]
+
+
 def test_rerun_replaces_an_earlier_folder_and_refuses_others(runs, tmp_path):
     base, _ = runs
     out = tmp_path / "maps"
