@@ -24,7 +24,10 @@ import tempfile
 #: too: tests/project/test_compiler_settings.py runs the registry contract and the sampling tests under
 #: them. FITLAB_TEST_XLA_DEFAULTS=1 runs a session under XLA's defaults; a setting already in
 #: XLA_FLAGS is left as it is.
-TEST_XLA_FLAGS = {"xla_cpu_use_fusion_emitters": "false"}
+#: ``xla_cpu_multi_thread_eigen=false``: each test process runs XLA's operations on one thread
+#: (the suite's two processes already fill the two cores; Eigen's pool made them contend):
+#: quick tier 306 s against 320-324 s, 530 against 550-566 user-seconds.
+TEST_XLA_FLAGS = {"xla_cpu_use_fusion_emitters": "false", "xla_cpu_multi_thread_eigen": "false"}
 #: JAX reads it when it starts (this process and the `fitlab` processes tests start); the
 #: ``optimized`` marker changes it per test through jax.config.
 NO_OPTIMIZATION_ENV = "JAX_DISABLE_MOST_OPTIMIZATIONS"
