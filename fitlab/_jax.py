@@ -1,5 +1,5 @@
 """fitlab's one way to JAX: ``from fitlab._jax import jax, jnp`` (``jsp_special`` for
-``jax.scipy.special``). No other fitlab module imports JAX (tests/project/test_layers.py checks
+``jax.scipy.special``, ``jsp_linalg`` for ``jax.scipy.linalg``). No other fitlab module imports JAX (tests/project/test_layers.py checks
 it), so fitlab's two JAX settings below are in place before any fitlab code uses JAX.
 
 The three names stand for the JAX modules and import JAX at their first use (an attribute,
@@ -69,10 +69,11 @@ class _LazyModule(types.ModuleType):
 jax = _LazyModule("jax")
 jnp = _LazyModule("jax.numpy")
 jsp_special = _LazyModule("jax.scipy.special")
+jsp_linalg = _LazyModule("jax.scipy.linalg")
 
 if "jax" in sys.modules:  # JAX came first: the settings now, as at a first use
     load()
 else:
     os.environ["JAX_ENABLE_X64"] = "true"
 
-__all__ = ["SETTINGS", "jax", "jnp", "jsp_special", "load"]
+__all__ = ["SETTINGS", "jax", "jnp", "jsp_linalg", "jsp_special", "load"]

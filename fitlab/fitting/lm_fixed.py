@@ -28,7 +28,7 @@ half the time, and reaches the same optima to 4e-9 in the logit coordinates.
 
 from __future__ import annotations
 
-from fitlab._jax import jax, jnp
+from fitlab._jax import jax, jnp, jsp_linalg
 
 
 def value_and_jacobian(f):
@@ -47,40 +47,47 @@ def value_and_jacobian(f):
 
 def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
     """(initial state at z0, one step) of the solver: the shared body of :func:`lm_fixed` and
-    :func:`lm_until`."""
+    :func:`lm_until`.
+
+    The model is evaluated in the step alone: the state starts with the flag ``first``, whose
+    step evaluates z0 itself (a zero step, accepted) and sets the initial damping; the compiled
+    loop then holds one copy of the model's forward-mode pass, not one for the start and one for
+    the steps (measured: the single fit's local stage compiles in 0.95 s against 1.44 s on the
+    Walter example, 1.1 s against 2.1 s on the brown vinyl's Lambert + GGX conductor)."""
     both = value_and_jacobian(residual)
 
-    def r_and_j(z):
-        return both(z, args)
-
     def init(z0):
-        r0, J0 = r_and_j(z0)
-        A0 = J0.T @ J0
-        g0 = J0.T @ r0
-        return dict(z=z0, r=r0, A=A0, g=g0, cost=0.5 * jnp.sum(r0 * r0),
-                    mu=tau * jnp.max(jnp.diag(A0)), nu=jnp.asarray(2.0, z0.dtype),
-                    done=jnp.max(jnp.abs(g0)) <= gtol, iters=jnp.asarray(0, jnp.int32))
+        p = z0.shape[0]
+        r0 = jax.eval_shape(lambda z: residual(z, args), z0)
+        return dict(z=z0, r=jnp.zeros(r0.shape, r0.dtype), A=jnp.zeros((p, p), z0.dtype),
+                    g=jnp.zeros((p,), z0.dtype), cost=jnp.asarray(jnp.inf, z0.dtype),
+                    mu=jnp.asarray(1.0, z0.dtype), nu=jnp.asarray(2.0, z0.dtype),
+                    done=jnp.asarray(False), first=jnp.asarray(True),
+                    iters=jnp.asarray(0, jnp.int32))
 
     def step(s):
+        first = s["first"]
         eye = jnp.eye(s["z"].shape[0], dtype=s["z"].dtype)
-        h = jnp.linalg.solve(s["A"] + s["mu"] * eye, -s["g"])
-        small = jnp.linalg.norm(h) <= xtol * (jnp.linalg.norm(s["z"]) + xtol)
+        # the first step: A = 0, μ = 1 and g = 0, so h = 0 exactly (z0 itself is evaluated)
+        h = jsp_linalg.cho_solve(jsp_linalg.cho_factor(s["A"] + s["mu"] * eye), -s["g"])
+        small = ~first & (jnp.linalg.norm(h) <= xtol * (jnp.linalg.norm(s["z"]) + xtol))
         z_t = s["z"] + h
-        r_t, J_t = r_and_j(z_t)
+        r_t, J_t = both(z_t, args)
         cost_t = 0.5 * jnp.sum(r_t * r_t)
         predicted = 0.5 * h @ (s["mu"] * h - s["g"])
         rho = (s["cost"] - cost_t) / predicted
-        ok = jnp.isfinite(cost_t) & (rho > 0) & ~small
+        ok = first | (jnp.isfinite(cost_t) & (rho > 0) & ~small)
         A_t, g_t = J_t.T @ J_t, J_t.T @ r_t
-        mu_ok = s["mu"] * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        mu_ok = jnp.where(first, tau * jnp.max(jnp.diag(A_t)),
+                          s["mu"] * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
         new = dict(
             z=jnp.where(ok, z_t, s["z"]), r=jnp.where(ok, r_t, s["r"]),
             A=jnp.where(ok, A_t, s["A"]), g=jnp.where(ok, g_t, s["g"]),
             cost=jnp.where(ok, cost_t, s["cost"]),
-            mu=jnp.where(ok, mu_ok, s["mu"] * s["nu"]),
+            mu=jnp.where(ok, mu_ok, s["mu"] * s["nu"]).astype(s["mu"].dtype),
             nu=jnp.where(ok, 2.0, 2.0 * s["nu"]).astype(s["nu"].dtype),
-            done=small | (ok & (jnp.max(jnp.abs(g_t)) <= gtol)),
-            iters=s["iters"] + 1)
+            done=small | (ok & (jnp.max(jnp.abs(g_t)) <= gtol)), first=jnp.asarray(False),
+            iters=s["iters"] + jnp.where(first, 0, 1).astype(jnp.int32))
         return jax.tree.map(lambda old, nw: jnp.where(s["done"], old, nw), s, new)
 
     return init, step
@@ -94,11 +101,11 @@ def _result(s):
 
 def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: float):
     """Minimise ½‖residual(z, args)‖² from ``z0`` (p,) in at most ``steps`` steps, a
-    ``fori_loop`` of exactly ``steps`` (a lane that met the rule stays put). Returns ``z``,
-    ``cost``, ``iters`` (steps taken before the rule was met, else ``steps``), ``rule_met``
-    and ``finite``. Traceable: vmap it over starts and datasets."""
+    ``fori_loop`` of exactly ``steps`` (a lane that met the rule stays put; one more pass
+    evaluates z0). Returns ``z``, ``cost``, ``iters`` (steps taken before the rule was met, else
+    ``steps``), ``rule_met`` and ``finite``. Traceable: vmap it over starts and datasets."""
     init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
-    return _result(jax.lax.fori_loop(0, int(steps), lambda _, s: step(s), init(z0)))
+    return _result(jax.lax.fori_loop(0, int(steps) + 1, lambda _, s: step(s), init(z0)))
 
 
 def lm_until(residual, z0, args, *, maxiter: int, xtol: float, gtol: float, tau: float):
@@ -106,8 +113,8 @@ def lm_until(residual, z0, args, *, maxiter: int, xtol: float, gtol: float, tau:
     ``maxiter`` steps: vmapped over a few starts (the single fit), the batch ends with its
     slowest start, not at a budget."""
     init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
-    return _result(jax.lax.while_loop(lambda s: ~s["done"] & (s["iters"] < maxiter), step,
-                                      init(z0)))
+    return _result(jax.lax.while_loop(
+        lambda s: s["first"] | (~s["done"] & (s["iters"] < maxiter)), step, init(z0)))
 
 
 __all__ = ["lm_fixed", "lm_until", "value_and_jacobian"]
