@@ -75,32 +75,29 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     metadata: dict[str, str] = {}
     metadata_lines: dict[str, int] = {}
     header = None
-    rows: list[list[float]] = []
+    rows: list[list[str]] = []
     lines: list[int] = []
     for lineno, stripped, meta in text_lines(text):
         if stripped.startswith("#"):
             if meta:
                 metadata[meta[0]], metadata_lines[meta[0]] = meta[1], lineno
             continue
-        _check_delimiters(path, lineno, stripped)
+        try:
+            _check_delimiters(path, lineno, stripped)
+        except InputFileError:
+            _check_cells(path, header, rows, lines, text_columns)  # an earlier bad cell first
+            raise
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
             header = _parse_header(path, lineno, fields, required, optional, what, column_pattern)
             continue
         if len(fields) != len(header):
+            _check_cells(path, header, rows, lines, text_columns)  # an earlier bad cell first
             raise InputFileError(
                 path, f"has {len(fields)} fields but the header names {len(header)}", line=lineno,
                 hint=f"every row needs exactly the columns {', '.join(header)}",
             )
-        row = []
-        for name, cell in zip(header, fields):
-            if name in text_columns:
-                if not cell:
-                    raise InputFileError(path, "is empty", line=lineno, column=name)
-                row.append(cell)
-            else:
-                row.append(_parse_number(path, lineno, name, cell))
-        rows.append(row)
+        rows.append(fields)
         lines.append(lineno)
     if header is None:
         raise InputFileError(path, f"is empty: a {what} needs a header line and at least one row",
@@ -108,11 +105,43 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     if not rows:
         raise InputFileError(path, "has a header but no data rows",
                              hint="add at least one row of numbers")
+    columns = _columns(path, header, rows, lines, text_columns)
+    return Table(str(path), columns, metadata, np.asarray(lines), metadata_lines)
+
+
+def _columns(path, header, rows, lines, text_columns) -> dict:
+    """The cells of ``rows`` as one array per column: a numeric column converted at once (the
+    same rules as Python's ``float``); where a cell is empty, not a number or not finite, the
+    cells are checked one by one in file order, so the error names the first bad cell's line
+    and column."""
     columns = {}
     for j, name in enumerate(header):
         cells = [r[j] for r in rows]
-        columns[name] = np.asarray(cells, dtype=object if name in text_columns else np.float64)
-    return Table(str(path), columns, metadata, np.asarray(lines), metadata_lines)
+        if name in text_columns:
+            if not all(cells):
+                _check_cells(path, header, rows, lines, text_columns)
+            columns[name] = np.asarray(cells, dtype=object)
+            continue
+        try:
+            values = np.asarray(cells, dtype=np.float64)
+            ok = bool(np.all(np.isfinite(values)))
+        except (ValueError, OverflowError):
+            ok = False
+        if not ok:
+            _check_cells(path, header, rows, lines, text_columns)
+        columns[name] = values
+    return columns
+
+
+def _check_cells(path, header, rows, lines, text_columns) -> None:
+    """Every cell of ``rows``, in file order: the first bad one raises its InputFileError."""
+    for fields, lineno in zip(rows, lines):
+        for name, cell in zip(header, fields):
+            if name in text_columns:
+                if not cell:
+                    raise InputFileError(path, "is empty", line=lineno, column=name)
+            else:
+                _parse_number(path, lineno, name, cell)
 
 
 def _parse_header(path, lineno, fields, required, optional, what, column_pattern=None):

@@ -219,3 +219,22 @@ def test_dataset_column_splits_rows_keeping_channels_and_provenance(tmp_path):
     out.write_text(format_measurement_csv(m))
     back = read_measurement(out)
     assert back.dataset_names == m.dataset_names and np.array_equal(back.dataset, m.dataset)
+
+
+@pytest.mark.parametrize("later, fragment", [
+    ("0,0,10,180,0.3\n0,0,20,180\n", "fields but the header"),  # a short row after it
+    ("0,0,10,180,0.3\n0\t0,20,180,0.2\n", "tab"),  # a tab after it
+    ("0,0,10,180,nan\n", "finite"),  # another bad cell after it
+])
+def test_a_bad_cell_is_named_before_any_later_error(tmp_path, later, fragment):
+    """The columns are converted at once; the error is still the first bad cell in file order
+    (its line and column), even when a later line holds another error."""
+    p = tmp_path / "m.csv"
+    p.write_text("theta_i,phi_i,theta_o,phi_o,value\n0,0,0,0,0.5\n0,0,5,0,x1\n" + later,
+                 encoding="utf-8")
+    with pytest.raises(InputFileError) as e:
+        read_measurement(p)
+    assert e.value.line == 3 and e.value.column == "value" and "'x1'" in str(e.value)
+    p.write_text("theta_i,phi_i,theta_o,phi_o,value\n0,0,0,0,0.5\n" + later, encoding="utf-8")
+    with pytest.raises(InputFileError, match=fragment):
+        read_measurement(p)
