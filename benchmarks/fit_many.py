@@ -115,7 +115,7 @@ def conductor_main(args) -> int:
     ms, truth = conductor_datasets(args.n)
     print(machine_line(machine()))
     print(f"{args.n} Lambert + GGX conductor datasets of {ms[0].n} rows (albedo, α free; n, k "
-          f"fixed), chunk {args.chunk}, scan {args.scan} points, LM starts {args.starts} + 2")
+          f"fixed), chunk {args.chunk}, scan {args.scan} points, LM from the scan's best point (+ the defaults and {args.starts} more where its end is suspect)")
     kw = dict(fix=CONDUCTOR_FIXED, starts=args.starts, scan=args.scan, chunk=args.chunk)
     t0 = time.perf_counter()
     fitlab.fit_many(ms[:args.chunk], CONDUCTOR, **kw)
@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     ms, truth, p = datasets(args.n)
     print(machine_line(machine()))
     print(f"{args.n} datasets of {ms[0].n} rows (Walter example, normal incidence), "
-          f"chunk {args.chunk}, scan {args.scan} points, LM starts {args.starts} + 2")
+          f"chunk {args.chunk}, scan {args.scan} points, LM from the scan's best point (+ the defaults and {args.starts} more where its end is suspect)")
     kw = dict(subset=None, starts=args.starts, scan=args.scan, chunk=args.chunk)
     t0 = time.perf_counter()
     fitlab.fit_many(ms[:args.chunk], "rough_dielectric", **kw)

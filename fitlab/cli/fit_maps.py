@@ -51,7 +51,8 @@ def add_parser(sub):
                    "jointly and the parameter's map has one channel, Y")
     p.add_argument("--starts", type=int, default=4, metavar="N",
                    help="Levenberg-Marquardt starts besides the scan's best point and the "
-                   "model's defaults, run where those two disagree (default 4)")
+                   "model's defaults, run with them where the first one's end is suspect "
+                   "(default 4)")
     p.add_argument("--seed", type=int, default=0, metavar="N",
                    help="seed of the scan (default 0)")
     p.add_argument("--lm-maxiter", type=int, metavar="N",

@@ -51,8 +51,8 @@ class Fitted(NamedTuple):
     scan_cost: float
     #: the posterior (NUTS, batched over the datasets) when fitted with mcmc=True
     mcmc: object = None
-    #: Levenberg–Marquardt starts run (2, more where the first two disagreed: batch.fit_chunk)
-    lm_starts: int = 2
+    #: Levenberg–Marquardt starts run (1, more where its end was suspect: batch.fit_chunk)
+    lm_starts: int = 1
 
 
 def _statuses_of(f: Fitted) -> tuple[Status, ...]:

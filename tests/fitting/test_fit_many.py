@@ -123,21 +123,42 @@ def test_a_dataset_past_one_call_goes_on_to_its_optimum(synthetic, monkeypatch):
         assert b.lm_stopped == "converged" and b.lm_iterations > 3
 
 
-def test_more_starts_only_where_the_first_two_disagree(synthetic, monkeypatch):
-    """fit_chunk runs LM from the scan's best point and the defaults; where those end apart it
-    runs the scan's next best points too, two at a time. Here they agree (2 starts each); made
-    to disagree, every dataset runs 2 + 4 starts and reaches the same optimum."""
+def test_more_starts_only_where_the_first_is_suspect(synthetic, monkeypatch):
+    """fit_chunk runs LM from the scan's best point; only where that end is suspect
+    (batch._suspect) from the model's defaults and the scan's next best points too. Here none
+    is (1 start each); made suspect, every dataset runs 1 + 1 + 4 starts and reaches the same
+    optimum."""
     from fitlab.fitting import batch
 
     ms, _ = synthetic
     ref = fitlab.fit_many(ms[:3], "rough_dielectric")
-    assert [f.lm_starts for f in ref.fits] == [2, 2, 2]
-    assert next(iter(ref.records()))[1]["fits"][0]["global_search"]["lm_starts"] == 2
-    monkeypatch.setattr(batch, "_agree", lambda out: np.zeros(len(out["cost"]), bool))
+    assert [f.lm_starts for f in ref.fits] == [1, 1, 1]
+    assert next(iter(ref.records()))[1]["fits"][0]["global_search"]["lm_starts"] == 1
+    monkeypatch.setattr(batch, "_suspect", lambda run, *a: np.ones(len(run["cost"]), bool))
     more = fitlab.fit_many(ms[:3], "rough_dielectric", starts=4)
     assert [f.lm_starts for f in more.fits] == [6, 6, 6]
     for a, b in zip(ref.fits, more.fits):
         np.testing.assert_allclose(b.native, a.native, rtol=1e-7)
+
+
+def test_a_first_end_is_suspect_when_it_is_not_finite_at_a_bound_or_a_misfit():
+    """batch._suspect: chi2 judges each end by its reduced chi-square, another loss by the
+    chunk's median reduced cost; an end at a bound or not finite is suspect either way."""
+    from fitlab.fitting.batch import SUSPECT_COST_RATIO, SUSPECT_REDUCED_CHI2, _suspect
+
+    n_rows, d = np.full(5, 12), 2  # 10 degrees of freedom: reduced cost = cost / 5
+    u = np.full((5, d), 0.5)
+    u[3, 1] = 0.0  # at a bound
+    cost = np.array([5.0, 5.0, 5.0, 5.0, 5.0])
+    finite = np.array([True, True, True, True, False])
+    run = {"cost": cost, "end_finite": finite, "u": u}
+    assert list(_suspect(run, n_rows, d, "relative")) == [False, False, False, True, True]
+    worse = dict(run, cost=cost * np.array([1, 1, SUSPECT_COST_RATIO * 1.01, 1, 1]))
+    assert list(_suspect(worse, n_rows, d, "relative")) == [False, False, True, True, True]
+    assert list(_suspect(run, n_rows, d, "chi2")) == [False, False, False, True, True]
+    chi = dict(run, cost=np.full(5, 5.0 * SUSPECT_REDUCED_CHI2 * 1.01))
+    assert list(_suspect(chi, n_rows, d, "chi2")) == [True] * 5
+    assert list(_suspect(chi, n_rows, d, "relative")) == [False, False, False, True, True]
 
 
 def test_structures_are_grouped(synthetic):
