@@ -55,7 +55,7 @@ STARTS = 4
 #: Levenberg–Marquardt steps per batched call (fitlab.fitting.lm_fixed): every lane runs this
 #: many (a lane that met its stopping rule stays put); a dataset whose best run has not met it
 #: goes on in further calls, up to lm_maxiter steps in all.
-STEPS = 8
+STEPS = 16
 #: Lanes (one start of one dataset each) per compiled Levenberg–Marquardt call.
 LANES = 256
 #: A first run's end is suspect (more starts are run) above this reduced chi-square (a noise
@@ -124,39 +124,35 @@ def group(problems: list[Problem], *, joint: bool = False) -> list[list[int]]:
 
 
 def _stack(problems: list[Problem], size: int) -> dict:
-    """The kernels' ``problem`` argument with a leading dataset axis. Problems that share
-    their space and direction arrays (fitlab.fitting.maps: texels on one set of rows) are
-    stacked at once: their values and loss constants stacked, the rest broadcast."""
+    """The kernels' ``problem`` argument with a leading dataset axis, the rows padded to
+    ``size`` (least_squares.pad_to). Problems that share their space and direction arrays
+    (fitlab.fitting.maps: texels on one set of rows) keep one copy of those, broadcast."""
     p0 = problems[0]
     d0 = p0.data
+    every = lambda x: np.broadcast_to(np.asarray(x), (len(problems),) + np.shape(x))  # noqa: E731
     if all(p.space is p0.space and p.data.wi is d0.wi and p.data.wo is d0.wo
-           and p.data.weights is d0.weights and p.data.consts.keys() == d0.consts.keys()
-           for p in problems):
-        return _stack_shared(problems, size)
-    per = [{**p.space.arrays(), "data": pad_to(p.data, size)} for p in problems]
-    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *per)
+           and p.data.weights is d0.weights for p in problems):
+        first = pad_to(d0, size)
+        own = _stacked_rows([p.data._replace(wi=None, wo=None, weights=None) for p in problems],
+                            size)
+        data = own._replace(wi=every(first.wi), wo=every(first.wo),
+                            weights=None if first.weights is None else every(first.weights))
+        return {**jax.tree.map(every, p0.space.arrays()), "data": data}
+    arrays = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]),
+                          *[p.space.arrays() for p in problems])
+    return {**arrays, "data": _stacked_rows([p.data for p in problems], size)}
 
 
-def _stack_shared(problems: list[Problem], size: int) -> dict:
-    """:func:`_stack` of problems with one space and one set of direction arrays: the same
-    arrays as padding each (least_squares.pad_to) and stacking them."""
-    B, p0 = len(problems), problems[0]
-    first = pad_to(p0.data, size)
-    n = int(np.shape(p0.data.value)[0])
-    extra = size - n
-
-    def rows(get):  # (B, n, ...) padded with copies of the last row, as pad_to pads
-        x = np.stack([np.asarray(get(p)) for p in problems])
-        return np.concatenate([x, np.repeat(x[:, -1:], extra, axis=1)], axis=1) if extra else x
-
-    consts = {k: rows(lambda p, k=k: p.data.consts[k]) for k in p0.data.consts if k != ROW_MASK}
-    mask = np.stack([np.asarray(p.data.consts.get(ROW_MASK, np.ones(n)), dtype=np.float64)
-                     for p in problems])
-    consts[ROW_MASK] = np.concatenate([mask, np.zeros((B, extra))], axis=1)
-    every = lambda x: np.broadcast_to(np.asarray(x), (B,) + np.shape(x))  # noqa: E731
-    data = FitData(every(first.wi), every(first.wo), rows(lambda p: p.data.value), consts,
-                   None if first.weights is None else every(first.weights))
-    return {**jax.tree.map(every, p0.space.arrays()), "data": data}
+def _stacked_rows(datas: list[FitData], size: int) -> FitData:
+    """``datas`` stacked on a new axis 0 and padded to ``size`` rows (a row mask of ones for
+    those without one); of different row counts, each padded first."""
+    if len({int(np.shape(d.value)[0]) for d in datas}) > 1:
+        datas = [pad_to(d, size) for d in datas]
+    if any(ROW_MASK in d.consts for d in datas):
+        datas = [d if ROW_MASK in d.consts else d._replace(
+            consts={**d.consts, ROW_MASK: np.ones(np.shape(d.value)[0])}) for d in datas]
+    stacked = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *datas)
+    return pad_to(stacked, size, axis=1)
 
 
 def fixed_local(static, loss, steps):
@@ -178,18 +174,27 @@ def shared_scan_costs(static, loss: str, U, problem):
     predictions at the points are the same in every dataset: computed once per point, then each
     dataset's cost there from its own values and loss constants (fitlab.fitting.losses
     ``residuals``, times its ROW_MASK), as the single fit's scan (least_squares.scan_costs)
-    computes it. A block of points at a time: at most SCAN_BLOCK point-row pairs of residuals
-    over the chunk."""
+    computes it. A free ``scale`` (relative data) has bounds of its own per dataset: the
+    predictions are computed with scale 1 and multiplied by each dataset's scale at the point
+    (the product the single fit's prediction forms). A block of points at a time: at most
+    SCAN_BLOCK point-row pairs of residuals over the chunk."""
     d = problem["data"]
     B, rows = (int(n) for n in d.value.shape[:2])
     first = FitData(d.wi[0], d.wo[0], d.value[0], {},
                     None if d.weights is None else d.weights[0])
-    lo, hi = problem["lo"][0], problem["hi"][0]
+    lo, hi = problem["lo"], problem["hi"]
     fixed = jax.tree.map(lambda x: x[0], problem["fixed"])
+    k = static.names.index(SCALE) if SCALE in static.names else None
 
     def at(u):
-        m = predict_data(static, to_native(static, u, lo, hi), fixed, first)  # (rows,)
-        r = jax.vmap(lambda v, c: residuals(loss, m, v, c))(d.value, d.consts)  # (B, rows)
+        theta = to_native(static, u, lo[0], hi[0])
+        if k is None:
+            m = jnp.broadcast_to(predict_data(static, theta, fixed, first), (B, rows))
+        else:
+            f = predict_data(static, theta.at[k].set(1.0), fixed, first)  # (rows,)
+            scale = to_native(static, jnp.broadcast_to(u, lo.shape), lo, hi)[:, k]  # (B,)
+            m = scale[:, None] * f[None, :]
+        r = jax.vmap(lambda mb, v, c: residuals(loss, mb, v, c))(m, d.value, d.consts)
         if ROW_MASK in d.consts:
             r = r * d.consts[ROW_MASK]
         return 0.5 * jnp.sum(r * r, axis=-1)
@@ -200,14 +205,13 @@ def shared_scan_costs(static, loss: str, U, problem):
 
 def shares_scan(static, stacked: dict) -> bool:
     """Whether every dataset of a chunk's stacked problems has the first one's directions,
-    aperture weights, bounds and fixed values (its predictions at the scan's points are the
-    first's), and no free ``scale`` (a per-dataset factor of the predictions)."""
-    if SCALE in static.names:
-        return False
+    aperture weights, bounds (but a free ``scale``'s) and fixed values: its predictions at the
+    scan's points are the first's (times its own scale)."""
     d = stacked["data"]
+    keep = np.array([n != SCALE for n in static.names])
     same = lambda x: x is None or bool(np.all(np.asarray(x) == np.asarray(x)[:1]))  # noqa: E731
-    return all(same(x) for x in (d.wi, d.wo, d.weights, stacked["lo"],
-                                              stacked["hi"], *stacked["fixed"].values()))
+    return all(same(x) for x in (d.wi, d.wo, d.weights, stacked["lo"][:, keep],
+                                 stacked["hi"][:, keep], *stacked["fixed"].values()))
 
 
 @functools.lru_cache(maxsize=32)

@@ -95,12 +95,19 @@ def alert_line(quiet, msg):
     print(msg, file=sys.stderr, flush=True)
 
 
-def _scale_reference(model, options, start, m, rows, in_chan):
+def _scale_reference(model, options, start, m, rows, in_chan, memo=None):
     """Least-squares scale of the model at ``start`` to the fitted rows' values. The model is
     evaluated on every row of the channel (the shape the final prediction uses too, so both are
-    one compiled kernel)."""
-    f = model_values(model, tuple(sorted(options.items())), start, m.wi[in_chan],
-                     m.wo[in_chan])[rows[in_chan]]
+    one compiled kernel). ``memo``: a dict kept by the caller across datasets of one request,
+    where the model's values on the same directions are looked up instead of evaluated."""
+    wi, wo = m.wi[in_chan], m.wo[in_chan]
+    key = (tuple(sorted(start.items())), wi.tobytes(), wo.tobytes())
+    f_all = None if memo is None else memo.get(key)
+    if f_all is None:
+        f_all = model_values(model, tuple(sorted(options.items())), start, wi, wo)
+        if memo is not None:
+            memo[key] = f_all
+    f = f_all[rows[in_chan]]
     v = m.value[rows]
     den = float(f @ f)
     s = float(v @ f) / den if den > 0 else 0.0
@@ -171,7 +178,20 @@ def fitted_rows(m, c, rows_fit):
         raise FitlabError(f"{m.path}: every value of channel {name} that would be fitted is "
                           "0: there is nothing to fit; check the value column (and "
                           "--fit-subset)")
+    wo = m.wo[rows]
+    if rows.sum() > 1 and np.all(np.abs(wo - wo[0]) <= VIEW_TOLERANCE):
+        j = int(np.flatnonzero(rows)[0])
+        raise FitlabError(
+            f"{m.path}: the {int(rows.sum())} rows of channel {name} to fit share one view "
+            f"direction (θo = {m.theta_o[j]:g}°, φo = {m.phi_o[j]:g}°): one view direction "
+            "cannot constrain a BRDF model (the rows vary the incidence only); give a "
+            "measurement with several view directions (e.g. a scan of θo at each incidence), "
+            "or a --fit-subset that keeps rows of several")
     return name, in_chan, rows
+
+
+#: Two view directions closer than this (unit-vector components) are one (fitted_rows).
+VIEW_TOLERANCE = 1e-9
 
 
 class FitSetup(NamedTuple):
@@ -209,13 +229,14 @@ def resolve_fit(m, request) -> FitSetup:
 
 
 def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
-                    aperture_order=None):
+                    aperture_order=None, memo=None):
     """The fit space, the data of the fitted ``rows`` (within the channel's rows ``in_chan``) and
     the extra start (native units). With ``aperture_order``, the data carry the aperture
-    quadrature of that order (fitlab.fitting.aperture)."""
+    quadrature of that order (fitlab.fitting.aperture). ``memo``: see
+    :func:`_scale_reference` (the batched fits pass one)."""
     scale_bounds = None
     if m.is_relative:
-        s_ref = _scale_reference(model, options, start, m, rows, in_chan)
+        s_ref = _scale_reference(model, options, start, m, rows, in_chan, memo)
         scale_bounds = (s_ref * 1e-4, s_ref * 1e4)
     space = make_space(model, options, fixed, m.is_relative, scale_bounds)
     if rows.sum() <= space.ndim:

@@ -140,21 +140,26 @@ def pad_rows(static, data: FitData) -> FitData:
     return pad_to(data, padded_size(int(np.shape(data.value)[0])))
 
 
-def pad_to(data: FitData, size: int) -> FitData:
-    """``data`` padded to ``size`` rows as :func:`pad_rows` pads (the batched fits pad a group
-    of datasets to the size they share)."""
+def pad_to(data: FitData, size: int, axis: int = 0) -> FitData:
+    """``data`` padded to ``size`` rows as :func:`pad_rows` pads: copies of its last row that
+    the row mask leaves out. ``axis``: the rows' axis (1 for datasets stacked on axis 0, as the
+    batched fits stack them, fitlab.fitting.batch); fields that are None stay None."""
     host = jax.tree.map(np.asarray, data)
-    n = int(host.value.shape[0])
+    n = int(host.value.shape[axis])
     extra = size - n
 
     def grow(x):
-        return np.concatenate([x, np.repeat(x[-1:], extra, axis=0)]) if extra else x
+        if not extra:
+            return x
+        return np.concatenate([x, np.repeat(np.take(x, [-1], axis=axis), extra, axis=axis)],
+                              axis=axis)
 
-    mask = np.asarray(host.consts.get(ROW_MASK, np.ones(n)), dtype=np.float64)
-    consts = {k: grow(v) for k, v in host.consts.items() if k != ROW_MASK}
-    consts[ROW_MASK] = np.concatenate([mask, np.zeros(extra)])
-    return FitData(grow(host.wi), grow(host.wo), grow(host.value), consts,
-                   None if host.weights is None else grow(host.weights))
+    mask = np.asarray(host.consts.get(ROW_MASK, np.ones(host.value.shape[:axis + 1])),
+                      dtype=np.float64)
+    grown = jax.tree.map(grow, host._replace(
+        consts={k: v for k, v in host.consts.items() if k != ROW_MASK}))
+    mask = np.concatenate([mask, np.zeros(mask.shape[:axis] + (extra,))], axis=axis)
+    return grown._replace(consts={**grown.consts, ROW_MASK: mask})
 
 
 def predict_data(static: StaticSpace, theta, fixed: dict, d: FitData):

@@ -228,14 +228,18 @@ def _problems(measurements, request):
     from fitlab.io.gates import notes as read_notes
 
     problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
+    setups, memo = {}, {}  # resolve_fit depends on a file's eta and sigma only
     for i, m in enumerate(measurements):
-        try:
-            mdl, opts, fixed, notes, lss, start = resolve_fit(m, request)
-        except ValueError as exc:
-            raise FitlabError(f"{m.path}: {exc}") from None
+        key = (m.eta(), m.sigma is None)
+        if key not in setups:
+            try:
+                setups[key] = resolve_fit(m, request)
+            except ValueError as exc:
+                raise FitlabError(f"{m.path}: {exc}") from None
+        mdl, opts, fixed, notes, lss, start = setups[key]
         _, mask = rows_of(request.subset, m)
         rows.append(mask)
-        fixed_all.append(fixed)
+        fixed_all.append(dict(fixed))
         notes_all.append(list(notes) + read_notes(m))  # how the file was read, if not by default
         losses[i] = lss
         if m.has_aperture:
@@ -247,7 +251,7 @@ def _problems(measurements, request):
                 continue
             try:
                 space, data, start_native = channel_problem(m, mdl, opts, fixed, lss, start, r,
-                                                            name, in_chan)
+                                                            name, in_chan, memo=memo)
             except ValueError as exc:
                 raise FitlabError(f"{m.path}: {exc}") from None
             spaces[(i, name)] = space

@@ -162,21 +162,30 @@ def model_values(model: Model | str, options: tuple, params: dict, wi, wo) -> np
 
 def make_space(model, options: dict, fixed: dict, relative: bool,
                scale_bounds: tuple[float, float] | None = None) -> FitSpace:
+    static, free = _space_parts(model, tuple(sorted(options.items())), tuple(sorted(fixed)),
+                                bool(relative))
+    if relative:
+        lo, hi = scale_bounds
+        free = free + (FreeParameter(SCALE, float(lo), float(hi), True, "data units per 1/sr"),)
+    return FitSpace(static, free, dict(fixed))
+
+
+@functools.lru_cache(maxsize=256)
+def _space_parts(model, options: tuple, fixed_names: tuple, relative: bool):
+    """(StaticSpace, the free parameters but a relative fit's scale) of :func:`make_space`:
+    the same for every dataset of a batched fit, made once."""
     free = []
     for p in model.parameters:
-        if p.name in fixed:
+        if p.name in fixed_names:
             continue
         log = p.lower > 0 and p.upper / p.lower >= 100.0
         free.append(FreeParameter(p.name, float(p.lower), float(p.upper), log, p.unit))
-    if relative:
-        lo, hi = scale_bounds
-        free.append(FreeParameter(SCALE, float(lo), float(hi), True, "data units per 1/sr"))
-    if not free:
+    if not free and not relative:
         raise ValueError("every parameter is fixed: nothing to fit")
-    static = StaticSpace(model, tuple(sorted(options.items())),
-                         tuple(p.name for p in free), tuple(p.log for p in free),
-                         tuple(sorted(fixed)), relative)
-    return FitSpace(static, tuple(free), dict(fixed))
+    names = tuple(p.name for p in free) + ((SCALE,) if relative else ())
+    logs = tuple(p.log for p in free) + ((True,) if relative else ())
+    static = StaticSpace(model, options, names, logs, fixed_names, relative)
+    return static, tuple(free)
 
 
 def unit_from_z(z):

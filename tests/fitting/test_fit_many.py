@@ -298,3 +298,29 @@ def test_dataset_column_one_fit_per_dataset(tmp_path, capsys):
 
     m, _ = load_data(rec.record, out / "measurement_datasets.frosted_c.json")
     assert m.metadata["dataset"] == "frosted_c" and m.n == rec.record["data"]["rows"]
+
+
+def test_relative_datasets_on_one_geometry_share_the_scan(synthetic, monkeypatch):
+    """Relative data (a free scale with bounds of each dataset's own) on the same directions:
+    the scan's predictions once per point, times each dataset's scale
+    (batch.shared_scan_costs), give the per-dataset scan's costs and the same fits."""
+    from fitlab.fitting import batch, many
+
+    ms, _ = synthetic
+    seen = []
+    real = batch.fit_chunk
+    monkeypatch.setattr(many, "fit_chunk", lambda ps, **kw: seen.append((ps, kw)) or real(
+        ps, **kw))
+    fitlab.fit_many(ms, "rough_dielectric")
+    (problems, kw), = seen
+    p0 = problems[0]
+    stacked = batch._stack(problems, batch.padded_size(p0.n_rows))
+    assert len({float(x) for x in stacked["hi"][:, -1]}) == len(ms)  # scale bounds differ
+    assert batch.shares_scan(p0.space.static, stacked)
+    k = batch._batched(p0.space.static, p0.loss, batch.STEPS)
+    U = batch.scan_points(kw["scan"], p0.space.ndim, kw["seed"])
+    np.testing.assert_allclose(np.asarray(k["shared_scan"](U, stacked)),
+                               np.asarray(k["batch_scan"](U, stacked)), rtol=1e-12, atol=0)
+    once = real(problems, **kw)
+    monkeypatch.setattr(batch, "shares_scan", lambda static, stacked: False)
+    np.testing.assert_array_equal(real(problems, **kw).native, once.native)
