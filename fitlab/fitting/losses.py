@@ -48,8 +48,10 @@ def _chi2_weights(value, sigma, cos_o):
 
 
 def _relative_weights(value, sigma, cos_o):
-    floor = 0.01 * np.max(np.abs(value)) if value.size else 1.0
-    return {"w": 1.0 / np.maximum(np.abs(value), max(floor, 1e-300))}
+    # the floor of each dataset: rows on the last axis
+    floor = (0.01 * np.max(np.abs(value), axis=-1, keepdims=True) if value.shape[-1]
+             else np.ones(value.shape[:-1] + (1,)))
+    return {"w": 1.0 / np.maximum(np.abs(value), np.maximum(floor, 1e-300))}
 
 
 def _log_weights(value, sigma, cos_o):
@@ -86,7 +88,9 @@ def get_loss(name: str) -> Loss:
 
 
 def loss_weights(loss: str, value, sigma, cos_o):
-    """Per-row constants a residual needs (computed once, outside the JIT region)."""
+    """Per-row constants a residual needs (computed once, outside the JIT region). ``value``
+    (and ``sigma``) may hold many datasets on the same rows, the rows on the last axis
+    (``cos_o`` then broadcasts against them): the constants of each, at once."""
     entry = get_loss(loss)
     return entry.weights(np.asarray(value, dtype=float), sigma, cos_o)
 

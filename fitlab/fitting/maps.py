@@ -194,22 +194,28 @@ def _regular_problems(texels, readings, template, rows_fit, request, setup):
     if not proto:
         return [(t, []) for t in texels]
     share = bool(request.share)
-    cos = [template.wo[ch if share else r, 2] for ch, r in zip(chans, rows)]
+    # every texel's values and loss constants per channel at once (rows on the last axis)
+    idx = np.asarray(texels)
+    per_channel = []
+    for ch, r in zip(chans, rows):
+        if share:  # every row of the channel, a row not fitted the channel's mean
+            v = np.where(r[ch], readings[np.ix_(idx, np.flatnonzero(ch))],
+                         np.mean(readings[np.ix_(idx, np.flatnonzero(r))], axis=1)[:, None])
+        else:
+            v = readings[np.ix_(idx, np.flatnonzero(r))]
+        co = template.wo[ch if share else r, 2]
+        w = {k: np.broadcast_to(np.asarray(x, float), v.shape)
+             for k, x in loss_weights(loss, v, None, co).items()}
+        per_channel.append((v, w))
     out = []
-    for t, e in zip(texels, empty):
+    for j, (t, e) in enumerate(zip(texels, empty)):
         if e:
             out.append((t, []))
             continue
         if t == first:
             out.append((t, proto))
             continue
-        parts = []
-        for ch, r, co in zip(chans, rows, cos):
-            if share:  # every row of the channel, a row not fitted the channel's mean
-                v = np.where(r[ch], readings[t, ch], np.mean(readings[t, r]))
-            else:
-                v = readings[t, r]
-            parts.append((v, loss_weights(loss, v, None, co)))
+        parts = [(v[j], {k: x[j] for k, x in w.items()}) for v, w in per_channel]
         if share:
             p = proto[0]
             value = np.concatenate([v for v, _ in parts])
@@ -219,9 +225,8 @@ def _regular_problems(texels, readings, template, rows_fit, request, setup):
                                        key=(t, None))]))
         else:
             out.append((t, [p._replace(data=p.data._replace(value=v, consts={
-                **{k: np.asarray(x, float) for k, x in w.items()},
-                **({ROW_MASK: p.data.consts[ROW_MASK]} if ROW_MASK in p.data.consts else {})}),
-                key=(t, c)) for c, (p, (v, w)) in enumerate(zip(proto, parts))]))
+                **w, **({ROW_MASK: p.data.consts[ROW_MASK]} if ROW_MASK in p.data.consts
+                        else {})}), key=(t, c)) for c, (p, (v, w)) in enumerate(zip(proto, parts))]))
     return out
 
 
