@@ -163,7 +163,7 @@ def fixed_local(static, loss, steps):
     def run_lm(z0, problem):
         sol = lm_fixed(residual, z0, problem, steps=steps, xtol=LM_XTOL, gtol=LM_GTOL,
                        tau=LM_DAMPING)
-        return sol["z"], sol["iters"], ~sol["rule_met"], sol["joined"], sol["joined_to"]
+        return sol["z"], sol["iters"], ~sol["rule_met"]
 
     return local_stage(static, loss, run_lm)
 

@@ -47,10 +47,6 @@ LM_DAMPING = 1e-6
 
 #: Two optima count as "equally good" when their costs differ by less than this fraction ...
 EQUAL_COST_RTOL = 0.01
-#: A start whose Levenberg–Marquardt run comes this close (unit box, largest coordinate) to an
-#: earlier start's end, at a cost within EQUAL_COST_RTOL of it, has reached that optimum
-#: (local_stage's ``join``).
-JOIN_UNIT = 1e-3
 #: ... and as "different" when some parameter differs by more than this in the unit box.
 DISTINCT_UNIT = 0.05
 
@@ -201,21 +197,15 @@ def residuals_z(static: StaticSpace, loss: str, z, problem):
 
 
 def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False):
-    """``(Z0, U0, W, problem, join)`` -> per start (vmapped, or one after another with
-    ``sequential``): Levenberg–Marquardt by ``run_lm(z0, problem[, stop])`` -> (end, steps,
-    rule_unmet, joined, joined_to), then the end's cost, residuals and Jacobian in native units.
-    The single fit's solvers (:func:`kernels`) and the batched fits' (fixed budget,
-    fitlab.fitting.batch) share it.
-
-    ``join`` (a bool, with ``sequential``): every start fits the same data (the fit's starts,
-    not the bootstrap's resamples), so a start whose run reaches an earlier start's end — within
-    :data:`JOIN_UNIT` of it in the unit box, at a cost at most EQUAL_COST_RTOL above its — stops
-    there and takes that end (its own steps counted): it would only refine the same optimum
-    (the principle of multi-level single linkage, Rinnooy Kan & Timmer 1987: no second local
-    search into a basin already searched). Starts heading for other optima run to their own."""
+    """``(Z0, U0, W, problem)`` -> per start (vmapped, or one after another with
+    ``sequential``): Levenberg–Marquardt by ``run_lm(z0, problem)`` -> (end, steps,
+    rule_unmet), then the end's cost, residuals and Jacobian in native units. The single fit's solvers (:func:`kernels`) and the batched fits' (fixed budget,
+    fitlab.fitting.batch) share it."""
     r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
 
-    def finish(z0, u0, w, problem, z_end, iters, rule_unmet):
+    def one(z0, u0, w, problem):
+        problem = {**problem, ROW_WEIGHT: w}
+        z_end, iters, rule_unmet = run_lm(z0, problem)
         # A flat cost (every residual's Jacobian exactly 0, e.g. a lobe so narrow that the
         # model is 0 at every measured direction: Beckmann's D underflows to 0 there) makes the
         # damping μ = τ max diag(JᵀJ) zero and the first step 0/0 = NaN. Such a run ends where
@@ -230,45 +220,9 @@ def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False
                 "residuals": r, "jacobian": J,
                 "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
 
-    def one(z0, u0, w, problem):
-        problem = {**problem, ROW_WEIGHT: w}
-        z_end, iters, rule_unmet, _, _ = run_lm(z0, problem)
-        return finish(z0, u0, w, problem, z_end, iters, rule_unmet)
-
-    def in_turn(Z0, U0, W, problem, join):
-        n, d = Z0.shape
-
-        def start(found, a):
-            z0, u0, w = a
-            p = {**problem, ROW_WEIGHT: w}
-
-            def stop(z, cost):
-                near = found["valid"] & (jnp.max(jnp.abs(found["u"] - unit_from_z(z)[None]),
-                                                 axis=1) <= JOIN_UNIT) \
-                    & (cost <= found["cost"] * (1 + EQUAL_COST_RTOL))
-                return join & jnp.any(near), jnp.argmax(near)
-
-            z_end, iters, rule_unmet, joined, to = run_lm(z0, p, stop)
-            z_end = jnp.where(joined, found["z"][to], z_end)
-            rule_unmet = rule_unmet & ~joined
-            out = finish(z0, u0, w, p, z_end, iters, rule_unmet)
-            k = found["n"]
-            keep = ~joined & out["end_finite"] & jnp.isfinite(out["cost"])
-            found = {"z": found["z"].at[k].set(jnp.where(keep, out["z"], found["z"][k])),
-                     "u": found["u"].at[k].set(jnp.where(keep, out["u"], found["u"][k])),
-                     "cost": found["cost"].at[k].set(jnp.where(keep, out["cost"],
-                                                               found["cost"][k])),
-                     "valid": found["valid"].at[k].set(keep), "n": k + keep.astype(k.dtype)}
-            return found, out
-
-        empty = {"z": jnp.zeros((n, d), Z0.dtype), "u": jnp.zeros((n, d), Z0.dtype),
-                 "cost": jnp.full((n,), jnp.inf, Z0.dtype), "valid": jnp.zeros((n,), bool),
-                 "n": jnp.asarray(0, jnp.int32)}
-        return jax.lax.scan(start, empty, (Z0, U0, W))[1]
-
-    def local(Z0, U0, W, problem, join=False):
+    def local(Z0, U0, W, problem):
         if sequential:
-            return in_turn(Z0, U0, W, problem, jnp.asarray(join, bool))
+            return jax.lax.map(lambda a: one(*a, problem), (Z0, U0, W))
         return jax.vmap(one, in_axes=(0, 0, 0, None))(Z0, U0, W, problem)
 
     return local
@@ -342,7 +296,7 @@ def _compile_local(k, problem, n_local, d):
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
         n_rows = problem["data"].value.shape[0]
         jax.block_until_ready(k["local"](np.zeros((n_local, d)), np.full((n_local, d), 0.5),
-                                         np.ones((n_local, n_rows)), problem, np.True_))
+                                         np.ones((n_local, n_rows)), problem))
 
 
 def local_fits(k, problem, starts_u, weights=None):
@@ -350,14 +304,13 @@ def local_fits(k, problem, starts_u, weights=None):
     NumPy arrays): z (logit coordinates), iters, rule_unmet (LM's stopping rule not met at
     the end), u, native, cost, residuals, jacobian (native
     units), start_native. ``weights`` (starts, rows), if given, multiplies each start's
-    residuals (default ones: every start fits the same data, and a start that reaches an
-    earlier one's optimum stops there: local_stage's ``join``)."""
+    residuals (default ones: every start fits the same data)."""
     U0 = np.stack([np.asarray(u0, dtype=float) for u0 in starts_u])
     Z0 = np.stack([z_from_unit(u0) for u0 in U0])
     W = (np.ones((U0.shape[0], problem["data"].value.shape[0])) if weights is None
          else np.asarray(weights, dtype=float))
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
-        out = k["local"](Z0, U0, W, problem, np.bool_(weights is None))
+        out = k["local"](Z0, U0, W, problem)
     return {key: np.asarray(v) for key, v in out.items()}
 
 

@@ -30,19 +30,16 @@ class LocalSolver(NamedTuple):
     description: str
     #: the parameter file's ``solver.algorithm``
     algorithm: str
-    #: (residual, maxiter, xtol, gtol, tau) -> run_lm(z0, problem, stop=None) -> (z, iters,
-    #: rule_unmet, joined, joined_to); ``stop(z, cost)`` -> (bool, index): the run may end
-    #: where it reached an earlier start's optimum (fitlab.fitting.least_squares.local_stage)
+    #: (residual, maxiter, xtol, gtol, tau) -> run_lm(z0, problem) -> (z, iters, rule_unmet)
     make: Callable
 
 
 def _fitlab(residual, maxiter, xtol, gtol, tau):
     from fitlab.fitting.lm_fixed import lm_until
 
-    def run_lm(z0, problem, stop=None):
-        sol = lm_until(residual, z0, problem, maxiter=maxiter, xtol=xtol, gtol=gtol, tau=tau,
-                       stop=stop)
-        return sol["z"], sol["iters"], ~sol["rule_met"], sol["joined"], sol["joined_to"]
+    def run_lm(z0, problem):
+        sol = lm_until(residual, z0, problem, maxiter=maxiter, xtol=xtol, gtol=gtol, tau=tau)
+        return sol["z"], sol["iters"], ~sol["rule_met"]
 
     return run_lm
 
@@ -50,20 +47,17 @@ def _fitlab(residual, maxiter, xtol, gtol, tau):
 def _jaxopt(residual, maxiter, xtol, gtol, tau):
     import jaxopt
 
-    from fitlab._jax import jnp
-
     solver = jaxopt.LevenbergMarquardt(residual_fun=residual, maxiter=maxiter,
                                        damping_parameter=tau, stop_criterion="madsen-nielsen",
                                        xtol=xtol, gtol=gtol, solver="cholesky",
                                        materialize_jac=True, implicit_diff=False, jit=True)
 
-    def run_lm(z0, problem, stop=None):  # every start runs to its own end (no ``stop``)
+    def run_lm(z0, problem):
         sol = solver.run(z0, problem)
         # jaxopt's own stopping test (its loop's condition): still true after the loop means
         # the step limit, not the Madsen–Nielsen rule, ended the run.
         return (sol.params, sol.state.iter_num,
-                solver._cond_fun(((sol.params, sol.state), ((problem,), {}))),
-                jnp.asarray(False), jnp.asarray(0, jnp.int32))
+                solver._cond_fun(((sol.params, sol.state), ((problem,), {}))))
 
     return run_lm
 

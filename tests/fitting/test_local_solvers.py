@@ -50,30 +50,3 @@ def test_the_command_line_chooses_the_solver(tmp_path, capsys):
         main(args + ["--local-solver", "scipy"])
     assert stop.value.code == 2 and "--local-solver" in capsys.readouterr().err
     assert not np.isnan(fit["parameters"]["alpha"]["value"])
-
-
-def test_a_start_that_reaches_an_earlier_optimum_stops_there():
-    """local_stage's join: starts fitting the same data, one after another; a start whose run
-    comes within JOIN_UNIT of an earlier start's end (at no worse cost) stops and takes that
-    end. Runs on resampled data (row weights given, as the bootstrap's) never join."""
-    from fitlab.fitting.channel import prepare_channel
-    from fitlab.fitting.least_squares import (kernels, local_fits, pad_rows, problem_of)
-
-    m = fitlab.read(WALTER)
-    prep = prepare_channel(m, "rough_dielectric", rows=m.theta_i == 30)
-    space, loss = prep["space"], prep["loss"]
-    problem = problem_of(space, pad_rows(space.static, prep["data"]))
-    k = kernels(space.static, loss)
-    u0 = np.full(space.ndim, 0.3)
-    near = u0 + 1e-4  # the same basin, a hair away
-    joined = local_fits(k, problem, [u0, near, u0])
-    rows = problem["data"].value.shape[0]
-    alone = local_fits(k, problem, [u0, near, u0], weights=np.ones((3, rows)))
-    assert alone["iters"][0] > 3 and np.all(alone["iters"][1:] > 3)
-    np.testing.assert_array_equal(joined["z"][0], alone["z"][0])  # the first runs alone
-    for i in (1, 2):  # the others reach it: fewer steps, its end, converged
-        assert joined["iters"][i] < alone["iters"][i]
-        np.testing.assert_array_equal(joined["z"][i], joined["z"][0])
-        assert not joined["rule_unmet"][i]
-        assert joined["cost"][i] == joined["cost"][0]
-        assert alone["cost"][i] == pytest.approx(joined["cost"][0], rel=1e-9)
