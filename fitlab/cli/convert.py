@@ -1,5 +1,6 @@
-"""fitlab convert: measured data to measurement CSV; a fit or a registry model tabulated by any
-writer of the registry (fitlab.export.writers: Zemax IS-BSDF, MERL binary)."""
+"""fitlab convert: measured data to measurement CSV (or OpenMATERIAL); a fit or a registry model
+tabulated by any writer of the registry (fitlab.export.writers: Zemax IS-BSDF, MERL binary,
+ASAM OpenMATERIAL 3D)."""
 
 from __future__ import annotations
 
@@ -47,12 +48,20 @@ def add_parser(sub):
         "the angles of an existing .bsdf file, with --aoi/--azimuth/--radial replacing lists. "
         "A MERL file holds the BRDF at the centres of its 90 x 90 x 180 (theta_h, theta_d, "
         "phi_d) bins: reflection only, so a model that does not reflect is refused. "
+        "An OpenMATERIAL file (.xompt) holds the model's f on the standard grid (theta_i and "
+        "theta_o 0..85 deg step 5, phi_o 0..345 step 15 relative to the incidence) or on the "
+        "rows of --grid-from FILE.xompt, one wavelength per channel <N>nm (--wavelength-nm for "
+        "one channel that names none); measured data (INPUT OUTPUT.xompt) keep their rows. Its "
+        "header comes from the flags, else from the data's OpenMATERIAL file, else defaults "
+        "(NOASSERTION where nothing is known). "
         f"Output types (--to; otherwise from the suffix, else {default}): {types}.",
         epilog="examples: fitlab convert data_formats/examples/zemax_brown_vinyl.bsdf vinyl.csv; "
         "fitlab convert fits/vinyl.json vinyl_fit.bsdf --grid data_formats/examples/"
         "zemax_brown_vinyl.bsdf; fitlab convert --model rough_dielectric --param alpha=0.3 "
         "--param eta=1.5 --scatter BTDF --aoi 0:40:5 glass_btdf.bsdf; fitlab convert "
-        "fits/rgl_aurora_white_lambert_ggx_conductor.json aurora.binary",
+        "fits/rgl_aurora_white_lambert_ggx_conductor.json aurora.binary; fitlab convert "
+        "lidar_fit.json lidar_fit.xompt --grid-from data_formats/examples/openmaterial/"
+        "example_material_lidar_brdf.xompt",
     )
     p.add_argument("paths", nargs="+", metavar="FILE",
                    help="INPUT OUTPUT, or only OUTPUT with --model")
@@ -76,6 +85,28 @@ def add_parser(sub):
                    "0..180 writes PlaneSymmetrical data, beyond 180 Asymmetrical")
     p.add_argument("--radial", metavar="ANGLES", help="Zemax ScatterRadial list, 0..180")
     add_channel(p, "the channel of a multi-channel fit to write")
+    om = p.add_argument_group("OpenMATERIAL output (.xompt; data_formats/openmaterial_xompt.md)")
+    om.add_argument("--grid-from", metavar="FILE.xompt",
+                    help="sample the model at the rows (wavelengths and angles) of this "
+                    "OpenMATERIAL file instead of the standard grid")
+    om.add_argument("--wavelength-nm", type=float, metavar="NM",
+                    help="the wavelength of a single channel that states none (a fit of a "
+                    "'Y' or --channel G channel, a --model); channels <N>nm state their own")
+    om.add_argument("--name", help="metadata.name (default: the data's OpenMATERIAL name, "
+                    "else the data file's stem and the model)")
+    om.add_argument("--description", help="metadata.description (default: the data's, and "
+                    "how fitlab made the file)")
+    om.add_argument("--author", action="append", metavar="TEXT",
+                    help="metadata.authors, repeatable (default: the data's, else NOASSERTION)")
+    om.add_argument("--copyright", action="append", metavar="TEXT",
+                    help="metadata.copyrights, repeatable, e.g. '(C) 2026 ACME Inc.' (default: "
+                    "the data's, else NOASSERTION)")
+    om.add_argument("--license", metavar="SPDX",
+                    help="metadata.license: an SPDX identifier, URL or file name (default: the "
+                    "data's, else NOASSERTION)")
+    om.add_argument("--sensor", metavar="TEXT",
+                    help="metadata.typicalSensorTechnology, e.g. lidar or camera (default: the "
+                    "data's, else left out)")
     return p
 
 
@@ -144,7 +175,7 @@ def run(args):
         m = read_any(source, args.format, **read_kwargs(args))
         for w in notes(m):
             print(f"note: {w}", file=sys.stderr)
-        summary = writer.write_data(output, m, source)
+        summary = writer.write_data(output, m, source, **settings)
     print(writer.describe(summary), file=sys.stderr)
     for note in summary.get("notes", []):
         print(f"note: {note}", file=sys.stderr)

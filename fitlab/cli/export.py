@@ -15,13 +15,14 @@ def add_parser(sub):
                         for e in EXPORTERS.values())
     p = sub.add_parser(
         "export", help="export a fit for a renderer: Mitsuba 3 (native or fitlab's plugin), "
-        "glTF 2.0",
+        "glTF 2.0, an ASAM OpenMATERIAL 3D BRDF table",
         description="Write FIT.json (or --model with --param) as a file a renderer loads, "
         "atomically (nothing is left on failure). A fit's 'scale' (relative data) is not "
         "applied: the file holds the absolute model f. One channel exports grey, R, G, B in "
         "colour; other channel sets need --channel. A format that cannot represent the "
         "material is refused with what to use instead (exit status 2). Formats (--to; "
-        f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf): {formats}.",
+        f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf, .xompt openmaterial): "
+        f"{formats}.",
         epilog="examples: fitlab export fits/rgl_aurora_white_two_lobe_shared.json --to "
         "mitsuba --out aurora.xml --preview; fitlab export "
         "fits/brown_vinyl_weidlich_wilkie_lambert.json --to mitsuba-plugin --out vinyl.xml; "
@@ -35,7 +36,8 @@ def add_parser(sub):
 
     p.add_argument("--to", choices=list(E), help="export format (default: from --out's suffix)")
     p.add_argument("--out", required=True, metavar="FILE",
-                   help="output file (.xml scene or .json dictionary for Mitsuba, .gltf)")
+                   help="output file (.xml scene or .json dictionary for Mitsuba, .gltf, .xompt "
+                   "for OpenMATERIAL)")
     add_model(p, help="export this registry model instead of a fit (see `fitlab models`)")
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="a parameter of --model: NAME=V, or NAME=R,G,B for a colour material; "
@@ -69,6 +71,8 @@ def run(args):
         line = f"wrote {args.out}"
         if "translation" in conv:
             line += f" (Mitsuba bsdf type {conv['translation']})"
+        if "what" in conv:
+            line += f" ({conv['what']})"
         if "relative_rms" in conv:
             line += (f"; glTF conversion error: relative RMS of f cos {conv['relative_rms']:.3g}")
         print(line, file=sys.stderr)

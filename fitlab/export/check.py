@@ -88,6 +88,9 @@ def renderer_for(format_name: str, renderer: str = "auto") -> str:
     Raises ExportError with what to install when none can."""
     from fitlab.export.threejs import INSTALL
 
+    if format_name not in CHECKERS:
+        raise ExportError(f"--check: no renderer checks the {format_name} export (it holds "
+                          "the model's own values on a grid); export without --check")
     names = CHECKERS[format_name]
     if renderer != "auto" and renderer not in names:
         raise ExportError(f"a {format_name} export is checked by {' or '.join(names)}, not "

@@ -34,6 +34,10 @@ class Material(NamedTuple):
     channels: dict
     #: where it came from, for messages and the exported file's provenance ("FILE.json", "model")
     source: str = "model"
+    #: of a fit, what its parameter file says of the data (data_formats/fit_json.md ``data``:
+    #: ``path``, ``quantity``, ``metadata``, …) as plain values, for a format whose header
+    #: carries the data's provenance (fitlab/export/openmaterial.py); None for a model
+    data: dict | None = None
 
     @property
     def rgb(self) -> bool:
@@ -102,8 +106,19 @@ def material_from_fit(result, channel: str | None = None) -> Material:
             raise ExportError(f"{source}: no channel {channel!r}; channels: "
                               f"{', '.join(params)}")
         params = {channel: params[channel]}
+    record = getattr(result, "record", None)
+    data = None if record is None else _plain(record.get("data") or {})
     return Material(result.model, dict(result.options), _check_channels(params, source),
-                    source)
+                    source, data)
+
+
+def _plain(value):
+    """A read-only record (mapping proxies, tuples: fitlab.fitting.result) as dicts and lists."""
+    if hasattr(value, "items"):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def material_from_model(model: str, channels: dict, options: dict | None = None) -> Material:

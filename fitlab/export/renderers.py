@@ -6,7 +6,9 @@ its spec in ``data_formats/`` and how to build the file from a
 
 Formats: ``mitsuba`` (Mitsuba 3's own plugins: scene XML for ``.xml``, the ``mi.load_dict``
 dictionary as JSON for ``.json``), ``mitsuba-plugin`` (the same forms with fitlab's plugin,
-for any model), ``gltf`` (a glTF 2.0 material fitted to the material, with a preview sphere).
+for any model), ``gltf`` (a glTF 2.0 material fitted to the material, with a preview sphere),
+``openmaterial`` (an ASAM OpenMATERIAL 3D BRDF look-up table: the writer of ``fitlab convert``,
+fitlab.export.openmaterial).
 """
 
 from __future__ import annotations
@@ -71,6 +73,12 @@ def _gltf_build(material: Material, suffix: str, settings: dict) -> Exported:
     return Exported(gltf_text(doc), doc, conversion)
 
 
+def _openmaterial_build(material: Material, suffix: str, settings: dict) -> Exported:
+    from fitlab.export.openmaterial import export_parts
+
+    return Exported(*export_parts(material, settings))
+
+
 def _native(material):
     from fitlab.export.mitsuba import native_bsdf
 
@@ -99,6 +107,11 @@ EXPORTERS: Registry[Exporter] = Registry("export format", {
                  "_clearcoat where needed) fitted to the material over the hemisphere, on a "
                  "preview sphere; the conversion error is reported",
                  (".gltf",), "data_formats/gltf_material.md", _gltf_build),
+        Exporter("openmaterial", "ASAM OpenMATERIAL 3D",
+                 "a BRDF look-up table (.xompt) of the material's f on the standard grid at its "
+                 "channels' wavelengths (<N>nm), the same file as fitlab convert FIT.json "
+                 "OUT.xompt (which also takes --grid-from and the header's flags)",
+                 (".xompt",), "data_formats/openmaterial_xompt.md", _openmaterial_build),
     )
 })
 

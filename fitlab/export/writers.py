@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-from fitlab.export import merl, zemax
+from fitlab.export import merl, openmaterial, zemax
 from fitlab.io.atomic import atomic_write_text
 from fitlab.io.files import path_for_record
 from fitlab.io.measurement import format_measurement_csv
@@ -21,7 +21,8 @@ class Writer(NamedTuple):
     description: str
     suffixes: tuple  # lower-case output suffixes that choose this writer
     spec: str  # the data_formats/ document
-    #: write_data(path, measurement, source) -> summary; None: measured data need a model first
+    #: write_data(path, measurement, source, **settings) -> summary; None: measured data need
+    #: a model first
     write_data: Callable | None
     #: write_model(path, model, params, options, **settings) -> summary; None: data only
     write_model: Callable | None
@@ -29,7 +30,7 @@ class Writer(NamedTuple):
     write_fit: Callable | None
     #: describe(summary) -> the line the command prints about the file written
     describe: Callable
-    #: keyword settings of write_model / write_fit (each a `fitlab convert` flag)
+    #: keyword settings of write_model / write_fit / write_data (each a `fitlab convert` flag)
     settings: tuple = ()
 
 
@@ -72,6 +73,11 @@ WRITERS: Registry[Writer] = Registry("writer", {
         Writer("merl", "MERL", "MERL BRDF binary (90x90x180 RGB) tabulating a model or fit",
                (".binary",), "data_formats/merl_binary.md", None, merl.write_merl,
                merl.write_merl_from_fit, _describe_merl),
+        Writer("openmaterial", "OpenMATERIAL",
+               "ASAM OpenMATERIAL 3D BRDF look-up table (JSON) sampling a model or fit on a "
+               "grid, or holding measured data", (".xompt",), "data_formats/openmaterial_xompt.md",
+               openmaterial.write_data, openmaterial.write_model, openmaterial.write_fit,
+               openmaterial.describe, openmaterial.SETTINGS),
     )
 })
 

@@ -183,10 +183,11 @@ def fitted_rows(m, c, rows_fit):
         j = int(np.flatnonzero(rows)[0])
         raise FitlabError(
             f"{m.path}: the {int(rows.sum())} rows of channel {name} to fit share one view "
-            f"direction (θo = {m.theta_o[j]:g}°, φo = {m.phi_o[j]:g}°): one view direction "
-            "cannot constrain a BRDF model (the rows vary the incidence only); give a "
-            "measurement with several view directions (e.g. a scan of θo at each incidence), "
-            "or a --fit-subset that keeps rows of several")
+            f"direction (θo = {m.theta_o[j]:g}°, φo = {m.phi_o[j]:g}°): they vary the incidence "
+            "only, and one view direction cannot constrain a BRDF model's lobe (fitlab fits "
+            "rows that vary the view direction); give a measurement with several view "
+            "directions (e.g. a scan of θo at each incidence), or a --fit-subset that keeps "
+            "rows of several")
     return name, in_chan, rows
 
 

@@ -22,6 +22,7 @@ HEAD_BYTES = 4096
 
 
 READER_MODULES = (
+    "fitlab.io.openmaterial",
     "fitlab.io.merl",
     "fitlab.io.klems",
     "fitlab.io.pgii",

@@ -81,7 +81,7 @@ def renderers_section(rep, fit_path) -> str:
                          f"rendered by {g['renderer']} on {g['pairs']} goniometer pairs "
                          "(f·cos θi against fitlab)"])
         else:
-            rows.append([e.title, "fitted glTF material",
+            rows.append([e.title, conv.get("what", "fitted glTF material"),
                          f"{_fmt(conv.get('relative_rms'))} / {_fmt(conv.get('relative_max'))}",
                          conv.get("summary", "glTF's BRDF fitted to the material over the "
                                              "hemisphere (data_formats/gltf_material.md)")])

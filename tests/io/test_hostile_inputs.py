@@ -198,6 +198,10 @@ FORMATS = {
     "spectral_scan": (lambda: (EXAMPLES / "spectral_scan.csv").read_bytes(),
                       lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".csv",
                       ["info", "info_quantity", "convert_quantity"]),
+    "openmaterial": (lambda: (EXAMPLES / "openmaterial" / "example_material_lidar_brdf.xompt")
+                     .read_bytes(),
+                     lambda d: itertools.chain(H.byte_cases(d), H.json_cases(d, depth=4)),
+                     ".xompt", ["info", "convert"]),
     "directions_csv": (lambda: (EXAMPLES / "directions_inplane.csv").read_bytes(),
                        lambda d: itertools.chain(H.byte_cases(d), H.text_cases(d)), ".csv", ["eval"]),
     "fit_json": (lambda: (ROOT / "fits" / "walter_rough_glass.json").read_bytes(),

@@ -354,8 +354,9 @@ def test_convert_model_to_merl(tmp_path, capsys):
     # measured data are not resampled into bins
     (["{lambert}", "{out}/t.binary"], "measured data would need resampling"),
     # a fit is tabulated, not copied into a measurement CSV
-    (["{fit}", "{out}/t.csv"], "applies to Zemax or MERL output only; name the output *.bsdf "
-     "or *.binary (or give --to zemax or --to merl)"),
+    (["{fit}", "{out}/t.csv"], "applies to Zemax or MERL or OpenMATERIAL output only; name the "
+     "output *.bsdf or *.binary or *.xompt (or give --to zemax or --to merl or --to "
+     "openmaterial)"),
     (["{fit}", "{out}/t.binary", "--channel", "Z"], "--channel Z: "),
     (["--model", "lambertian", "--param", "albedo=2", "{out}/t.binary"], "outside its bounds"),
 ])

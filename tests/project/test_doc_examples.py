@@ -159,6 +159,9 @@ DATA_BLOCKS = {
     ("data_formats/input_validation.md", "fitlab info: error: scan.csv"):
         "skip: an error message (tests/io/test_format_detection.py)",
     ("data_formats/klems_xml.md", "WindowElement"): "skip: the XML's structure, not a file",
+    ("data_formats/openmaterial_xompt.md", "{"):
+        "skip: an abridged file (`...`); the whole examples in examples/openmaterial/ are read "
+        "by tests/io/test_io_openmaterial.py",
     ("data_formats/lut_exr.md", "float fitlab_fresnel_t0"):
         "skip: an abridged GLSL excerpt (`...`); the whole file "
         "examples/lut_fresnel_copper.glsl is compiled and run by tests/lut/test_lut_glsl.py",
