@@ -32,7 +32,7 @@ from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.format import Format
 from fitlab.io.measurement import MAX_ABS_VALUE, Measurement, describe_loaded
-from fitlab.io.validate import check_count, is_finite_number, load_json
+from fitlab.io.validate import check_count, is_finite_number, kind_of, load_json
 
 NAME = "openmaterial"
 SUFFIX = ".xompt"
@@ -95,16 +95,6 @@ def json_path(items) -> str:
     return out
 
 
-def _kind(value) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "true/false"
-    if isinstance(value, (int, float)):
-        return "a number"
-    return {str: "a string", list: "a list", dict: "an object"}.get(type(value), "a value")
-
-
 def _number(value) -> str:
     small = isinstance(value, (int, float)) and abs(value) < 1e15
     return f"{value:g}" if small else quote(value, 24)
@@ -132,7 +122,7 @@ def _schema_problem(error) -> tuple[str, str, str]:
     in_table = path[:2] == ["brdf", "lookupTable"] and len(path) == 4
     if v == "type":
         kinds = rule if isinstance(rule, list) else [rule]
-        return (where, f"is {_kind(inst)}; the schema expects {' or '.join(kinds)}",
+        return (where, f"is {kind_of(inst)}; the schema expects {' or '.join(kinds)}",
                 f"give {' or '.join(kinds)} there ({SPEC})")
     bounds = {"minimum": ">=", "maximum": "<=", "exclusiveMinimum": ">",
               "exclusiveMaximum": "<"}
@@ -203,7 +193,7 @@ def load_document(path) -> dict:
     doc = load_json(path, raw, what="OpenMATERIAL BRDF", hint=HINT)
     if not isinstance(doc, dict):
         raise InputFileError(path, f"is not an OpenMATERIAL BRDF look-up table: its top level "
-                             f"is {_kind(doc)}, not an object", hint=HINT)
+                             f"is {kind_of(doc)}, not an object", hint=HINT)
     brdf = doc.get("brdf")
     table = brdf.get("lookupTable") if isinstance(brdf, dict) else None
     if isinstance(table, list):  # the arrays fitlab will make of it, before the schema's walk

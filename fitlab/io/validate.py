@@ -299,7 +299,8 @@ class Spec:
         return True
 
 
-def _kind(value) -> str:
+def kind_of(value) -> str:
+    """What a parsed JSON or TOML value is, in words (for messages)."""
     if value is None:
         return "null"
     if isinstance(value, bool):
@@ -330,7 +331,7 @@ class Num(Spec):
 
     def errors(self, value, where):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            yield where, f"is {_kind(value)}; expected {self.description}"
+            yield where, f"is {kind_of(value)}; expected {self.description}"
             return
         if not is_finite_number(value) or abs(value) > 1.7e308:
             yield where, "is not a finite number"
@@ -354,7 +355,7 @@ class Int(Spec):
 
     def errors(self, value, where):
         if isinstance(value, bool) or not isinstance(value, int):
-            yield where, f"is {_kind(value)}; expected {self.description}"
+            yield where, f"is {kind_of(value)}; expected {self.description}"
         elif (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
             rule = " and ".join(s for s in (f">= {self.lo}" if self.lo is not None else "",
                                             f"<= {self.hi}" if self.hi is not None else "") if s)
@@ -373,7 +374,7 @@ class Str(Spec):
 
     def errors(self, value, where):
         if not isinstance(value, str):
-            yield where, f"is {_kind(value)}; expected a string"
+            yield where, f"is {kind_of(value)}; expected a string"
         elif self.choices and value not in self.choices:
             yield where, f"is {quote(value)}; expected one of {', '.join(self.choices)}"
         elif len(value) > self.max_len:
@@ -389,7 +390,7 @@ class Bool(Spec):
 
     def errors(self, value, where):
         if not isinstance(value, bool):
-            yield where, f"is {_kind(value)}; expected true or false"
+            yield where, f"is {kind_of(value)}; expected true or false"
 
 
 @dataclass(frozen=True)
@@ -401,7 +402,7 @@ class Null(Spec):
 
     def errors(self, value, where):
         if value is not None:
-            yield where, f"is {_kind(value)}; expected null"
+            yield where, f"is {kind_of(value)}; expected null"
 
 
 @dataclass(frozen=True)
@@ -426,7 +427,7 @@ class Either(Spec):
     def errors(self, value, where):
         typed = [o for o in self.options if o.matches(value)]
         if not typed:
-            yield where, f"is {_kind(value)}; expected {self.description}"
+            yield where, f"is {kind_of(value)}; expected {self.description}"
             return
         found = []
         for o in typed:
@@ -469,7 +470,7 @@ class List(Spec):
 
     def errors(self, value, where):
         if not isinstance(value, list):
-            yield where, f"is {_kind(value)}; expected a list"
+            yield where, f"is {kind_of(value)}; expected a list"
             return
         problem = _length_problem(len(value), self.min_len, self.max_len, self.length)
         if problem:
@@ -496,7 +497,7 @@ class Map(Spec):
 
     def errors(self, value, where):
         if not isinstance(value, dict):
-            yield where, f"is {_kind(value)}; expected an object"
+            yield where, f"is {kind_of(value)}; expected an object"
             return
         problem = _length_problem(len(value), self.min_len, self.max_len)
         if problem:
@@ -523,7 +524,7 @@ class Record(Spec):
 
     def errors(self, value, where):
         if not isinstance(value, dict):
-            yield where, f"is {_kind(value)}; expected an object"
+            yield where, f"is {kind_of(value)}; expected an object"
             return
         for k, spec in self.required.items():
             if k not in value:
@@ -605,7 +606,7 @@ def read_npz(path, *, what: str, hint: str | None = None) -> dict[str, np.ndarra
     return out
 
 
-__all__ = ["quote", "decode_text", "parse_number", "check_range", "check_finite",
+__all__ = ["quote", "kind_of", "decode_text", "parse_number", "check_range", "check_finite",
            "max_values", "check_count", "check_allocation", "MAX_DEPTH", "nesting_depth",
            "load_json", "load_toml", "Spec", "Num", "Int", "Str", "Bool", "Null", "Any", "Either",
            "Optional", "List", "Map", "Record", "check", "read_npz", "QUOTE_CHARS",
