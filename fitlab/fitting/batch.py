@@ -130,28 +130,39 @@ def _stack(problems: list[Problem], size: int) -> dict:
     p0 = problems[0]
     d0 = p0.data
     every = lambda x: np.broadcast_to(np.asarray(x), (len(problems),) + np.shape(x))  # noqa: E731
-    if all(p.space is p0.space and p.data.wi is d0.wi and p.data.wo is d0.wo
-           and p.data.weights is d0.weights for p in problems):
+    datas = [p.data for p in problems]
+    if all(p.space is p0.space and d.wi is d0.wi and d.wo is d0.wo and d.weights is d0.weights
+           for p, d in zip(problems, datas)):
         first = pad_to(d0, size)
-        own = _stacked_rows([p.data._replace(wi=None, wo=None, weights=None) for p in problems],
-                            size)
+        own = _stacked_rows(datas, size, directions=False)
         data = own._replace(wi=every(first.wi), wo=every(first.wo),
                             weights=None if first.weights is None else every(first.weights))
         return {**jax.tree.map(every, p0.space.arrays()), "data": data}
     arrays = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]),
                           *[p.space.arrays() for p in problems])
-    return {**arrays, "data": _stacked_rows([p.data for p in problems], size)}
+    return {**arrays, "data": _stacked_rows(datas, size)}
 
 
-def _stacked_rows(datas: list[FitData], size: int) -> FitData:
+def _stacked_rows(datas: list[FitData], size: int, directions: bool = True) -> FitData:
     """``datas`` stacked on a new axis 0 and padded to ``size`` rows (a row mask of ones for
-    those without one); of different row counts, each padded first."""
+    those without one); of different row counts, each padded first. ``directions``: stack
+    ``wi``, ``wo`` and ``weights`` too (else None)."""
     if len({int(np.shape(d.value)[0]) for d in datas}) > 1:
         datas = [pad_to(d, size) for d in datas]
-    if any(ROW_MASK in d.consts for d in datas):
-        datas = [d if ROW_MASK in d.consts else d._replace(
-            consts={**d.consts, ROW_MASK: np.ones(np.shape(d.value)[0])}) for d in datas]
-    stacked = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *datas)
+
+    def stack(get):
+        return np.stack([np.asarray(get(d)) for d in datas])
+
+    keys = set().union(*(d.consts.keys() for d in datas))
+    consts = {k: stack(lambda d, k=k: d.consts[k]) for k in keys if k != ROW_MASK}
+    if ROW_MASK in keys:
+        consts[ROW_MASK] = stack(lambda d: d.consts.get(ROW_MASK, np.ones(np.shape(d.value)[0])))
+    d0 = datas[0]
+    stacked = FitData(stack(lambda d: d.wi) if directions else None,
+                      stack(lambda d: d.wo) if directions else None,
+                      stack(lambda d: d.value), consts,
+                      stack(lambda d: d.weights) if directions and d0.weights is not None
+                      else None)
     return pad_to(stacked, size, axis=1)
 
 
