@@ -55,25 +55,44 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else None
 
 
+def incidence_groups(theta_i, phi_i) -> list:
+    """[((θi, φi), the mask of its rows)] of every incidence direction, sorted by θi, φi."""
+    keys = incidence_keys(theta_i, phi_i)
+    return [((float(ti), float(pi)), (keys[:, 0] == ti) & (keys[:, 1] == pi))
+            for ti, pi in (np.unique(keys, axis=0) if keys.size else ())]
+
+
+def incidence_floor_mask(absval, groups, floor: float = REL_ERR_FLOOR) -> np.ndarray:
+    """The rows a fit error counts (:data:`FLOOR_RULE`), along the last axis of ``absval``
+    (|value|, 0 where a row is not scored): per incidence of ``groups``
+    (:func:`incidence_groups`), :func:`floor_mask` of its rows."""
+    absval = np.asarray(absval)
+    keep = np.zeros(absval.shape, bool)
+    for _, sel in groups:
+        keep[..., sel] = floor_mask(absval[..., sel], floor)
+    return keep
+
+
 def fit_error(pred, value, theta_i, phi_i, floor: float = REL_ERR_FLOOR) -> dict:
     """THE fit error of fitlab (the parameter file's ``statistics.fit_error``; every tool prints
     this record, never its own figure): the RMS relative error (pred − value)/value over the
     rows given (the rows a fit was fitted to, its subset applied), per incidence direction and
     pooled, where each incidence's rows below ``floor`` × the largest |value| among *its* rows
-    given are left out (:data:`FLOOR_RULE`).
+    given are left out (:data:`FLOOR_RULE`, :func:`incidence_floor_mask`).
 
     Returns {rms_relative_error (pooled; None when no row counts), rows (counted), rows_scored,
     floor, floor_rule, per_incidence: [{theta_i, phi_i, rows, rows_counted,
     rms_relative_error, max_abs_relative_error}] (sorted by θi, φi)}."""
     pred, value = np.asarray(pred, float), np.asarray(value, float)
-    keys = incidence_keys(theta_i, phi_i)
+    groups = incidence_groups(theta_i, phi_i)
+    keep = incidence_floor_mask(np.abs(value), groups, floor)
     per, pooled = [], []
-    for ti, pi in (np.unique(keys, axis=0) if keys.size else ()):
-        sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
-        rel, keep = relative_errors(pred[sel], value[sel], floor)
+    for (ti, pi), sel in groups:
+        k = keep & sel
+        rel = (pred[k] - value[k]) / value[k]
         pooled.append(rel)
-        per.append({"theta_i": float(ti), "phi_i": float(pi), "rows": int(sel.sum()),
-                    "rows_counted": int(keep.sum()), "rms_relative_error": _rms(rel),
+        per.append({"theta_i": ti, "phi_i": pi, "rows": int(sel.sum()),
+                    "rows_counted": int(k.sum()), "rms_relative_error": _rms(rel),
                     "max_abs_relative_error": float(np.max(np.abs(rel))) if rel.size
                     else None})
     rel = np.concatenate(pooled) if pooled else np.zeros(0)
@@ -86,21 +105,15 @@ def fit_error_rms_many(pred, value, rows, theta_i, phi_i, floor: float = REL_ERR
     """:func:`fit_error`'s pooled ``rms_relative_error`` of many datasets on the same rows at
     once (the texels of a capture stack, ``fitlab fit-maps``): ``pred`` and ``value`` (N, n),
     ``rows`` (N, n) the rows each dataset was fitted to, ``theta_i``/``phi_i`` (n,) shared.
-    The same rule, array by array: per dataset and incidence, rows below ``floor`` × the
-    largest |value| among its rows given are left out. NaN where no row counts."""
+    The same rule (:func:`incidence_floor_mask`) on every dataset at once. NaN where no row
+    counts."""
     pred, value = np.asarray(pred, float), np.asarray(value, float)
     rows = np.asarray(rows, bool)
-    keys = incidence_keys(theta_i, phi_i)
-    total = np.zeros(value.shape[0])
-    count = np.zeros(value.shape[0], dtype=np.int64)
     absval = np.where(rows, np.abs(np.nan_to_num(value)), 0.0)
-    for ti, pi in (np.unique(keys, axis=0) if keys.size else ()):
-        sel = (keys[:, 0] == ti) & (keys[:, 1] == pi)
-        keep = rows[:, sel] & floor_mask(absval[:, sel], floor)
-        v = np.where(keep, value[:, sel], 1.0)
-        rel = np.where(keep, (pred[:, sel] - v) / v, 0.0)
-        total += np.sum(rel * rel, axis=1)
-        count += keep.sum(axis=1)
+    keep = rows & incidence_floor_mask(absval, incidence_groups(theta_i, phi_i), floor)
+    v = np.where(keep, value, 1.0)
+    rel = np.where(keep, (pred - v) / v, 0.0)
+    total, count = np.sum(rel * rel, axis=1), keep.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, np.sqrt(total / np.maximum(count, 1)), np.nan)
 
