@@ -101,7 +101,7 @@ def _scale_reference(model, options, start, m, rows, in_chan, memo=None):
     one compiled kernel). ``memo``: a dict kept by the caller across datasets of one request,
     where the model's values on the same directions are looked up instead of evaluated."""
     wi, wo = m.wi[in_chan], m.wo[in_chan]
-    key = (tuple(sorted(start.items())), wi.tobytes(), wo.tobytes())
+    key = None if memo is None else (tuple(sorted(start.items())), wi.tobytes(), wo.tobytes())
     f_all = None if memo is None else memo.get(key)
     if f_all is None:
         f_all = model_values(model, tuple(sorted(options.items())), start, wi, wo)

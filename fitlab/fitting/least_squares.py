@@ -228,9 +228,15 @@ def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False
     return local
 
 
+def at_bound_mask(u) -> np.ndarray:
+    """Which unit-box coordinates of ``u`` (any shape) lie within AT_BOUND_UNIT of a bound."""
+    u = np.asarray(u)
+    return (u < AT_BOUND_UNIT) | (u > 1 - AT_BOUND_UNIT)
+
+
 def names_at_bound(names, u) -> tuple[str, ...]:
     """The names whose unit-box coordinate in ``u`` lies within AT_BOUND_UNIT of a bound."""
-    return tuple(n for n, x in zip(names, u) if x < AT_BOUND_UNIT or x > 1 - AT_BOUND_UNIT)
+    return tuple(n for n, b in zip(names, at_bound_mask(u)) if b)
 
 
 @functools.lru_cache(maxsize=64)

@@ -52,8 +52,9 @@ def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
     The model is evaluated in the step alone: the state starts with the flag ``first``, whose
     step evaluates z0 itself (a zero step, accepted) and sets the initial damping; the compiled
     loop then holds one copy of the model's forward-mode pass, not one for the start and one for
-    the steps (measured: the single fit's local stage compiles in 0.95 s against 1.44 s on the
-    Walter example, 1.1 s against 2.1 s on the brown vinyl's Lambert + GGX conductor)."""
+    the steps (measured, alternating runs: the single fit's local stage compiles in 0.88-0.90 s
+    against 0.99-1.17 s on the Walter example; 0.38 s against 0.58-0.76 s on the brown vinyl's
+    Lambert + GGX conductor under the tests' XLA settings)."""
     both = value_and_jacobian(residual)
 
     def init(z0):

@@ -151,7 +151,7 @@ def test_a_first_end_is_suspect_when_it_is_not_finite_at_a_bound_or_a_misfit():
     u[3, 1] = 0.0  # at a bound
     cost = np.array([5.0, 5.0, 5.0, 5.0, 5.0])
     finite = np.array([True, True, True, True, False])
-    run = {"cost": cost, "end_finite": finite, "u": u}
+    run = {"cost": cost, "end_finite": finite, "u": u, "rule_unmet": np.zeros(5, bool)}
     assert list(_suspect(run, n_rows, d, "relative")) == [False, False, False, True, True]
     worse = dict(run, cost=cost * np.array([1, 1, SUSPECT_COST_RATIO * 1.01, 1, 1]))
     assert list(_suspect(worse, n_rows, d, "relative")) == [False, False, True, True, True]
@@ -159,6 +159,8 @@ def test_a_first_end_is_suspect_when_it_is_not_finite_at_a_bound_or_a_misfit():
     chi = dict(run, cost=np.full(5, 5.0 * SUSPECT_REDUCED_CHI2 * 1.01))
     assert list(_suspect(chi, n_rows, d, "chi2")) == [True] * 5
     assert list(_suspect(chi, n_rows, d, "relative")) == [False, False, False, True, True]
+    short = dict(run, rule_unmet=np.array([False, True, False, False, False]))  # out of steps
+    assert list(_suspect(short, n_rows, d, "relative")) == [False, True, False, True, True]
 
 
 def test_structures_are_grouped(synthetic):
