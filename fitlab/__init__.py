@@ -5,7 +5,8 @@ immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked on
 fitted texel by texel into texture maps),
 :func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
 held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
-glTF 2.0), :func:`write_report` (the HTML report of a fit or of a comparison), and
+glTF 2.0), :func:`complete_measurement` (a measurement with its missing readings filled by a
+fit, ``fitlab convert --complete``), :func:`write_report` (the HTML report of a fit or of a comparison), and
 :func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in
 ``data_formats/CONVENTIONS.md``.
@@ -32,6 +33,7 @@ _SOURCES = {
     "compare": "fitlab.fitting.compare", "CompareResult": "fitlab.fitting.compare",
     "Candidate": "fitlab.fitting.compare",
     "export_material": "fitlab.export.renderers",
+    "complete_measurement": "fitlab.export.completion",
     "fit_many": "fitlab.fitting.many", "ManyResult": "fitlab.fitting.many",
     "fit_maps": "fitlab.fitting.maps", "MapsResult": "fitlab.fitting.maps",
     "eval_bsdf": "fitlab.api", "sample_bsdf": "fitlab.api", "pdf_bsdf": "fitlab.api",

@@ -17,6 +17,12 @@ loads it then. The first use applies the settings:
   worker thread cost more than the work (about 50 us a call on a 2-core VM). Large evaluations
   still use every core. Takes effect only if JAX's CPU backend has not started yet: the
   package root's public names (``fitlab.fit`` ...) apply it when first used.
+
+And one XLA setting, in XLA_FLAGS while JAX is not loaded yet (as JAX_ENABLE_X64; a user's
+own value is kept): ``--xla_force_host_platform_device_count`` = the cores this process may
+use, so that JAX's CPU backend has one device per core. Independent work that must not be
+vmapped, NUTS's chains, runs one chain per core on them (fitlab/fitting/nuts.py); everything
+else computes on the first device as before, with every core's threads.
 """
 
 from __future__ import annotations
@@ -29,7 +35,25 @@ import types
 #: fitlab's JAX settings (see above).
 SETTINGS = {"jax_enable_x64": True, "jax_cpu_enable_async_dispatch": False}
 
+#: XLA's flag for the number of host (CPU) devices.
+HOST_DEVICES_FLAG = "--xla_force_host_platform_device_count"
+
 _configured = False
+
+
+def host_cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - macOS and Windows
+        return os.cpu_count() or 1
+
+
+def host_device_flags(flags: str, cores: int) -> str:
+    """XLA_FLAGS ``flags`` with one host device per core, unless they already set a count."""
+    if HOST_DEVICES_FLAG in flags:
+        return flags
+    return f"{flags} {HOST_DEVICES_FLAG}={max(int(cores), 1)}".strip()
 
 
 def load():
@@ -75,5 +99,7 @@ if "jax" in sys.modules:  # JAX came first: the settings now, as at a first use
     load()
 else:
     os.environ["JAX_ENABLE_X64"] = "true"
+    os.environ["XLA_FLAGS"] = host_device_flags(os.environ.get("XLA_FLAGS", ""), host_cores())
 
-__all__ = ["SETTINGS", "jax", "jnp", "jsp_linalg", "jsp_special", "load"]
+__all__ = ["HOST_DEVICES_FLAG", "SETTINGS", "host_cores", "host_device_flags", "jax", "jnp",
+           "jsp_linalg", "jsp_special", "load"]

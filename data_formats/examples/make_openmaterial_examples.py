@@ -72,6 +72,8 @@ def variants(doc: dict):
         "Infinity", "1e999")
     yield "solid_angle", changed(lambda d: d["brdf"].update(receiverSolidAngles=[
         {"wavelength": 9.05e-07, "solidAngle": 7.0}]))
+    yield "completion_unmatched", changed(lambda d: d.update(fitlabCompletion={
+        "rows": [rows(d)[2][:4] + ["no_reading"], [9.05e-07, 0.5, 0.25, 0.0, "blocked"]]}))
     yield "not_json", json.dumps(doc, indent=4)[:700]
 
 

@@ -34,6 +34,11 @@ def build_parser():
 def main(argv=None) -> int:
     parser = build_parser()
     args, extras = parser.parse_known_args(argv)
+    trailing = getattr(args, "trailing_positionals", None)
+    if extras and trailing and not any(e.startswith("-") for e in extras):
+        # files after an option (fitlab convert IN --complete FIT.json OUT): the subcommand's
+        setattr(args, trailing, list(getattr(args, trailing)) + extras)
+        extras = []
     if extras:  # answered by the subcommand that was given them, with its usage
         parser.subcommand(getattr(args, "command", None)).unrecognized(extras)
     if not getattr(args, "func", None):

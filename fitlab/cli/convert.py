@@ -32,7 +32,7 @@ def add_parser(sub):
     p = sub.add_parser(
         "convert", help="convert data to measurement CSV; tabulate a fit or model as "
         + " or ".join(f"{w.title} {w.suffixes[0]}" for w in tabulating),
-        description="Three forms, each writing atomically (nothing is left on failure). "
+        description="Four forms, each writing atomically (nothing is left on failure). "
         "(1) INPUT OUTPUT.csv: read any supported measurement format (e.g. a Zemax .bsdf) and "
         "write a fitlab measurement CSV (data_formats/measurement_csv.md). "
         "(2) FIT.json OUTPUT.bsdf or OUTPUT.binary: tabulate a fitted model (parameter file) as "
@@ -43,6 +43,9 @@ def add_parser(sub):
         "model f). "
         "(3) --model NAME --param NAME=VALUE ... OUTPUT.bsdf or OUTPUT.binary: the same for any "
         "registry model. "
+        "(4) INPUT --complete FIT.json OUTPUT (.csv, .bsdf, .binary or .xompt): the measurement "
+        "with the values it lacks filled in by the fit, marked, and a record "
+        "OUTPUT.completion.json (data_formats/completion_json.md). "
         "The Zemax grid is --grid standard (light at 0..80 deg in 5 deg steps, azimuth 0..180 "
         "in 10 deg steps, plane-symmetric, radial 0..180 deg, fine near the specular ray) or "
         "the angles of an existing .bsdf file, with --aoi/--azimuth/--radial replacing lists. "
@@ -61,10 +64,13 @@ def add_parser(sub):
         "--param eta=1.5 --scatter BTDF --aoi 0:40:5 glass_btdf.bsdf; fitlab convert "
         "fits/rgl_aurora_white_lambert_ggx_conductor.json aurora.binary; fitlab convert "
         "lidar_fit.json lidar_fit.xompt --grid-from data_formats/examples/openmaterial/"
-        "example_material_lidar_brdf.xompt",
+        "example_material_lidar_brdf.xompt; fitlab convert data_formats/examples/"
+        "zemax_brown_vinyl.bsdf --complete fits/brown_vinyl_two_lobe.json vinyl_complete.bsdf",
     )
     p.add_argument("paths", nargs="+", metavar="FILE",
-                   help="INPUT OUTPUT, or only OUTPUT with --model")
+                   help="INPUT OUTPUT, or only OUTPUT with --model (options may stand between "
+                   "them: INPUT --complete FIT.json OUTPUT)")
+    p.set_defaults(trailing_positionals="paths")
     add_format(p)
     add_read_options(p)
     p.add_argument("--to", choices=list(writers),
@@ -78,13 +84,31 @@ def add_parser(sub):
                    help="Zemax ScatterType (default BRDF); for BTDF the angles are about the "
                    "refracted ray and --aoi lists refraction angles")
     p.add_argument("--grid", metavar="standard|FILE.bsdf",
-                   help="Zemax: 'standard' (default) or a Zemax file whose angles to reuse")
+                   help="Zemax: 'standard' (default; with --complete of Zemax data: the "
+                   "data's own grid) or a Zemax file whose angles to reuse")
     p.add_argument("--aoi", metavar="ANGLES", help="Zemax AngleOfIncidence list in degrees, "
                    "'0,15,30' or START:STOP:STEP (e.g. 0:80:5)")
     p.add_argument("--azimuth", metavar="ANGLES", help="Zemax ScatterAzimuth list; all within "
                    "0..180 writes PlaneSymmetrical data, beyond 180 Asymmetrical")
     p.add_argument("--radial", metavar="ANGLES", help="Zemax ScatterRadial list, 0..180")
     add_channel(p, "the channel of a multi-channel fit to write")
+    co = p.add_argument_group(
+        "completed measurement (INPUT --complete FIT.json OUTPUT; data_formats/completion_json.md)")
+    co.add_argument("--complete", metavar="FIT.json",
+                    help="write the measurement INPUT with the values it lacks replaced by this "
+                    "fit's: places without reading (NaN, a Zemax stored zero, a MERL bin without "
+                    "value), blocked readings (a spectral scan's zeros), places of a Zemax or "
+                    "MERL output's grid the data do not cover (beyond the view edge; Zemax: "
+                    "the data's own grid when INPUT is a Zemax file, else --grid), and readings "
+                    "--complete-subset selects. Each replaced value is marked in the file "
+                    "(CSV: column completion; OpenMATERIAL: field fitlabCompletion) and listed "
+                    "in OUTPUT.completion.json with counts by reason and incidence and the "
+                    "fit's error on the readings; channels are matched by name, and a fit of "
+                    "other channels, quantity or conventions is refused (exit 2)")
+    co.add_argument("--complete-subset", metavar="EXPR",
+                    help="with --complete: readings to replace too, as fitlab fit's "
+                    "--fit-subset (e.g. 'theta_o > 80' for a view edge the instrument "
+                    "shadows)")
     om = p.add_argument_group("OpenMATERIAL output (.xompt; data_formats/openmaterial_xompt.md)")
     om.add_argument("--grid-from", metavar="FILE.xompt",
                     help="sample the model at the rows (wavelengths and angles) of this "
@@ -136,11 +160,41 @@ def _check_flags(args, writer, writers):
         raise _elsewhere(" ".join(f"--{f}" for f in unread), takers)
 
 
+def _complete(args, writer) -> int:
+    """INPUT --complete FIT.json OUTPUT: the completed measurement and its record."""
+    from fitlab.export.completion import complete_measurement
+
+    if args.model or args.channel:
+        raise FitlabError("--complete writes every channel of the measured INPUT; drop "
+                          + ("--model/--param/--option" if args.model else "--channel"))
+    if len(args.paths) != 2:
+        raise FitlabError("give INPUT OUTPUT: fitlab convert DATA --complete FIT.json OUT")
+    from fitlab.io.fitfile import is_fit_file
+
+    if is_fit_file(args.paths[0]):
+        raise FitlabError(f"{args.paths[0]} is a parameter file; --complete fills a measured "
+                          "INPUT: fitlab convert DATA --complete FIT.json OUT")
+    settings = {k: getattr(args, k) for k in writer.settings if getattr(args, k) is not None}
+    done = complete_measurement(args.paths[0], args.complete, args.paths[1], to=writer.name,
+                                subset=args.complete_subset, format=args.format,
+                                **read_kwargs(args), **settings)
+    for note in done["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    print(done["summary"])
+    return 0
+
+
 def run(args):
     from fitlab.export.writers import writer_for
     from fitlab.io.fitfile import is_fit_file
 
     writers, _ = _writers()
+    if args.complete_subset and not args.complete:
+        raise FitlabError("--complete-subset applies with --complete FIT.json only")
+    if args.complete:
+        writer = writer_for(args.paths[-1], args.to)
+        _check_flags(args, writer, writers)
+        return _complete(args, writer)
     if args.model:
         if len(args.paths) != 1:
             raise FitlabError("with --model give only the output file: fitlab convert --model "
@@ -175,6 +229,11 @@ def run(args):
         m = read_any(source, args.format, **read_kwargs(args))
         for w in notes(m):
             print(f"note: {w}", file=sys.stderr)
+        if m.gaps is not None:
+            said = ", ".join(f"{k} {n}" for k, n in m.gaps.counts().items())
+            print(f"note: {m.gaps.rows.n} places of {source} hold no reading ({said}), left "
+                  "out; `fitlab convert DATA --complete FIT.json OUT` fills them from a fit",
+                  file=sys.stderr)
         summary = writer.write_data(output, m, source, **settings)
     print(writer.describe(summary), file=sys.stderr)
     for note in summary.get("notes", []):

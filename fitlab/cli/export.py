@@ -19,8 +19,10 @@ def add_parser(sub):
         description="Write FIT.json (or --model with --param) as a file a renderer loads, "
         "atomically (nothing is left on failure). A fit's 'scale' (relative data) is not "
         "applied: the file holds the absolute model f. One channel exports grey, R, G, B in "
-        "colour; other channel sets need --channel. A format that cannot represent the "
-        "material is refused with what to use instead (exit status 2). Formats (--to; "
+        "colour; a spectral fit (channels that are wavelengths spanning 380-780 nm) goes to "
+        "formats that take RGB as its colour block's linear sRGB (data_formats/fit_json.md, "
+        "'Colour of a spectral fit'); other channel sets need --channel. A format that "
+        "cannot represent the material is refused with what to use instead (exit status 2). Formats (--to; "
         f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf, .xompt openmaterial): "
         f"{formats}.",
         epilog="examples: fitlab export fits/rgl_aurora_white_two_lobe_shared.json --to "
@@ -44,6 +46,10 @@ def add_parser(sub):
                    "give every parameter")
     add_option(p, "an option of --model, e.g. distribution=beckmann_rational")
     add_channel(p, "export only this channel of the fit (as grey)")
+    p.add_argument("--illuminant", metavar="NAME",
+                   help="a spectral fit exported as RGB: the CIE illuminant of the reduction to "
+                   "linear sRGB (a colour-science name: D65, D50, A, ...; default: the one the "
+                   "fit's colour block states, else D65)")
     p.add_argument("--preview", action="store_true",
                    help="Mitsuba XML: a whole scene around the material (a sphere under a "
                    "white environment and a sun, a camera) that renders as it is")
@@ -65,7 +71,8 @@ def run(args):
     params, options = material_arguments(args)
     made = export_material(args.fit, args.to, args.out, model=args.model, params=params,
                            options=options, channel=args.channel, preview=args.preview,
-                           check=args.check, progress=not args.quiet)
+                           check=args.check, progress=not args.quiet,
+                           illuminant=args.illuminant)
     if not args.quiet:
         conv = made.conversion
         line = f"wrote {args.out}"
@@ -76,6 +83,12 @@ def run(args):
         if "relative_rms" in conv:
             line += (f"; glTF conversion error: relative RMS of f cos {conv['relative_rms']:.3g}")
         print(line, file=sys.stderr)
+        colour = conv.get("colour")
+        if colour:
+            print(f"colour: spectral fit ({colour['bands']}) reduced to linear sRGB under "
+                  f"{colour['illuminant']} (CIE 1931 2 degree observer)", file=sys.stderr)
+            for note in colour["notes"]:
+                print(f"  {note}", file=sys.stderr)
         for w in conv.get("warnings", ()):
             print(f"warning: {w}", file=sys.stderr)
         if "check" in conv:

@@ -63,7 +63,9 @@ def add_parser(sub):
                    help="posterior sampler with --mcmc: "
                    + "; ".join(f"{k}: {v.description}" for k, v in SAMPLERS.items())
                    + " (default emcee; with nuts, --walkers is the number of chains, default 4)")
-    p.add_argument("--mcmc-steps", type=int, default=3000, help="steps per walker (default 3000)")
+    p.add_argument("--mcmc-steps", type=int, default=None,
+                   help="steps per walker with emcee (default 3000); adaptation steps and draws "
+                   "per chain with nuts (default 1000)")
     p.add_argument("--walkers", type=int, help="number of walkers (default max(32, 4 x dim))")
     p.add_argument("--starts", type=int, default=8,
                    help="low-discrepancy Levenberg-Marquardt starts besides the global search "
@@ -88,6 +90,12 @@ def add_parser(sub):
                    "less than 5%% of its interval's width over 20 refits, at most 100; skipped "
                    "when least squares ended at a bound or its iteration limit; N: exactly N; "
                    "0: off)")
+    p.add_argument("--illuminant", metavar="NAME",
+                   help="spectral data (channels that are wavelengths spanning 380-780 nm): the "
+                   "CIE illuminant under which the parameter file's colour block reduces each "
+                   "colour parameter's spectrum to CIE XYZ and linear sRGB (CIE 1931 2 degree "
+                   "observer): a colour-science name, D65 (default), D50, A, E, FL2, ...; "
+                   "data_formats/fit_json.md, 'Colour of a spectral fit'")
     p.add_argument("--walter-diagnostics", action="store_true",
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
@@ -226,7 +234,7 @@ def request_of(args, **overrides):
         global_search=args.global_search, local_solver=args.local_solver,
         aperture_order=args.aperture_order, bootstrap=args.bootstrap,
         lm_maxiter=args.lm_maxiter, walter_diagnostics=args.walter_diagnostics,
-        progress=not args.quiet)
+        progress=not args.quiet, illuminant=getattr(args, "illuminant", None))
     return FitRequest(args.model, spelling="cli", **{**settings, **overrides})
 
 
@@ -277,6 +285,26 @@ def _print_brief(record):
                   + (f"; {n_warn} warning{'s' if n_warn > 1 else ''} (-v prints "
                      f"{'them' if n_warn > 1 else 'it'} with advice; kept in the parameter file)"
                      if n_warn else ""), file=sys.stderr)
+    _print_colour(record)
+
+
+def _print_colour(record):
+    """A spectral fit's colour block (fitlab.export.spectral_colour) in a line or a few."""
+    colour = record.get("colour")
+    if not colour:
+        return
+    if colour["parameters"] is None:
+        print(f"colour: {colour['reason']}", file=sys.stderr)
+        return
+    print(f"colour under {colour['illuminant']} (CIE 1931 2 degree observer), "
+          f"{len(colour['channels'])} bands:", file=sys.stderr)
+    for name, p in colour["parameters"].items():
+        if p["reduction"] == "colour":
+            print(f"  {name}: linear sRGB " + ", ".join(f"{x:.4g}" for x in p["linear_srgb"])
+                  + "; XYZ " + ", ".join(f"{x:.4g}" for x in p["xyz"]), file=sys.stderr)
+        elif p["reduction"] != "one value":
+            print(f"  {name}: {p['reduction']} {p['value']:.4g} (bands {p['range'][0]:.4g} to "
+                  f"{p['range'][1]:.4g})", file=sys.stderr)
 
 
 def _print_summary(record):
@@ -340,6 +368,7 @@ def _print_summary(record):
             if not status.ok:
                 print(f"status: channel {fit['channel']}: {status.value}: {status.advice}",
                       file=sys.stderr)
+    _print_colour(record)
 
 
 def _p(p):

@@ -299,6 +299,8 @@ def gltf_document(material: Material, model: str, params: dict, conversion: dict
         mat["extensions"] = ext
     mat["extras"] = {"fitlab": {"source_model": material.model, "source": material.source,
                                 "channels": list(material.channels), "gltf_model": model,
+                                # a spectral fit's reduction to linear sRGB (spectral_colour.py)
+                                **({"colour": material.colour} if material.colour else {}),
                                 "conversion": conversion,
                                 "spec": "data_formats/gltf_material.md"}}
     pos, nrm, idx = _sphere(*SPHERE)

@@ -5,7 +5,8 @@ A fit of relative data carries a ``scale`` (the instrument's unknown factor); a 
 absolute model f, so the scale is left out (as ``fitlab convert`` does). A fit of one channel
 (``Y``, ``Visible``, a band) is grey, a fit of ``R``, ``G``, ``B`` gives each parameter as an
 RGB triple, a fit of two or more wavelengths (channels ``450nm``, ``550nm``, … from the
-``wavelength_nm`` column) a spectrum where a format takes one; other channel sets (``X,Y,Z``)
+``wavelength_nm`` column) a spectrum where a format takes one, and its reduction to linear sRGB
+where a format takes only RGB (fitlab/export/spectral_colour.py); other channel sets (``X,Y,Z``)
 are refused with what to do (``channel=`` picks one).
 """
 
@@ -16,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab.errors import FitlabError
+from fitlab.export.spectral_colour import record_wavelengths, wavelengths_of
 
 #: The channels of an RGB material, in order.
 RGB = ("R", "G", "B")
@@ -38,6 +40,15 @@ class Material(NamedTuple):
     #: ``path``, ``quantity``, ``metadata``, …) as plain values, for a format whose header
     #: carries the data's provenance (fitlab/export/openmaterial.py); None for a model
     data: dict | None = None
+    #: of a spectral material, the wavelength (nm) of each channel, in channel order, where its
+    #: source states them (a fit's ``data.wavelength_nm``); None: read from names ``<λ>nm``
+    wavelength_nm: tuple | None = None
+    #: the illuminant a fit's colour block states (its reduction to RGB uses it unless told
+    #: otherwise); None: D65
+    illuminant: str | None = None
+    #: of a spectral material reduced to R, G, B (:func:`rgb_material`), what the reduction did
+    #: (conversion, observer, illuminant, bands, notes), for the exported file to state
+    colour: dict | None = None
 
     @property
     def rgb(self) -> bool:
@@ -45,7 +56,10 @@ class Material(NamedTuple):
 
     @property
     def wavelengths_nm(self) -> np.ndarray | None:
-        """The wavelengths of a spectral material (channels ``<λ>nm``), else None."""
+        """The wavelengths of a spectral material (two or more channels, each with a
+        wavelength: the stated ones, else names ``<λ>nm``), else None."""
+        if self.wavelength_nm is not None and len(self.channels) > 1:
+            return np.asarray(self.wavelength_nm, dtype=float)
         return wavelengths_of(tuple(self.channels))
 
     def values(self, name: str) -> np.ndarray:
@@ -69,26 +83,19 @@ class Material(NamedTuple):
         return float(v[0]) if v.ndim == 1 else v[0]
 
 
-def wavelengths_of(names: tuple) -> np.ndarray | None:
-    """Wavelengths in nm of channel names ``<λ>nm`` (two or more, all spectral), else None."""
-    if len(names) < 2 or not all(n.endswith("nm") for n in names):
-        return None
-    try:
-        wl = np.array([float(n[:-2]) for n in names])
-    except ValueError:
-        return None
-    return wl if np.all(np.isfinite(wl)) and np.all(wl > 0) else None
-
-
-def _check_channels(channels: dict, source: str) -> dict:
+def _check_channels(channels: dict, source: str, wavelength_nm=None) -> dict:
+    """``channels`` in a material's order: one, R, G, B, or bands by ascending wavelength
+    (``wavelength_nm`` {channel: nm} where the source states them, else names ``<λ>nm``)."""
     names = tuple(channels)
     if len(names) == 1 or names == RGB:
         return channels
     if set(names) == set(RGB):
         return {c: channels[c] for c in RGB}
-    wl = wavelengths_of(names)
+    stated = None if wavelength_nm is None else [wavelength_nm.get(c) for c in names]
+    wl = np.array(stated, dtype=float) if stated is not None and None not in stated \
+        else wavelengths_of(names)
     if wl is not None:
-        return {names[i]: channels[names[i]] for i in np.argsort(wl)}
+        return {names[i]: channels[names[i]] for i in np.argsort(wl, kind="stable")}
     raise ExportError(f"{source}: channels {', '.join(names)}: renderers take one channel (grey), "
                       "R, G, B or a spectrum (channels <λ>nm); export one of them with "
                       "--channel")
@@ -108,8 +115,56 @@ def material_from_fit(result, channel: str | None = None) -> Material:
         params = {channel: params[channel]}
     record = getattr(result, "record", None)
     data = None if record is None else _plain(record.get("data") or {})
-    return Material(result.model, dict(result.options), _check_channels(params, source),
-                    source, data)
+    stated, illuminant = None, None
+    if record is not None:
+        stated = {c: w for c, w in record_wavelengths(record).items() if c in params}
+        illuminant = (record.get("colour") or {}).get("illuminant")
+    channels = _check_channels(params, source, stated)
+    wavelength_nm = None
+    if stated and len(channels) > 1 and all(stated.get(c) is not None for c in channels):
+        wavelength_nm = tuple(float(stated[c]) for c in channels)
+    return Material(result.model, dict(result.options), channels, source, data, wavelength_nm,
+                    illuminant)
+
+
+def material_bands(material: Material):
+    """The bands (:class:`fitlab.export.spectral_colour.Bands`) of a spectral material, else
+    None."""
+    from fitlab.export.spectral_colour import bands_of
+
+    wl = material.wavelengths_nm
+    return None if wl is None else bands_of(dict(zip(material.channels, wl.tolist())))
+
+
+def rgb_material(material: Material, illuminant: str | None = None, *,
+                 what: str = "this export") -> tuple[Material, dict]:
+    """The R, G, B material of a spectral ``material`` (fitlab.export.spectral_colour
+    .reduced_channels under ``illuminant``, else the one its fit states, else D65) and what the
+    conversion did (``{"colour": {colour_conversion, observer, illuminant, rgb_space, bands,
+    notes}}``); :class:`ExportError` naming ``what`` when its bands do not span 380-780 nm.
+    A material that is not spectral comes back as it is, with ``{}``."""
+    from fitlab import colorimetry
+    from fitlab.export.spectral_colour import CONVERSION, check_illuminant, reduced_channels
+    from fitlab.models import get_model
+
+    bands = material_bands(material)
+    if bands is None:
+        return material, {}
+    problem = bands.coverage_problem()
+    if problem is not None:
+        raise ExportError(f"{material.source}: {what} takes linear RGB, and this spectral "
+                          f"material has no colour: {problem}; export one band with --channel, "
+                          "or a format that takes spectra (--to mitsuba, --to openmaterial)")
+    try:
+        ill = check_illuminant(illuminant or material.illuminant)
+    except ValueError as exc:
+        raise ExportError(f"--illuminant: {exc}") from None
+    channels, notes = reduced_channels(get_model(material.model), material.channels, bands, ill)
+    colour = {**colorimetry.conversion_metadata(CONVERSION, ill),
+              "bands": f"{len(bands.nm)} bands, {bands.nm[0]:g}-{bands.nm[-1]:g} nm",
+              "notes": notes}
+    return (material._replace(channels=channels, wavelength_nm=None, colour=colour),
+            {"colour": colour})
 
 
 def _plain(value):
@@ -137,5 +192,5 @@ def material_from_model(model: str, channels: dict, options: dict | None = None)
     return Material(m.name, opts, _check_channels(dict(channels), "--model"), "model")
 
 
-__all__ = ["RGB", "ExportError", "Material", "material_from_fit", "material_from_model",
-           "wavelengths_of"]
+__all__ = ["RGB", "ExportError", "Material", "material_bands", "material_from_fit",
+           "material_from_model", "rgb_material", "wavelengths_of"]

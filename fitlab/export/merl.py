@@ -47,10 +47,8 @@ def tabulate_model(model: str, params, options: dict | None = None) -> np.ndarra
     return raw.reshape(3, *DIMS)
 
 
-def write_merl(path, model: str, params, options: dict | None = None) -> dict:
-    """Tabulate a registry model as a MERL .binary file (atomically). A MERL file holds a BRDF:
-    a model that does not reflect is refused, the transmission of one that also transmits is
-    left out (noted). Returns a summary (channels, bins with a value, f range, notes)."""
+def _check_model(model: str):
+    """The registry model, if a MERL file can hold it (it reflects and is isotropic)."""
     m = get_model(model)
     if not m.capabilities.reflection:
         raise FitlabError(f"model {m.name!r} does not reflect ({m.lobes}); a MERL file holds a "
@@ -59,6 +57,14 @@ def write_merl(path, model: str, params, options: dict | None = None) -> dict:
         raise FitlabError(f"model {m.name!r} is anisotropic; a MERL file holds an isotropic BRDF "
                           "(its bins have no half-vector azimuth φh): write a Zemax file "
                           "(.bsdf, Asymmetrical) instead")
+    return m
+
+
+def write_merl(path, model: str, params, options: dict | None = None) -> dict:
+    """Tabulate a registry model as a MERL .binary file (atomically). A MERL file holds a BRDF:
+    a model that does not reflect is refused, the transmission of one that also transmits is
+    left out (noted). Returns a summary (channels, bins with a value, f range, notes)."""
+    m = _check_model(model)
     options = resolve_options(m, options)
     raw = tabulate_model(m.name, params, options)
     with atomic_open(path, "wb") as fh:
@@ -91,4 +97,40 @@ def write_merl_from_fit(path, fit_path, *, channel: str | None = None) -> dict:
     return summary
 
 
-__all__ = ["tabulate_model", "write_merl", "write_merl_from_fit"]
+def complete_merl(path, job) -> dict:
+    """A completion (fitlab.export.filling.Job) as a MERL file's bytes (written by
+    fitlab.export.completion with its record): every bin centre above the horizon holds the
+    data's reading at that direction (data read from a MERL file at stride 1 have one in every
+    valid bin) or the fit's value; bins below it the 'no value' marker. A one-channel
+    measurement fills R, G and B alike."""
+    from pathlib import Path
+
+    from fitlab.export.filling import Filled, check_absolute, fill
+
+    m = job.m
+    check_absolute(m, "MERL")
+    _check_model(job.fit.model)
+    names = tuple(m.channel_names)
+    if names != CHANNELS and len(names) != 1:
+        raise FitlabError(f"{Path(m.path).name} has channels {', '.join(names)}; a MERL file "
+                          f"holds {', '.join(CHANNELS)} or one channel (written to all three): "
+                          "complete it as a measurement CSV (OUT.csv)")
+    i, j, k = np.meshgrid(*(np.arange(n) for n in DIMS), indexing="ij")
+    wi, wo = bin_directions(i.ravel(), j.ravel(), k.ravel())
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    raw = np.full((3, N_BINS), INVALID_RAW)
+    parts = []
+    for c, name in enumerate(CHANNELS):
+        if c < len(names):
+            parts.append(fill(job, np.full(int(above.sum()), c), wi[above], wo[above]))
+        raw[c, above] = parts[-1].value / SCALES[c]
+    filled = Filled(*(np.concatenate(a) for a in zip(*parts)))
+    record = Path(str(path) + ".completion.json").name
+    return {"content": merl_bytes(raw.reshape(3, *DIMS)), "filled": filled,
+            "marks": f"none in the file (a MERL table has no per-value flag): {record}",
+            "grid": dict(zip(("theta_h", "theta_d", "phi_d"), DIMS)),
+            "grid_source": "MERL's bins", "notes": [] if len(names) == 3 else
+            [f"channel {names[0]} written to R, G and B"]}
+
+
+__all__ = ["tabulate_model", "write_merl", "write_merl_from_fit", "complete_merl"]

@@ -180,7 +180,8 @@ def _component_materials(material: Material) -> list[Material] | None:
                     for c, v in material.channels.items()}
         options = {o.name: material.options[n] for o, n in zip(m.options, on)
                    if n in material.options}
-        out.append(Material(m.name, options, channels, material.source))
+        out.append(Material(m.name, options, channels, material.source,
+                            wavelength_nm=material.wavelength_nm))
     return out
 
 

@@ -57,6 +57,9 @@ VALUE_DIGITS = 9
 #: The writer's settings (each a ``fitlab convert`` flag: --grid-from, --wavelength-nm, ...).
 SETTINGS = ("grid_from", "wavelength_nm", "name", "description", "author", "copyright",
             "license", "sensor")
+#: The top-level field of a completed measurement that lists the rows whose value is a fit's
+#: (fitlab.io.openmaterial.COMPLETION_FIELD).
+COMPLETION_FIELD = om.COMPLETION_FIELD
 #: The name space of the files' UUID 5.
 UUID_NAMESPACE = uuid.uuid5(uuid.NAMESPACE_URL, "fitlab:openmaterial")
 
@@ -193,16 +196,27 @@ def table_rows(wavelength_nm, angles, values) -> list:
     return rows
 
 
+def _rows_text(rows) -> str:
+    return "[\n" + ",\n".join(" " * 12 + json.dumps(r) for r in rows) + "\n        ]"
+
+
 def document_text(doc: dict) -> str:
-    """The file's text: 4-space indented JSON as the standard's examples, one table row a line."""
+    """The file's text: 4-space indented JSON as the standard's examples, one table row a line
+    (and one row a line of a completion's marks, :data:`COMPLETION_FIELD`)."""
     brdf = dict(doc["brdf"])
     table = brdf.pop("lookupTable")
-    mark = "@LOOKUP_TABLE@"
-    text = json.dumps({**doc, "brdf": {**brdf, "lookupTable": mark}}, indent=4,
-                      ensure_ascii=False)
+    mark, marks = "@LOOKUP_TABLE@", "@COMPLETED_ROWS@"
+    body = {**doc, "brdf": {**brdf, "lookupTable": mark}}
+    completion = doc.get(COMPLETION_FIELD)
+    if completion is not None:
+        body[COMPLETION_FIELD] = {**completion, "rows": marks}
+    text = json.dumps(body, indent=4, ensure_ascii=False)
     head, _, tail = text.rpartition(json.dumps(mark))
-    rows = ",\n".join(" " * 12 + json.dumps(r) for r in table)
-    return head + "[\n" + rows + "\n        ]" + tail + "\n"
+    text = head + _rows_text(table) + tail + "\n"
+    if completion is not None:
+        head, _, tail = text.rpartition(json.dumps(marks))
+        text = head + _rows_text(completion["rows"]) + tail
+    return text
 
 
 def with_uuid(doc: dict) -> dict:
@@ -418,9 +432,12 @@ def _radians_within(deg, limit: float):
 
 def data_table(m, source, *, grid_from=None, wavelength_nm=None, name=None, description=None,
                author=None, copyright=None, license=None, sensor=None,
-               what: str = "the output") -> tuple[str, dict, dict]:
+               what: str = "the output", completion=None,
+               completed_by: str | None = None) -> tuple[str, dict, dict]:
     """(text, document, summary) of measured data (a Measurement) as an OpenMATERIAL file: its
-    rows as they are, the reflection rows of one incident azimuth, f in 1/sr."""
+    rows as they are, the reflection rows of one incident azimuth, f in 1/sr. ``completion``:
+    per row MEASURED or why its value is a fit's (listed in :data:`COMPLETION_FIELD`), and
+    ``completed_by`` the sentence the description and sources add about it."""
     label = Path(m.path).name
     if grid_from is not None:
         raise FitlabError(f"--grid-from applies to a fit or a model, which fitlab samples on a "
@@ -487,12 +504,25 @@ def data_table(m, source, *, grid_from=None, wavelength_nm=None, name=None, desc
         notes.append("sigma left out: the format has no uncertainty")
     source = om.metadata_from(m.metadata)
     made = f"Data of {label} written by fitlab {__version__}."
+    said = description or source.get("description") or made
+    sources = source.get("sources") or f"data converted by fitlab from {label}"
+    if completed_by:
+        said, sources = f"{said.rstrip()} {completed_by}", f"{sources}, model fitted by fitlab"
     meta = metadata(source, name=name or source.get("name") or Path(label).stem,
-                    description=description or source.get("description") or made,
-                    author=author, copyright=copyright, license=license, sensor=sensor,
-                    sources=source.get("sources") or f"data converted by fitlab from {label}",
+                    description=said, author=author, copyright=copyright, license=license,
+                    sensor=sensor, sources=sources,
                     keep=("uuid", "creationDate", "openMaterial3dVersion") if source else ())
     doc = _document(meta, [wavelengths[c] for c in used], rows, solid)
+    if completion is not None:
+        from fitlab.io.measurement import MEASURED
+
+        label_of = np.asarray(completion, dtype=object)[keep]
+        done = label_of != MEASURED
+        doc[COMPLETION_FIELD] = {
+            "spec": "data_formats/completion_json.md",
+            "columns": ["wavelength", "incidentZenith", "exitZenith", "exitAzimuth", "reason"],
+            "rows": sorted([float(w) / 1e9, float(a[0]), float(a[1]), float(a[2]), str(r)]
+                           for w, a, r in zip(w_rows[done], angles[done], label_of[done]))}
     if "uuid" not in doc["metadata"]:
         doc = with_uuid(doc)
     text = checked_text(doc, what)
@@ -500,7 +530,8 @@ def data_table(m, source, *, grid_from=None, wavelength_nm=None, name=None, desc
     summary = {"model": None, "channels": [m.channel_names[c] for c in used],
                "wavelength_nm": [wavelengths[c] for c in used], "rows": len(rows),
                "grid": f"the rows of {label}", "uuid": doc["metadata"]["uuid"],
-               "f_range": [float(values.min()), float(values.max())], "notes": notes}
+               "f_range": [float(values.min()), float(values.max())], "notes": notes,
+               "kept": keep}
     return text, doc, summary
 
 
@@ -508,7 +539,30 @@ def write_data(path, m, source, **settings) -> dict:
     """Measured data written as an OpenMATERIAL file (atomically)."""
     text, _, summary = data_table(m, source, what=str(path), **settings)
     atomic_write_text(path, text)
+    summary.pop("kept")
     return {"path": str(path), **summary}
+
+
+def complete_data(path, job, **settings) -> dict:
+    """A completion (fitlab.export.filling.Job) as an OpenMATERIAL file's text (written by
+    fitlab.export.completion with its record): the data's rows and gaps as :func:`data_table`
+    writes measured data, the fit's value where a row holds no reading or a replaced one, those
+    rows listed in the file's :data:`COMPLETION_FIELD`."""
+    from fitlab.export.filling import check_absolute, completed_rows, filled_rows
+    from fitlab.io.files import path_for_record
+
+    check_absolute(job.m, "OpenMATERIAL")
+    rows, reason = completed_rows(job)
+    n = int(np.sum(reason != "measured"))
+    said = (f"{n} values are the fitlab fit {path_for_record(job.fit_path, path)}'s (model "
+            f"{job.fit.model}), not readings: listed in {COMPLETION_FIELD}.")
+    text, _, summary = data_table(rows, job.m.path, what=str(path), completion=reason,
+                                  completed_by=said, **settings)
+    keep = summary["kept"]  # the rows the file holds (a BRDF table leaves transmission out)
+    return {"content": text, "filled": filled_rows(rows.select(keep), reason[keep]),
+            "marks": f"in the file: its top-level field {COMPLETION_FIELD} lists the rows",
+            "grid": {"rows": summary["rows"]}, "grid_source": "the data's own rows",
+            "notes": list(summary["notes"])}
 
 
 def describe(s: dict) -> str:
@@ -522,4 +576,5 @@ def describe(s: dict) -> str:
 
 
 __all__ = ["Grid", "STANDARD_GRID", "SETTINGS", "grid_rows", "file_grid", "material_table",
-           "data_table", "write_model", "write_fit", "write_data", "export_parts", "describe"]
+           "data_table", "write_model", "write_fit", "write_data", "export_parts", "describe",
+           "complete_data", "COMPLETION_FIELD"]

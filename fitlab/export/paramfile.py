@@ -124,9 +124,12 @@ def run_timings(result, read_s: float, total_s: float) -> dict:
     return out
 
 
-def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict:
+def build_record(result, measurement, *, subset_expr=None, timings=None,
+                 illuminant: str | None = None) -> dict:
     """The parameter file's record. No wall-clock field unless ``timings`` (from
-    :func:`run_timings`) is given: then it is the record's only varying field, ``timings_s``."""
+    :func:`run_timings`) is given: then it is the record's only varying field, ``timings_s``.
+    A spectral fit (two or more fitted channels with wavelengths) gets the ``colour`` block,
+    its colours under ``illuminant`` (None: D65; fitlab.export.spectral_colour)."""
     model = result["model"]
     m = measurement
     record = {
@@ -141,7 +144,11 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
         "data": {"path": m.path, "sha256": m.sha256, "rows": m.n,
                  "rows_fitted": int(np.sum(result["subset_rows"])), "fit_subset": subset_expr,
                  "file_quantity": m.file_quantity, "quantity": m.quantity,
-                 "channels": list(m.channel_names), "metadata": m.metadata,
+                 "channels": list(m.channel_names),
+                 # each channel's wavelength (nm), where the file gives them (spectral data)
+                 **({"wavelength_nm": [float(w) for w in m.wavelength_nm]}
+                    if m.wavelength_nm is not None else {}),
+                 "metadata": m.metadata,
                  # how the file was read, where not by default (--angles, --accept,
                  # --quantity): the report reads it the same way
                  **({"read_options": dict(m.read_options)} if m.read_options else {})},
@@ -150,6 +157,16 @@ def build_record(result, measurement, *, subset_expr=None, timings=None) -> dict
     }
     if result.get("joint") is not None:  # parameters shared across channels (fitting/joint.py)
         record["joint"] = result["joint"]
+    if m.wavelength_nm is not None:  # a spectral fit's colours (data_formats/fit_json.md)
+        from fitlab.export.spectral_colour import colour_block
+
+        colour = colour_block(record, illuminant)
+        if colour is not None:
+            record["colour"] = colour
+    if illuminant is not None and not (record.get("colour") or {}).get("parameters"):
+        record["notes"] = list(record["notes"]) + [
+            f"illuminant {illuminant}: not used (only a fit of two or more bands spanning "
+            "380-780 nm has a colour block)"]
     if timings is not None:
         record["timings_s"] = timings
     return record

@@ -39,6 +39,11 @@ class Exporter(NamedTuple):
     spec: str  # its data_formats/ document
     #: build(material, suffix, settings) -> Exported
     build: Callable
+    #: what it does with a spectral material (a fit whose channels are wavelengths):
+    #: "rgb": takes linear sRGB only (the material reduced, fitlab.export.spectral_colour;
+    #: refused where the bands do not span 380-780 nm); "rgb or spectrum": the reduction where
+    #: the bands span the visible range, else the spectrum as it is; "spectrum": the bands kept
+    spectra: str = "rgb"
 
 
 def _json_text(value) -> str:
@@ -47,8 +52,12 @@ def _json_text(value) -> str:
 
 def _comment(material: Material) -> str:
 
+    colour = material.colour
+    spectral = "" if not colour else (
+        f", linear sRGB of a spectral fit's {colour['bands']} under {colour['illuminant']} "
+        "(CIE 1931 2 degree observer; data_formats/fit_json.md)")
     return (f"fitlab {__version__} export of {material.model} from {material.source} "
-            f"(channels {','.join(material.channels)}); conventions: data_formats/"
+            f"(channels {','.join(material.channels)}{spectral}); conventions: data_formats/"
             "mitsuba_export.md")
 
 
@@ -97,7 +106,8 @@ EXPORTERS: Registry[Exporter] = Registry("export format", {
                  "Mitsuba 3's own plugins (roughconductor, roughdielectric, diffuse, plastic, "
                  "blendbsdf for sums): scene XML (.xml) or the mi.load_dict dictionary (.json); "
                  "refused for models Mitsuba has no plugin for",
-                 (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_native)),
+                 (".xml", ".json"), "data_formats/mitsuba_export.md", _mitsuba_build(_native),
+                 "rgb or spectrum"),
         Exporter("mitsuba-plugin", "Mitsuba 3 (fitlab plugin)",
                  "fitlab's Mitsuba plugin (fitlab.export.mitsuba_plugin.register()) with the model and its "
                  "values written out: any registry model, rendered with fitlab's own code",
@@ -111,7 +121,8 @@ EXPORTERS: Registry[Exporter] = Registry("export format", {
                  "a BRDF look-up table (.xompt) of the material's f on the standard grid at its "
                  "channels' wavelengths (<N>nm), the same file as fitlab convert FIT.json "
                  "OUT.xompt (which also takes --grid-from and the header's flags)",
-                 (".xompt",), "data_formats/openmaterial_xompt.md", _openmaterial_build),
+                 (".xompt",), "data_formats/openmaterial_xompt.md", _openmaterial_build,
+                 "spectrum"),
     )
 })
 
@@ -166,10 +177,40 @@ def material_of(fit=None, *, model: str | None = None, params: dict | None = Non
     return material_from_model(model, channels, options)
 
 
+def spectral_for(exporter: Exporter, material: Material,
+                 illuminant: str | None = None) -> tuple[Material, dict]:
+    """The material ``exporter`` writes for ``material`` and what that conversion did: a
+    spectral material reduced to linear sRGB (fitlab.export.material.rgb_material) where the
+    exporter takes RGB, its spectrum kept where it takes spectra (and, for "rgb or spectrum",
+    where the bands do not span the visible range: said in ``warnings``); any other material
+    as it is."""
+    from fitlab.export.material import material_bands, rgb_material
+
+    unused = {} if illuminant is None else {"warnings": [
+        f"--illuminant {illuminant}: not used (only a spectral fit reduced to RGB uses it)"]}
+    if illuminant is not None:
+        from fitlab.export.spectral_colour import check_illuminant
+
+        try:
+            check_illuminant(illuminant)
+        except ValueError as exc:
+            raise ExportError(f"--illuminant: {exc}") from None
+    bands = material_bands(material)
+    if bands is None or exporter.spectra == "spectrum":
+        return material, unused
+    if exporter.spectra == "rgb or spectrum" and bands.coverage_problem() is not None:
+        return material, {"warnings": unused.get("warnings", []) + [
+            f"spectral material with no colour ({bands.coverage_problem()}): written as "
+            f"{exporter.title} spectra, which a spectral variant renders as they are and an "
+            "RGB variant integrates over the bands given only"]}
+    return rgb_material(material, illuminant, what=f"{exporter.title} ({exporter.name})")
+
+
 def export_material(fit=None, to: str | None = None, out=None, *, model: str | None = None,
                     params: dict | None = None, options: dict | None = None,
                     channel: str | None = None, preview: bool = False,
-                    check: bool | str = False, progress: bool = False) -> Exported:
+                    check: bool | str = False, progress: bool = False,
+                    illuminant: str | None = None) -> Exported:
     """Export a fit (or ``model`` with ``params``/``options``) for a renderer: format ``to``
     (:data:`EXPORTERS`; else from ``out``'s suffix). With ``out`` the file is written
     atomically; the :class:`Exported` holds its text, the object (Mitsuba dict, glTF document)
@@ -183,7 +224,14 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
     checks a glTF file, else Mitsuba with glTF's specified BRDF of the file's values. ``True``
     (or ``"auto"``) takes the first that can run, ``"three"`` or ``"mitsuba"`` names one. When
     none can, ExportError says what to install, before anything is built or written; the file
-    is written only after its check ran."""
+    is written only after its check ran.
+
+    A spectral fit (channels that are wavelengths spanning 380-780 nm) goes to a format that
+    takes RGB as its reduction to linear sRGB (data_formats/fit_json.md, "Colour of a spectral
+    fit"): colours from their spectra under ``illuminant`` (a colour-science name; None: the one
+    the fit's colour block states, else D65), other parameters their one value or
+    luminance-weighted mean; ``conversion["colour"]`` says what was done. OpenMATERIAL keeps
+    the bands; narrower bands are refused by RGB-only formats and kept as spectra by Mitsuba."""
     from fitlab.io.atomic import atomic_write_text
 
     exporter, suffix = exporter_for(to, None if out is None else str(out))
@@ -193,12 +241,19 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
 
         renderer = renderer_for(exporter.name, "auto" if check is True else str(check))
     material = material_of(fit, model=model, params=params, options=options, channel=channel)
+    material, spectral = spectral_for(exporter, material, illuminant)
     if material.source != "model":  # how the file names its source: never an absolute path
         from fitlab.io.files import path_for_record
 
         material = material._replace(source=path_for_record(material.source, out)
                                      if out is not None else Path(material.source).name)
     made = exporter.build(material, suffix, {"preview": preview, "progress": progress})
+    if spectral:
+        conv = dict(made.conversion)
+        conv["warnings"] = list(conv.get("warnings", ())) + spectral.get("warnings", [])
+        if "colour" in spectral:
+            conv["colour"] = spectral["colour"]
+        made = made._replace(conversion=conv)
     if renderer is not None:
         from fitlab.export.check import run_check
 
@@ -210,4 +265,4 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
 
 
 __all__ = ["EXPORTERS", "Exported", "Exporter", "exporter_for", "export_material",
-           "material_of"]
+           "material_of", "spectral_for"]

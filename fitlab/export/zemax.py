@@ -127,6 +127,19 @@ def _stratified_uniforms(rng, blocks: int) -> np.ndarray:
     return u
 
 
+def grid_directions(grid: Grid, scatter: str, eta: float = 1.0):
+    """The directions of a grid's places: wi (rotation, aoi, 3) with φi = SampleRotation, wo
+    (rotation, aoi, azimuth, radial, 3), and where wo is on the scattering side (not masked);
+    ``eta`` places the light of BTDF data (the AngleOfIncidence is the refracted ray's)."""
+    rot, aoi = np.asarray(grid.rotation), np.asarray(grid.aoi)
+    frame = scatter_frame(aoi[None, :], rot[:, None], scatter)
+    wo = scatter_directions(frame[:, :, None, None], np.asarray(grid.radial)[None, :],
+                            np.asarray(grid.azimuth)[:, None])
+    theta_i = incidence_angle(aoi, scatter, eta)
+    wi = degrees_to_direction(*np.broadcast_arrays(theta_i[None, :], rot[:, None]))
+    return wi, wo, side_cosine(wo, scatter) > HORIZON_EPS
+
+
 def tabulate(model_name: str, channel_params: dict, options: dict | None, grid: Grid,
              scatter: str = "BRDF", seed: int = 0):
     """Model values on the grid, (channel, rotation, aoi, azimuth, radial), 0 where wo is on
@@ -136,19 +149,11 @@ def tabulate(model_name: str, channel_params: dict, options: dict | None, grid: 
     if scatter == "BTDF" and not model.capabilities.transmission:
         raise FitlabError(f"model {model.name!r} scatters only in reflection, so its BTDF is "
                           "zero; write a BRDF (--scatter BRDF) or choose a transmitting model")
-    rot, aoi = np.asarray(grid.rotation), np.asarray(grid.aoi)
-    frame = scatter_frame(aoi[None, :], rot[:, None], scatter)
-    wo = scatter_directions(frame[:, :, None, None], np.asarray(grid.radial)[None, :],
-                            np.asarray(grid.azimuth)[:, None])
-    shape = wo.shape[:-1]
-    good = side_cosine(wo, scatter) > HORIZON_EPS
     rng = np.random.default_rng(seed)
     values, tis, err = [], [], []
     for params in channel_params.values():
-        eta = float(params.get("eta", 1.0))
-        theta_i = incidence_angle(aoi, scatter, eta)
-        # (rot, aoi, 3): φi = SampleRotation (several rotations: an anisotropic model)
-        wi = degrees_to_direction(*np.broadcast_arrays(theta_i[None, :], rot[:, None]))
+        wi, wo, good = grid_directions(grid, scatter, float(params.get("eta", 1.0)))
+        shape = wo.shape[:-1]
         wi_all = np.broadcast_to(wi[:, :, None, None], shape + (3,)).reshape(-1, 3)
         f = np.asarray(eval_bsdf(model.name, params, wi_all, wo.reshape(-1, 3), options))
         values.append(np.where(good, f.reshape(shape), 0.0))
@@ -238,6 +243,76 @@ def write_zemax_from_fit(path, fit_path, *, channel: str | None = None, **kwargs
     return summary
 
 
+def complete_zemax(path, job, *, grid=None, aoi=None, azimuth=None, radial=None,
+                   scatter=None) -> dict:
+    """A completion (fitlab.export.filling.Job) as a Zemax file (not written: fitlab.export.
+    completion writes it with its record): on the data's own grid when the data are a Zemax
+    file, else ``grid`` (default standard; --aoi/--azimuth/--radial replace lists), every
+    place above the horizon the data's reading or the fit's value. The TIS lines are the data
+    file's where its blocks are the output's, else the fit's (importance-sampled)."""
+    from fitlab.export.filling import Filled, check_absolute, fill
+    from fitlab.io.files import path_for_record
+
+    m = job.m
+    check_absolute(m, "Zemax")
+    channels = tuple(m.channel_names)
+    if channels not in (("Y",), ("X", "Y", "Z")) and len(channels) != 1:
+        raise FitlabError(f"{Path(m.path).name} has channels {', '.join(channels)}; a Zemax "
+                          "file holds one channel (Monochrome) or X, Y, Z: complete it as a "
+                          "measurement CSV (OUT.csv) or OpenMATERIAL (OUT.xompt)")
+    scatter = (scatter or ("BTDF" if m.metadata.get("scatter") == "btdf" else "BRDF")).upper()
+    if scatter not in SCATTER.values():
+        raise FitlabError(f"--scatter {scatter}: choose BRDF or BTDF")
+    own = job.format == "zemax" and grid is None
+    eta = m.eta() or 1.0
+    g = resolve_grid(m.path if own else (grid or "standard"), aoi=aoi, azimuth=azimuth,
+                     radial=radial, scatter=scatter, eta=eta)
+    wi, wo, good = grid_directions(g, scatter, eta)
+    shape = wo.shape[:-1]
+    wi_all = np.broadcast_to(wi[:, :, None, None], shape + (3,))[good]
+    values = np.zeros((len(channels),) + shape)
+    parts = []
+    for c in range(len(channels)):
+        f = fill(job, np.full(len(wi_all), c), wi_all, wo[good])
+        values[c][good] = f.value
+        parts.append(f)
+    filled = Filled(*(np.concatenate(a) for a in zip(*parts)))
+    zf = parse_zemax(m.path) if job.format == "zemax" else None
+    if zf is not None and (tuple(zf.rotation), tuple(zf.aoi)) == (g.rotation, g.aoi) \
+            and zf.channels == channels:
+        tis, tis_said, tis_digits = (zf.tis, f"as stored in {Path(m.path).name} (the "
+                                     "instrument's)", 10)
+    else:
+        params = {c: {k: v for k, v in job.fit.parameters[c].items() if k != "scale"}
+                  for c in channels}
+        _, tis, err = tabulate(job.fit.model, params, job.fit.options, g, scatter)
+        tis_said = (f"the fit's model, {TIS_SAMPLES} stratified importance samples per block "
+                    f"(largest standard error {float(np.max(err)):.2g})")
+        tis_digits = 4
+    record = Path(str(path) + ".completion.json").name
+    n = int(filled.completed.sum())
+    comments = (zf.comments if zf is not None else ()) + (
+        f"Completed by fitlab {__version__}: the measurement with {n} values filled in by a "
+        "fit (data_formats/completion_json.md)",)
+    metadata = {**(zf.metadata if zf is not None else {}),
+                "completed_values": f"{n} of {filled.value.size} values above the horizon are "
+                                    f"the fit's, not readings; {record} lists them and why",
+                "completed_by": f"fit {path_for_record(job.fit_path, path)} (model "
+                                f"{job.fit.model}) of data {path_for_record(m.path, path)}",
+                "tis": tis_said}
+    written = channels if channels in (("Y",), ("X", "Y", "Z")) else ("Y",)
+    notes = [] if written == channels else \
+        [f"channel {channels[0]} written as the file's one channel (Monochrome)"]
+    text = format_zemax(g, written, values, tis, scatter, comments, metadata,
+                        tis_digits=tis_digits)
+    return {"content": text, "filled": filled,
+            "marks": f"none in the file (a Zemax table has no per-value flag): {record}",
+            "grid": {k: len(v) for k, v in g._asdict().items()},
+            "grid_source": "the data's own" if own else
+            ("standard" if grid in (None, "standard") else Path(str(grid)).name),
+            "scatter": scatter, "notes": notes}
+
+
 __all__ = ["Grid", "STANDARD_INCIDENCE", "STANDARD_AZIMUTH_HALF", "STANDARD_RADIAL",
-           "TIS_SAMPLES", "parse_angles", "resolve_grid", "tabulate", "write_zemax",
-           "write_zemax_from_fit"]
+           "TIS_SAMPLES", "parse_angles", "resolve_grid", "grid_directions", "tabulate",
+           "write_zemax", "write_zemax_from_fit", "complete_zemax"]

@@ -75,7 +75,7 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
     predicted; channels: channel names to fit (default all); share: parameters shared by every
     channel (``["alpha"]``: one geometry, the rest per channel; the channels are then fitted
     as one problem, see ``fitlab.fitting.joint``); mcmc: also sample the posterior
-    with emcee (``mcmc_steps``, default 3000, and ``walkers``); starts: Levenberg–Marquardt
+    with emcee (``mcmc_steps``, default the sampler's: emcee 3000, nuts 1000; ``walkers``); starts: Levenberg–Marquardt
     starts besides the global search's best (default 8); global_search: how the first start is
     found (``"scan"``, the default: the cost at a few hundred low-discrepancy points in one
     compiled call; ``"mlsl"``: nlopt's MLSL, slower, for basins narrower than the scan's grid;
@@ -98,7 +98,10 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
     global search may miss: ``{"kappa1": 3000}`` starts a thin layer with a sharp coat; every
     start is in ``result.record["fits"][c]["starts"]``); sampler: the posterior sampler with
     ``mcmc`` (``fitlab.fitting.samplers.SAMPLERS``: ``emcee``, the default and reference, or
-    ``nuts``, blackjax's NUTS with ``walkers`` chains).
+    ``nuts``, blackjax's NUTS with ``walkers`` chains); illuminant: for a spectral fit (channels
+    that are wavelengths spanning 380-780 nm), the CIE illuminant of the colour block that
+    reduces its colour parameters to CIE XYZ and linear sRGB (a colour-science name such as
+    ``"D65"``, the default, ``"D50"``, ``"A"``; ``result.colour``; data_formats/fit_json.md).
     angles, accept, quantity: how a path is read (:func:`read`; not with a Measurement).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning). What limits trust in the fit is ``result.statuses(channel)`` (a
@@ -124,7 +127,7 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
         raise FitlabError(text if text.startswith(f"{m.path}:") else f"{m.path}: {text}") \
             from None
     result["notes"] = list(result["notes"]) + notes(m)
-    record = build_record(result, m, subset_expr=expr)
+    record = build_record(result, m, subset_expr=expr, illuminant=request.illuminant)
     if request.walter_diagnostics:
         from fitlab.fitting.walter import add_empirical_D
 

@@ -188,7 +188,8 @@ class ManyResult(NamedTuple):
                          + "; no bootstrap or goodness checks)"],
                       "seed": self.settings["seed"], "subset_rows": rows_fit,
                       "channels": channels}
-            yield i, build_record(result, m, subset_expr=self.settings.get("subset_expr"))
+            yield i, build_record(result, m, subset_expr=self.settings.get("subset_expr"),
+                                  illuminant=self.settings.get("illuminant"))
 
 
 def output_name(m) -> str:
@@ -380,7 +381,8 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
             bar.close()
     settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
                 "chunk": chunk, "mcmc": request.mcmc, "spaces": spaces, "rows": rows,
-                "subset_expr": subset if isinstance(subset, str) else None}
+                "subset_expr": subset if isinstance(subset, str) else None,
+                "illuminant": request.illuminant}
     out = ManyResult(mdl.name, opts, losses, fits, ms, fixed, notes, len(groups),
                      time.perf_counter() - t0, settings)
     return out.raise_for_status() if throw else out

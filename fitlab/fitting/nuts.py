@@ -2,8 +2,17 @@
 posterior as emcee's (fitlab/fitting/mcmc.py: uniform prior in each parameter's unit-box
 coordinate, a Jeffreys-prior noise scale for losses not in units of σ), sampled by the No-U-Turn
 sampler in unconstrained coordinates, compiled whole: window adaptation (step size and a
-diagonal mass matrix, Stan's schedule) and the draws are one ``jax.lax.scan`` per chain, vmapped
-over the chains. emcee stays the default and the reference.
+dense mass matrix, Stan's schedule) and the draws are one ``jax.lax.scan`` per chain. emcee stays
+the default and the reference.
+
+One chain per core: on the CPU the chains are not vmapped (a vmapped NUTS step waits for the
+longest of the chains' trajectories, and a vmapped gradient costs more than the same gradients
+one after another) but spread over the host's devices, one XLA CPU device per core
+(fitlab/_jax.py sets ``--xla_force_host_platform_device_count``), by ``jax.shard_map``: each
+device runs its share of the chains one after another (``jax.lax.map``), the devices at the same
+time (:func:`chain_layout`). On an accelerator the chains stay vmapped, where lanes are cheap.
+The tree depth is capped at :data:`MAX_TREE_DEPTH` (at most 2^10 − 1 leapfrog steps a draw,
+blackjax's and Stan's default), stated in the record's warnings when a draw reaches it.
 
 Coordinates: z = logit(u) for the free parameters' unit-box coordinates u (the prior's density
 in z is u(1 − u), added to the log-posterior), and log σ_r as is. Diagnostics by ArviZ: bulk
@@ -45,12 +54,14 @@ def _logdensity(static, loss: str, order: tuple, ndim: int, problem: dict):
     return one
 
 
-@functools.lru_cache(maxsize=32)
-def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
-    """The compiled sampler of one structure: (keys (chains,), starts (chains, dim), initial
-    inverse mass matrix (dim, dim), problem) → draws, log-densities, acceptance rates,
-    divergences, step sizes; the data are an argument, so a new dataset of the same structure
-    reuses the compilation."""
+#: The largest NUTS tree: at most 2^MAX_TREE_DEPTH − 1 leapfrog steps a draw (Stan's default).
+MAX_TREE_DEPTH = 10
+
+
+def _chain(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
+    """One chain: (key, start (dim,), initial inverse mass matrix (dim, dim), problem) →
+    draws, log-densities, acceptance rates, divergences, tree depths (nsteps,) and the adapted
+    step size."""
     import blackjax
 
     def chain(key, x0, inverse_mass, problem):
@@ -58,18 +69,85 @@ def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: in
         k_adapt, k_draw = jax.random.split(key)
         adapt = blackjax.window_adaptation(blackjax.nuts, logdensity,
                                            is_mass_matrix_diagonal=False,
-                                           initial_inverse_mass_matrix=inverse_mass)
+                                           initial_inverse_mass_matrix=inverse_mass,
+                                           max_num_doublings=MAX_TREE_DEPTH)
         (state, params), _ = adapt.run(k_adapt, x0, num_steps=warmup)
-        kernel = blackjax.nuts(logdensity, **params).step
+        # the adapted parameters carry the cap too (blackjax passes extra parameters on)
+        kernel = blackjax.nuts(logdensity, **{"max_num_doublings": MAX_TREE_DEPTH,
+                                              **params}).step
 
         def step(st, k):
             st, info = kernel(k, st)
-            return st, (st.position, st.logdensity, info.acceptance_rate, info.is_divergent)
+            return st, (st.position, st.logdensity, info.acceptance_rate, info.is_divergent,
+                        info.num_trajectory_expansions)
 
         _, out = jax.lax.scan(step, state, jax.random.split(k_draw, nsteps))
         return out + (params["step_size"],)
 
-    return jax.jit(jax.vmap(chain, in_axes=(0, 0, None, None)))
+    return chain
+
+
+def chain_layout(nchains: int, ndevices: int) -> tuple[int, int]:
+    """(devices used, chains per device) for ``nchains`` chains on ``ndevices`` host devices:
+    as many devices as the chains can fill evenly, each running its chains one after another;
+    the last device's spare slots (when the chains do not divide evenly) run copies whose draws
+    are dropped, in time the other devices need anyway."""
+    per_device = -(-nchains // max(ndevices, 1))
+    return -(-nchains // per_device), per_device
+
+
+def _host_devices() -> list:
+    """The devices chains are spread over: the host's CPU devices when JAX computes on the CPU
+    (one per core, fitlab/_jax.py); none on an accelerator (the chains are vmapped there)."""
+    return jax.devices() if jax.default_backend() == "cpu" else []
+
+
+@functools.lru_cache(maxsize=32)
+def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int,
+             ndevices: int = 0):
+    """The compiled sampler of one structure: (keys (chains,), starts (chains, dim), initial
+    inverse mass matrix (dim, dim), problem) → per chain: draws, log-densities, acceptance
+    rates, divergences, tree depths, step sizes; the data are an argument, so a new dataset of
+    the same structure reuses the compilation. ``ndevices`` > 0: the chains (a multiple of
+    it) spread over that many host devices, one after another on each (module text); 0: vmapped."""
+    chain = _chain(static, loss, order, ndim, nsteps, warmup)
+    if not ndevices:
+        return jax.jit(jax.vmap(chain, in_axes=(0, 0, None, None)))
+
+    def local(keys, starts, inverse_mass, problem):
+        return jax.lax.map(lambda a: chain(a[0], a[1], inverse_mass, problem), (keys, starts))
+
+    if ndevices == 1:
+        return jax.jit(local)
+    return _over_cores(local, ndevices, (True, True, False, False))
+
+
+def _over_cores(local, ndevices: int, split: tuple):
+    """``local`` compiled to run on the first ``ndevices`` host devices at once: the arguments
+    marked in ``split`` shared out along their first axis (a multiple of ``ndevices``), the
+    others copied to every device; the results gathered along their first axis."""
+    spec = jax.sharding.PartitionSpec
+    mesh = jax.sharding.Mesh(np.array(_host_devices()[:ndevices]), ("core",))
+    return jax.jit(jax.shard_map(local, mesh=mesh,
+                                 in_specs=tuple(spec("core") if s else spec() for s in split),
+                                 out_specs=spec("core"), check_vma=False))
+
+
+def _run_chains(static, loss, order, ndim, nsteps, warmup, keys, starts, inverse_mass,
+                problem):
+    """Every chain of one dataset, one chain per core on the CPU (:func:`_sampler`)."""
+    nchains = int(starts.shape[0])
+    devices = _host_devices()
+    if not devices:
+        run = _sampler(static, loss, order, ndim, nsteps, warmup, 0)
+        return run(keys, starts, inverse_mass, problem)
+    used, per_device = chain_layout(nchains, len(devices))
+    spare = used * per_device - nchains
+    if spare:  # copies of the last chain fill the last device's slots; dropped below
+        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], spare, axis=0)])
+        starts = jnp.concatenate([starts, jnp.repeat(starts[-1:], spare, axis=0)])
+    run = _sampler(static, loss, order, ndim, nsteps, warmup, used)
+    return tuple(o[:nchains] for o in run(keys, starts, inverse_mass, problem))
 
 
 def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1000,
@@ -88,17 +166,19 @@ def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1
 
         line(f"  NUTS: {nchains} chains × ({warmup} adaptation + {nsteps} draws) in one "
              "compiled call...")
-    run = _sampler(space.static, loss, order_keys(space), space.ndim, int(nsteps), int(warmup))
     imm = jnp.asarray(_inverse_mass(space, ls, nuisance))
     with jax.numpy_dtype_promotion("standard"):  # blackjax mixes bool and int internally
-        pos, logd, acc, div, steps = run(keys, jnp.asarray(starts), imm, problem)
+        pos, logd, acc, div, depth, _ = _run_chains(
+            space.static, loss, order_keys(space), space.ndim, int(nsteps), int(warmup), keys,
+            jnp.asarray(starts), imm, problem)
     return assemble(space, names, np.asarray(pos), np.asarray(logd), np.asarray(acc),
-                    np.asarray(div), nsteps, time.perf_counter() - t0)
+                    np.asarray(div), nsteps, time.perf_counter() - t0, np.asarray(depth))
 
 
 def assemble(space: FitSpace, names, pos, logd, acc, div, nsteps: int,
-             seconds: float) -> MCMCResult:
-    """One dataset's MCMCResult from NUTS's draws (chains, draws, dim) in z coordinates."""
+             seconds: float, depth=None) -> MCMCResult:
+    """One dataset's MCMCResult from NUTS's draws (chains, draws, dim) in z coordinates;
+    ``depth``: each draw's tree depth (chains, draws), checked against :data:`MAX_TREE_DEPTH`."""
     nchains = pos.shape[0]
     u = 1.0 / (1.0 + np.exp(-pos[..., : space.ndim]))
     chain_unit = np.concatenate([u, pos[..., space.ndim:]], axis=-1)
@@ -109,6 +189,11 @@ def assemble(space: FitSpace, names, pos, logd, acc, div, nsteps: int,
         warnings.append(f"{n_div} divergent NUTS transitions of {nchains * nsteps}: the "
                         "posterior has regions the sampler could not follow (a funnel or a "
                         "bound); check the intervals with emcee (--sampler emcee)")
+    n_cap = 0 if depth is None else int(np.sum(np.asarray(depth) >= MAX_TREE_DEPTH))
+    if n_cap:
+        warnings.append(f"{n_cap} NUTS draws of {nchains * nsteps} reached the tree-depth cap "
+                        f"{MAX_TREE_DEPTH} (2^{MAX_TREE_DEPTH} - 1 leapfrog steps): the chains "
+                        "explore slowly there; check the intervals with emcee (--sampler emcee)")
     bad = [n for n, r in zip(names, rhat) if not r <= RHAT_MAX]
     if bad:
         warnings.append(f"THE CHAINS DISAGREE: split R-hat above {RHAT_MAX} for "
@@ -176,12 +261,18 @@ def _starts(space: FitSpace, ls, nuisance: bool, nchains: int, rng) -> np.ndarra
 def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
                   warmup: int | None = None) -> list[MCMCResult]:
     """NUTS for many datasets of one structure at once: ``items`` = [(space, data (padded to
-    one size), loss, ls)], the compiled sampler vmapped over datasets as well as chains."""
+    one size), loss, ls)]. Throughput first: a dataset's chains and the datasets are vmapped,
+    and on the CPU the datasets are shared out over the host devices, one share per core
+    (:func:`_sampler_many`)."""
     t0 = time.perf_counter()
     space0, _, loss, _ = items[0]
     nuisance = not has_absolute_noise(loss)
     names = space0.names + (("log_noise",) if nuisance else ())
     warmup = nsteps if warmup is None else warmup
+    n_real = len(items)
+    ndevices = min(len(_host_devices()), n_real)
+    if ndevices > 1:  # every device the same share: copies of the last dataset, dropped below
+        items = list(items) + [items[-1]] * (-n_real % ndevices)
     rng = np.random.default_rng(seed)
     starts = np.stack([_starts(sp, ls, nuisance, nchains, rng) for sp, _, _, ls in items])
     keys = jax.random.split(jax.random.PRNGKey(int(seed)), len(items) * nchains).reshape(
@@ -189,21 +280,27 @@ def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
     problems = [problem_of(sp, d) for sp, d, _, _ in items]
     problem = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
     run = _sampler_many(space0.static, loss, order_keys(space0), space0.ndim, int(nsteps),
-                        int(warmup))
+                        int(warmup), ndevices if ndevices > 1 else 0)
     imm = jnp.asarray(np.stack([_inverse_mass(sp, ls, nuisance) for sp, _, _, ls in items]))
     with jax.numpy_dtype_promotion("standard"):
-        pos, logd, acc, div, _ = run(keys, jnp.asarray(starts), imm, problem)
-    seconds = (time.perf_counter() - t0) / len(items)
+        pos, logd, acc, div, depth, _ = run(keys, jnp.asarray(starts), imm, problem)
+    seconds = (time.perf_counter() - t0) / n_real
     return [assemble(sp, names, np.asarray(pos[i]), np.asarray(logd[i]), np.asarray(acc[i]),
-                     np.asarray(div[i]), nsteps, seconds) for i, (sp, _, _, _) in
-            enumerate(items)]
+                     np.asarray(div[i]), nsteps, seconds, np.asarray(depth[i]))
+            for i, (sp, _, _, _) in enumerate(items[:n_real])]
 
 
 @functools.lru_cache(maxsize=32)
-def _sampler_many(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int):
-    """:func:`_sampler` vmapped over datasets too (keys, starts and problem per dataset)."""
-    one = _sampler(static, loss, order, ndim, nsteps, warmup)
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0)))
+def _sampler_many(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int,
+                  ndevices: int = 0):
+    """The sampler of :func:`run_nuts_many`: chains and datasets vmapped (keys, starts, mass
+    matrices and problems per dataset); ``ndevices`` > 1: the datasets (a multiple of it)
+    shared out over that many host devices."""
+    chain = _chain(static, loss, order, ndim, nsteps, warmup)
+    local = jax.vmap(jax.vmap(chain, in_axes=(0, 0, None, None)), in_axes=(0, 0, 0, 0))
+    if not ndevices:
+        return jax.jit(local)
+    return _over_cores(local, ndevices, (True, True, True, True))
 
 
 def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
@@ -216,5 +313,5 @@ def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([float(ess[n]) for n in names]), np.array([float(rhat[n]) for n in names]))
 
 
-__all__ = ["run_nuts", "run_nuts_many", "assemble", "diagnostics", "RHAT_MAX",
-           "ESS_PER_CHAIN"]
+__all__ = ["run_nuts", "run_nuts_many", "assemble", "chain_layout", "diagnostics", "RHAT_MAX",
+           "ESS_PER_CHAIN", "MAX_TREE_DEPTH"]

@@ -35,11 +35,12 @@ from typing import Any, Mapping
 import numpy as np
 
 from fitlab.errors import FitlabError
+from fitlab.fitting.samplers import MCMC_STEPS
 from fitlab.fitting.space import SCALE
 from fitlab.models.base import Model
 
-#: The fit's default step budgets (fitlab.fit; fit_many has its own MCMC default).
-MCMC_STEPS = 3000
+#: The fit's default step budgets (fitlab.fit; fit_many has its own MCMC default; each
+#: sampler's default steps are its registry entry's ``steps``, emcee's MCMC_STEPS).
 MIN_MCMC_STEPS = 100
 STARTS = 8
 
@@ -112,7 +113,8 @@ class FitRequest:
     channels: tuple[str, ...] | None = None
     share: tuple[str, ...] = ()
     mcmc: bool = False
-    mcmc_steps: int = MCMC_STEPS
+    #: None: the sampler's default (fitlab.fitting.samplers.SAMPLERS: emcee 3000, nuts 1000)
+    mcmc_steps: int | None = None
     walkers: int | None = None
     sampler: str = "emcee"
     starts: int = STARTS
@@ -125,6 +127,8 @@ class FitRequest:
     start: Mapping[str, float] = field(default_factory=dict)
     walter_diagnostics: bool = False
     progress: bool = False
+    #: the illuminant of a spectral fit's colour block (a colour-science name; None: D65)
+    illuminant: str | None = None
     spelling: InitVar[str] = "python"
 
     def __post_init__(self, spelling: str) -> None:
@@ -190,6 +194,8 @@ class FitRequest:
         if self.sampler not in SAMPLERS:
             raise FitlabError(f"{name('sampler')}: {SAMPLERS.unknown(self.sampler)}")
         set_(self, "mcmc", bool(self.mcmc))
+        if self.mcmc_steps is None:
+            set_(self, "mcmc_steps", SAMPLERS[self.sampler].steps)
         steps = self.mcmc_steps
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or (
                 self.mcmc and steps < MIN_MCMC_STEPS):
@@ -234,6 +240,16 @@ class FitRequest:
                                           MAX_LM_MAXITER))
         set_(self, "walter_diagnostics", bool(self.walter_diagnostics))
         set_(self, "progress", bool(self.progress))
+        if self.illuminant is not None:
+            from fitlab.colorimetry import illuminant_table
+
+            if not isinstance(self.illuminant, str):
+                raise FitlabError(f"{name('illuminant')} must be an illuminant's name such as "
+                                  f"D65, got {self.illuminant!r}")
+            try:
+                illuminant_table(self.illuminant)
+            except ValueError as exc:
+                raise FitlabError(f"{name('illuminant')}: {exc}") from None
 
     def replace(self, **changes) -> "FitRequest":
         """A variant with ``changes``, checked again (messages spelt as this one's)."""

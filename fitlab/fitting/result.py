@@ -131,6 +131,16 @@ class FitResult:
         """Parameters shared by every channel (a joint fit, ``share=``); () otherwise."""
         return tuple((self.record.get("joint") or {}).get("shared", ()))
 
+    @property
+    def colour(self) -> dict | None:
+        """A spectral fit's colour block (data_formats/fit_json.md, "Colour of a spectral
+        fit"): its bands, the illuminant and observer, and per parameter its reduction (a
+        colour's ``xyz`` and ``linear_srgb``, another parameter's ``value``); ``parameters`` is
+        None, with the ``reason``, where the bands do not span 380-780 nm. None for a fit that
+        is not spectral."""
+        c = self.record.get("colour")
+        return None if c is None else thaw(c)
+
     def joint_covariance(self) -> tuple[tuple[str, ...], np.ndarray] | None:
         """(coordinates, covariance) of a joint fit's whole problem: each shared parameter
         once, the others per channel as ``name[channel]``; None without shared parameters."""

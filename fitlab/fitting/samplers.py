@@ -9,12 +9,18 @@ from typing import Callable, NamedTuple
 from fitlab.errors import FitlabError
 from fitlab.registry import Registry
 
+#: emcee's default steps per walker (the fit's default: emcee is the default sampler).
+MCMC_STEPS = 3000
+
 
 class Sampler(NamedTuple):
     description: str
     #: run(space, data, loss, ls, *, seed, nsteps, walkers, progress) -> MCMCResult
     #: (``walkers``: emcee's walkers, NUTS's chains)
     run: Callable
+    #: the default ``mcmc_steps``: steps per walker (emcee), adaptation steps and draws per
+    #: chain (NUTS)
+    steps: int
 
 
 #: The posterior samplers, by name.
@@ -22,12 +28,13 @@ SAMPLERS: Registry[Sampler] = Registry("sampler", {
     "emcee": Sampler("affine-invariant ensemble sampler (emcee), the default and the reference",
                      lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _emcee(
                          space, data, loss, ls, seed=seed, nsteps=nsteps, nwalkers=walkers,
-                         progress=progress)),
+                         progress=progress), MCMC_STEPS),
     "nuts": Sampler("No-U-Turn sampler (blackjax), adapted and drawn in one compiled call, "
-                    "chains vmapped; diagnostics by ArviZ (fitlab/fitting/nuts.py)",
+                    "one chain per core on the CPU (4 chains unless --walkers); diagnostics by "
+                    "ArviZ (fitlab/fitting/nuts.py)",
                     lambda space, data, loss, ls, *, seed, nsteps, walkers, progress: _nuts(
                         space, data, loss, ls, seed=seed, nsteps=nsteps, nchains=walkers or 4,
-                        progress=progress)),
+                        progress=progress), 1000),
 })
 
 

@@ -64,12 +64,13 @@ def _check_delimiters(path, lineno: int, text: str) -> None:
 
 def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
                what: str = "CSV file", text_columns: tuple[str, ...] = (),
-               column_pattern: str | None = None) -> Table:
+               column_pattern: str | None = None, nan_pattern: str | None = None) -> Table:
     """Read and validate a numeric table with the ``required`` and ``optional`` columns.
 
     Columns named in ``text_columns`` keep their cells as strings; any other column must hold
-    finite numbers. Columns whose name matches the regular expression ``column_pattern`` are
-    accepted besides the named ones (e.g. per-channel ``value_R``)."""
+    finite numbers, except that a cell of a column whose name matches ``nan_pattern`` may read
+    ``NaN`` (any case: no reading). Columns whose name matches the regular expression
+    ``column_pattern`` are accepted besides the named ones (e.g. per-channel ``value_R``)."""
     path = Path(path)
     text = _read_text(path)
     metadata: dict[str, str] = {}
@@ -85,14 +86,14 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
         try:
             _check_delimiters(path, lineno, stripped)
         except InputFileError:
-            _check_cells(path, header, rows, lines, text_columns)  # an earlier bad cell first
+            _check_cells(path, header, rows, lines, text_columns, nan_pattern)  # an earlier one
             raise
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
             header = _parse_header(path, lineno, fields, required, optional, what, column_pattern)
             continue
         if len(fields) != len(header):
-            _check_cells(path, header, rows, lines, text_columns)  # an earlier bad cell first
+            _check_cells(path, header, rows, lines, text_columns, nan_pattern)  # an earlier one
             raise InputFileError(
                 path, f"has {len(fields)} fields but the header names {len(header)}", line=lineno,
                 hint=f"every row needs exactly the columns {', '.join(header)}",
@@ -105,42 +106,49 @@ def read_table(path, required: tuple[str, ...], optional: tuple[str, ...] = (),
     if not rows:
         raise InputFileError(path, "has a header but no data rows",
                              hint="add at least one row of numbers")
-    columns = _columns(path, header, rows, lines, text_columns)
+    columns = _columns(path, header, rows, lines, text_columns, nan_pattern)
     return Table(str(path), columns, metadata, np.asarray(lines), metadata_lines)
 
 
-def _columns(path, header, rows, lines, text_columns) -> dict:
+def _nan_cell(name, cell, nan_pattern) -> bool:
+    """Whether ``cell`` is a ``NaN`` (no reading) its column ``name`` may hold."""
+    return bool(nan_pattern) and cell.lower() == "nan" and re.fullmatch(nan_pattern, name)
+
+
+def _columns(path, header, rows, lines, text_columns, nan_pattern=None) -> dict:
     """The cells of ``rows`` as one array per column: a numeric column converted at once (the
-    same rules as Python's ``float``); where a cell is empty, not a number or not finite, the
-    cells are checked one by one in file order, so the error names the first bad cell's line
-    and column."""
+    same rules as Python's ``float``); where a cell is empty, not a number or not finite (and
+    not a ``NaN`` its column may hold), the cells are checked one by one in file order, so the
+    error names the first bad cell's line and column."""
     columns = {}
     for j, name in enumerate(header):
         cells = [r[j] for r in rows]
         if name in text_columns:
             if not all(cells):
-                _check_cells(path, header, rows, lines, text_columns)
+                _check_cells(path, header, rows, lines, text_columns, nan_pattern)
             columns[name] = np.asarray(cells, dtype=object)
             continue
         try:
             values = np.asarray(cells, dtype=np.float64)
-            ok = bool(np.all(np.isfinite(values)))
+            finite = np.isfinite(values)
+            ok = bool(np.all(finite)) or all(
+                f or _nan_cell(name, c, nan_pattern) for f, c in zip(finite, cells))
         except (ValueError, OverflowError):
             ok = False
         if not ok:
-            _check_cells(path, header, rows, lines, text_columns)
+            _check_cells(path, header, rows, lines, text_columns, nan_pattern)
         columns[name] = values
     return columns
 
 
-def _check_cells(path, header, rows, lines, text_columns) -> None:
+def _check_cells(path, header, rows, lines, text_columns, nan_pattern=None) -> None:
     """Every cell of ``rows``, in file order: the first bad one raises its InputFileError."""
     for fields, lineno in zip(rows, lines):
         for name, cell in zip(header, fields):
             if name in text_columns:
                 if not cell:
                     raise InputFileError(path, "is empty", line=lineno, column=name)
-            else:
+            elif not _nan_cell(name, cell, nan_pattern):
                 _parse_number(path, lineno, name, cell)
 
 

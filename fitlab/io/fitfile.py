@@ -151,6 +151,23 @@ _JOINT = Record(
                   "autocorrelation_time": List(_OPT_NUM, max_len=MAX_JOINT + 1),
                   "correlation": List(List(_OPT_NUM, max_len=MAX_JOINT + 1),
                                       max_len=MAX_JOINT + 1)})})
+#: A spectral fit's colour block (fitlab/export/spectral_colour.py; data_formats/fit_json.md,
+#: "Colour of a spectral fit"): ``parameters`` null (with ``reason``) where the bands do not span
+#: the visible range.
+_TRIPLE = List(_NUM, length=3)
+_COLOUR = Record(
+    required={"channels": List(_NAME, min_len=2, max_len=MAX_CHANNELS),
+              "wavelength_nm": List(Num(lo=0, lo_open=True), min_len=2, max_len=MAX_CHANNELS),
+              "parameters": Optional(Map(Record(
+                  required={"role": Str(max_len=50),
+                            "reduction": Str(choices=("colour", "one value",
+                                                      "luminance-weighted mean"))},
+                  optional={"xyz": _TRIPLE, "linear_srgb": _TRIPLE, "xyz_stderr": _TRIPLE,
+                            "linear_srgb_stderr": _TRIPLE, "value": _NUM,
+                            "range": List(_NUM, length=2), "stderr": _NUM}),
+                  max_len=MAX_PARAMETERS))},
+    optional={"reason": Str(), "note": Str(), "colour_conversion": Str(), "observer": Str(),
+              "illuminant": Str(max_len=100), "rgb_space": Str()})
 #: What a parameter file must hold, field by field (data_formats/fit_json.md): the fields the
 #: tools read are checked for type and finiteness before any of them is used.
 FIT_SCHEMA = Record(
@@ -165,6 +182,8 @@ FIT_SCHEMA = Record(
                                  "rows_fitted": Int(lo=0), "fit_subset": Optional(Str(max_len=10_000)),
                                  "file_quantity": Str(), "quantity": Str(),
                                  "channels": List(_NAME, max_len=MAX_CHANNELS),
+                                 "wavelength_nm": List(Num(lo=0, lo_open=True),
+                                                       max_len=MAX_CHANNELS),
                                  "metadata": Map(Any()),
                                  "read_options": Record(optional={
                                      "angles": Str(choices=ANGLES),
@@ -173,7 +192,7 @@ FIT_SCHEMA = Record(
         "fits": List(_FIT, min_len=1, max_len=MAX_CHANNELS),
         "loss": Str(max_len=100),
     },
-    optional={"seed": Optional(Int()), "notes": _TEXT_LIST, "joint": _JOINT,
+    optional={"seed": Optional(Int()), "notes": _TEXT_LIST, "joint": _JOINT, "colour": _COLOUR,
               "conventions": Map(Str()), "software": Map(Str()), "timings_s": _VALUES,
               "created_utc": Str(), "chain": Record(required={"path": Str(max_len=10_000)},
                                                     optional={"sha256": Str(max_len=64)})})
@@ -202,6 +221,19 @@ def check_fit_record(path, record) -> dict:
         if len(matrix) != len(names) or any(len(row) != len(names) for row in matrix):
             raise InputFileError(path, f"field fits[{k}].covariance.matrix is not "
                                  f"{len(names)} x {len(names)}", hint=hint)
+    data = record["data"]
+    if "wavelength_nm" in data and len(data["wavelength_nm"]) != len(data.get("channels") or ()):
+        raise InputFileError(path, f"field data.wavelength_nm has {len(data['wavelength_nm'])} "
+                             f"entries for {len(data.get('channels') or ())} data.channels",
+                             hint=hint)
+    colour = record.get("colour")
+    if colour and colour.get("illuminant") is not None:
+        from fitlab.colorimetry import illuminant_table
+
+        try:
+            illuminant_table(colour["illuminant"])
+        except ValueError as exc:
+            raise InputFileError(path, f"field colour.illuminant: {exc}", hint=hint) from None
     joint = record.get("joint")
     if joint:
         n = len(joint["parameters"])
@@ -254,21 +286,53 @@ def tabulation_channels(record: dict, *, source, channel: str | None, layout: tu
     ``single``) or the channels ``layout`` (e.g. X, Y, Z), and the notes to pass on.
 
     Returns ({channel: parameters}, notes); a fit's ``scale`` is left out (noted): the file
-    holds the absolute model f."""
+    holds the absolute model f. A spectral fit goes to an R, G, B layout as its reduction to
+    linear sRGB (fitlab.export.spectral_colour; noted)."""
     fits = fit_parameters(record, source=source, channel=channel)
+    notes = []
+    relative = any(SCALE in p for p in fits.values())
     if len(fits) == 1:
         fits = {single: next(iter(fits.values()))}
     elif set(fits) != set(layout):
-        raise FitlabError(f"{source} has channels {', '.join(fits)}; a {file_kind} file holds "
-                          f"one channel or {', '.join(layout)}: choose one with --channel")
+        spectral = _spectral_rgb(record, fits, layout, source, file_kind)
+        if spectral is None:
+            raise FitlabError(f"{source} has channels {', '.join(fits)}; a {file_kind} file "
+                              f"holds one channel or {', '.join(layout)}: choose one with "
+                              "--channel")
+        fits, notes = spectral
     else:
         fits = {c: fits[c] for c in layout}
-    notes = []
-    if any(SCALE in p for p in fits.values()):
+    if relative:
         notes.append(f"relative fit: the '{SCALE}' parameter is not applied; the file holds the "
                      "absolute model f")
         fits = {c: {k: v for k, v in p.items() if k != SCALE} for c, p in fits.items()}
     return fits, notes
+
+
+def _spectral_rgb(record: dict, fits: dict, layout: tuple, source, file_kind: str):
+    """(R, G, B channels, notes) of a spectral fit for a writer whose layout is R, G, B: its
+    reduction to linear sRGB under the colour block's illuminant
+    (fitlab.export.spectral_colour); None when the fit is not spectral or the layout is not RGB;
+    a FitlabError when its bands do not span the visible range."""
+    from fitlab.export.spectral_colour import (RGB, bands_of, check_illuminant,
+                                               record_wavelengths, reduced_channels)
+    from fitlab.models import get_model
+
+    wl = record_wavelengths(record)
+    bands = bands_of({c: wl.get(c) for c in fits})
+    if bands is None or tuple(layout) != RGB:
+        return None
+    problem = bands.coverage_problem()
+    if problem is not None:
+        raise FitlabError(f"{source}: a {file_kind} file holds R, G, B, and this spectral fit has "
+                          f"no colour: {problem}; choose one band with --channel")
+    illuminant = check_illuminant((record.get("colour") or {}).get("illuminant"))
+    plain = {c: {k: v for k, v in p.items() if k != SCALE} for c, p in fits.items()}
+    channels, notes = reduced_channels(get_model(record["model"]["name"]), plain, bands,
+                                       illuminant)
+    return channels, [f"spectral fit ({len(bands.nm)} bands, {bands.nm[0]:g}-{bands.nm[-1]:g} "
+                      f"nm) reduced to linear sRGB under {illuminant} (CIE 1931 2 degree "
+                      "observer)"] + notes
 
 
 def describe_fit(record: dict) -> dict:

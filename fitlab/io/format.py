@@ -27,3 +27,6 @@ class Format(NamedTuple):
     #: "angles" (the unit of the file's angles), "quantity" (what its values are); a format
     #: whose spec fixes them takes neither, and read_any refuses them for it
     takes: tuple = ()
+    #: reader options that read every place of the file, where the defaults read a subsample
+    #: (MERL's stride): what ``fitlab convert --complete`` reads, as it fills what the file lacks
+    whole: dict | None = None

@@ -64,6 +64,10 @@ class Measurement(NamedTuple):
     tis_blocks: tuple = ()
     accepted: tuple = ()
     read_options: dict | None = None
+    # The places of the file's table that hold no reading (Gaps: a NaN value, a stored zero
+    # the format means as nothing measured, a blocked reading, a row a completion filled); not
+    # rows of the measurement: nothing fits them. None: the file holds a reading everywhere.
+    gaps: "Gaps | None" = None
 
     @property
     def n(self) -> int:
@@ -103,16 +107,13 @@ class Measurement(NamedTuple):
         return None
 
     def select(self, mask) -> "Measurement":
-        """The rows where ``mask`` is true (same metadata and provenance)."""
-        mask = np.asarray(mask, dtype=bool)
-        pick = lambda a: None if a is None else a[mask]  # noqa: E731
-        return self._replace(
-            theta_i=self.theta_i[mask], phi_i=self.phi_i[mask], theta_o=self.theta_o[mask],
-            phi_o=self.phi_o[mask], wi=self.wi[mask], wo=self.wo[mask], value=self.value[mask],
-            sigma=pick(self.sigma), channel=self.channel[mask], lines=self.lines[mask],
-            aperture_deg=pick(self.aperture_deg), bin_o_deg=pick(self.bin_o_deg),
-            source_divergence_deg=pick(self.source_divergence_deg), dataset=pick(self.dataset),
-        )
+        """The rows where ``mask`` is true (same metadata, provenance and gaps)."""
+        return self.take(np.asarray(mask, dtype=bool))
+
+    def take(self, index) -> "Measurement":
+        """The rows ``index`` picks (a boolean mask or row indices, in their order)."""
+        return self._replace(**{name: None if getattr(self, name) is None
+                                else getattr(self, name)[index] for name in ROW_FIELDS})
 
     def datasets(self) -> list["Measurement"]:
         """One Measurement per dataset of the file (the ``dataset`` column), in the file's
@@ -127,14 +128,79 @@ class Measurement(NamedTuple):
         if self.dataset is None or label not in self.dataset_names:
             have = ", ".join(self.dataset_names) or "none (no dataset column)"
             raise KeyError(f"{self.path} has no dataset {label!r}; its datasets: {have}")
-        sub = self.select(self.dataset == self.dataset_names.index(label))
+        k = self.dataset_names.index(label)
+        sub = self.select(self.dataset == k)
         used = np.unique(sub.channel)
         remap = np.full(len(self.channel_names), -1)
         remap[used] = np.arange(len(used))
+        gaps = None
+        if self.gaps is not None:  # the dataset's own gaps, of the channels it keeps
+            g = self.gaps.select((self.gaps.rows.dataset == k)
+                                 & (remap[self.gaps.rows.channel] >= 0))
+            gaps = g._replace(rows=g.rows._replace(channel=remap[g.rows.channel], dataset=None,
+                                                   dataset_names=())) if g.rows.n else None
         return sub._replace(
             channel=remap[sub.channel], channel_names=tuple(self.channel_names[c] for c in used),
             wavelength_nm=None if self.wavelength_nm is None else self.wavelength_nm[used],
-            metadata={**self.metadata, "dataset": label}, dataset=None, dataset_names=())
+            metadata={**self.metadata, "dataset": label}, dataset=None, dataset_names=(),
+            gaps=gaps)
+
+
+#: The Measurement's per-row fields (an array with one entry per row, or None where not given).
+ROW_FIELDS = ("theta_i", "phi_i", "theta_o", "phi_o", "wi", "wo", "value", "sigma", "channel",
+              "lines", "aperture_deg", "bin_o_deg", "source_divergence_deg", "dataset")
+
+#: Why a value of a table is not a reading (a reader's gaps, and the values ``fitlab convert
+#: --complete`` replaces by a fit): data_formats/completion_json.md.
+GAP_REASONS = {
+    "no_reading": "the file holds no value there (NaN, a stored zero its format means as "
+                  "nothing measured, a bin marked invalid)",
+    "blocked": "the file marks the reading as blocked (a spectral scan's exact zero where the "
+               "detector shadows the beam)",
+    "uncovered": "a direction of the output's grid where the measurement holds no reading "
+                 "(beyond its view edge, or between its directions)",
+    "subset": "a reading declared bad by a subset expression (--complete-subset)",
+}
+#: The label of a value that is a reading (the measurement CSV's ``completion`` column).
+MEASURED = "measured"
+
+
+class Gaps(NamedTuple):
+    """Where a file's table holds no reading: the places as rows of a Measurement (value NaN,
+    or the value a completion wrote there) and why each holds none (a GAP_REASONS key)."""
+
+    rows: Measurement
+    reason: np.ndarray  # (rows,) of str
+
+    def select(self, mask) -> "Gaps":
+        mask = np.asarray(mask, dtype=bool)
+        return Gaps(self.rows.select(mask), self.reason[mask])
+
+    def counts(self) -> dict:
+        """{reason: rows}, in GAP_REASONS' order."""
+        return {r: int(np.sum(self.reason == r)) for r in GAP_REASONS if np.any(self.reason == r)}
+
+
+def split_gaps(m: Measurement, gap, reason) -> Measurement:
+    """``m`` whose rows where ``gap`` is true are no reading (``reason``: a GAP_REASONS key, or
+    one per row): the measurement of the other rows, those rows its ``gaps``."""
+    gap = np.asarray(gap, dtype=bool)
+    if not gap.any():
+        return m
+    reason = np.broadcast_to(np.asarray(reason, dtype=object), gap.shape)[gap]
+    return m.select(~gap)._replace(gaps=Gaps(m.select(gap), np.asarray(reason, dtype=object)))
+
+
+def join_rows(a: Measurement, b: Measurement) -> Measurement:
+    """The rows of ``a`` followed by those of ``b`` (the same file's rows: the same channels
+    and per-row fields), with ``a``'s metadata and provenance."""
+    out = {}
+    for name in ROW_FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        if (x is None) != (y is None):
+            raise ValueError(f"join_rows: {name} is given for one of the two only")
+        out[name] = None if x is None else np.concatenate([x, y])
+    return a._replace(**out)
 
 
 #: Largest |value| or sigma a measurement may hold: beyond it the squares a fit sums overflow
@@ -365,18 +431,20 @@ def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
     'radians' matters: a file whose angles look like radians is refused with that message rather
     than one about the sides of the surface; the gates themselves run in read_any)."""
     path = Path(path)
-    optional = ("value", "sigma", "channel", "wavelength_nm", "dataset") + CONE_COLUMNS \
-        + BIN_COLUMNS
+    optional = ("value", "sigma", "channel", "wavelength_nm", "dataset", COMPLETION) \
+        + CONE_COLUMNS + BIN_COLUMNS
     table = read_table(path, DIRECTION_COLUMNS, optional, what="measurement CSV",
-                       text_columns=("channel", "dataset"),
-                       column_pattern=f"{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}")
+                       text_columns=("channel", "dataset", COMPLETION),
+                       column_pattern=f"{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}",
+                       nan_pattern=f"value|sigma|{_CHANNEL_VALUE}|{_CHANNEL_SIGMA}")
     cols, meta = table.columns, table.metadata
     wide = [c for c in cols if re.fullmatch(_CHANNEL_VALUE, c)]
-    if wide and ("value" in cols or "channel" in cols or "wavelength_nm" in cols):
+    if wide and ("value" in cols or "channel" in cols or "wavelength_nm" in cols
+                 or COMPLETION in cols):
         raise InputFileError(path, "mixes per-channel value_<NAME> columns with a value/channel/"
-                             "wavelength_nm column", line=int(table.lines[0]) - 1,
-                             hint="use either one value column (with channel or wavelength_nm) "
-                             "or one value_<NAME> column per channel")
+                             "wavelength_nm/completion column", line=int(table.lines[0]) - 1,
+                             hint="use either one value column (with channel or wavelength_nm, "
+                             "and completion) or one value_<NAME> column per channel")
     if not wide and "value" not in cols:
         raise InputFileError(path, "the header lacks the column value",
                              hint="a measurement CSV needs theta_i, phi_i, theta_o, phi_o, value")
@@ -477,6 +545,13 @@ def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
         if bad.size:
             fail_at(bad[0], "sigma", f"{sigma[bad[0]]:g} is not a positive uncertainty",
                     "sigma is the absolute 1-σ uncertainty of value and must be > 0")
+    reasons = _completion_reasons(table, value, lines)
+    if sigma is not None:  # a value filled in by a completion has no sigma
+        bad = np.flatnonzero(np.isnan(sigma) & (reasons == MEASURED))
+        if bad.size:
+            fail_at(bad[0], "sigma", "NaN (no reading) beside a value",
+                    "NaN marks a place without reading, in value (and sigma) alike: give the "
+                    "value's sigma, or NaN as its value")
 
     # Duplicate rows: the same directions (and channel) twice.
     key = np.stack([long["theta_i"], np.mod(long["phi_i"], 360.0), long["theta_o"],
@@ -500,7 +575,11 @@ def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
     if sigma is not None:
         sigma = sigma / factor
     file_quantity = quantity if quantity != "relative" else f"relative ({relative_to})"
-    return check_measurement(Measurement(
+    gap = reasons != MEASURED
+    if gap.all():
+        raise InputFileError(path, "holds no reading: every value is NaN (or a completed value)",
+                             hint="give a file with measured values")
+    full = Measurement(
         path=str(path), sha256=sha256_of(path), theta_i=long["theta_i"], phi_i=long["phi_i"],
         theta_o=long["theta_o"], phi_o=long["phi_o"], wi=wi, wo=wo, value=value, sigma=sigma,
         channel=np.asarray(long["channel"], dtype=int), channel_names=channel_names,
@@ -508,7 +587,40 @@ def read_measurement(path, angles: str = "degrees", quantity: str | None = None,
         file_quantity=file_quantity,
         metadata={k: v for k, v in meta.items() if k not in CONE_COLUMNS + ("rows",)},
         lines=np.asarray(lines), **aperture, dataset=dataset, dataset_names=dataset_names,
-    ))
+    )
+    if gap.any():  # said where the data's metadata go (a fit's data.metadata)
+        counts = ", ".join(f"{r} {int(np.sum(reasons == r))}" for r in GAP_REASONS
+                           if np.any(reasons == r))
+        full = full._replace(metadata={**full.metadata, GAPS_KEY: f"{int(gap.sum())} ({counts})"})
+    return check_measurement(split_gaps(full, gap, reasons))
+
+
+#: The metadata key under which a measurement CSV's rows without reading are counted (not
+#: written back: the rows themselves are, or are left out).
+GAPS_KEY = "rows_without_reading"
+
+
+#: The measurement CSV's column that marks a row's value as a reading or as filled in
+#: (``fitlab convert --complete``): MEASURED or a GAP_REASONS key.
+COMPLETION = "completion"
+
+
+def _completion_reasons(table, value, lines) -> np.ndarray:
+    """Per (long) row: MEASURED, or why it holds no reading: its ``completion`` label (a value
+    a completion filled in), else ``no_reading`` where the value is NaN."""
+    labels = table.columns.get(COMPLETION)
+    out = np.where(np.isnan(value), "no_reading", MEASURED).astype(object)
+    if labels is None:
+        return out
+    known = (MEASURED,) + tuple(GAP_REASONS)
+    for j, c in enumerate(labels):
+        if c not in known:
+            from fitlab.io.validate import quote
+
+            raise InputFileError(table.path, f"{quote(c)} is not a completion label",
+                                 line=int(lines[j]), column=COMPLETION,
+                                 hint=f"use {', '.join(known)} (data_formats/completion_json.md)")
+    return np.where(labels != MEASURED, labels, out).astype(object)
 
 
 def one_dataset(m: Measurement) -> Measurement:
@@ -580,14 +692,17 @@ def _read_aperture(table, per_row) -> dict:
 # --------------------------------------------------------------------------------------------
 
 
-def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -> str:
-    """Measurement → fitlab measurement CSV text (long form; quantity bsdf or relative of f)."""
+def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None,
+                           completion=None) -> str:
+    """Measurement → fitlab measurement CSV text (long form; quantity bsdf or relative of f).
+    ``completion``: per row MEASURED or the GAP_REASONS key of a value filled in (the
+    ``completion`` column, data_formats/completion_json.md; its sigma is written NaN)."""
     import io
 
     out = io.StringIO()
     out.write("# fitlab measurement CSV (data_formats/measurement_csv.md)\n")
     meta = {k: v for k, v in m.metadata.items()
-            if k not in ("quantity", "relative_to", "scatter") + CONE_COLUMNS}
+            if k not in ("quantity", "relative_to", "scatter", GAPS_KEY) + CONE_COLUMNS}
     meta.update(extra_metadata or {})
     # The aperture: a cone the same for every row as a metadata line, else per-row columns.
     per_row = {}
@@ -612,6 +727,8 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
         + (["channel"] if multi else []) + (["wavelength_nm"] if spectral else []) + ["value"]
     if m.sigma is not None:
         cols.append("sigma")
+    if completion is not None:
+        cols.append(COMPLETION)
     out.write(",".join(cols) + "\n")
     for j in range(m.n):
         cells = [f"{m.theta_i[j]:.10g}", f"{m.phi_i[j]:.10g}", f"{m.theta_o[j]:.10g}",
@@ -625,6 +742,8 @@ def format_measurement_csv(m: Measurement, extra_metadata: dict | None = None) -
         cells.append(f"{m.value[j]:.9e}")
         if m.sigma is not None:
             cells.append(f"{m.sigma[j]:.6e}")
+        if completion is not None:
+            cells.append(str(completion[j]))
         out.write(",".join(cells) + "\n")
     return out.getvalue()
 
@@ -677,6 +796,10 @@ def describe_loaded(m: Measurement, format_name: str | None = None, accept=()) -
         "transmission_rows": int(trans.sum()),
         "value_range": [float(m.value.min()), float(m.value.max())],
         "sigma": "given" if m.sigma is not None else "not given",
+        **({"without_reading": {**m.gaps.counts(), "note": "places of the file's table "
+                                "holding no reading, left out of every fit; `fitlab convert "
+                                "FILE --complete FIT.json OUT` fills them from a fit"}}
+           if m.gaps is not None else {}),
         "eta_inside_over_outside": m.eta(),
         "metadata": m.metadata,
         "sha256": m.sha256,

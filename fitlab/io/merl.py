@@ -31,7 +31,7 @@ import numpy as np
 from fitlab.errors import FitlabError, InputFileError
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.format import Format
-from fitlab.io.measurement import Measurement, describe_loaded
+from fitlab.io.measurement import Measurement, describe_loaded, split_gaps
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
 DIMS = (N_THETA_H, N_THETA_D, N_PHI_D)
@@ -251,25 +251,27 @@ def _direction_degrees(w):
 
 
 def measurement_from_table(table: MerlTable, stride=DEFAULT_STRIDE) -> Measurement:
-    """Rows at the centres of the subsampled bins, one per channel; bins without value dropped."""
+    """Rows at the centres of the subsampled bins, one per channel; bins without value (above
+    the horizon) are the Measurement's gaps (no reading)."""
     i, j, k = subsample_indices(stride)
     wi, wo = bin_directions(i, j, k)
     above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
     values = table.brdf[:, i, j, k]  # (3, n)
-    keep = (values >= 0) & above[None, :]
-    chan, rows = np.nonzero(keep)  # channel-major order
+    placed = np.broadcast_to(above[None, :], values.shape)
+    chan, rows = np.nonzero(placed)  # channel-major order
+    gap = values[chan, rows] < 0
     ti, pi = _direction_degrees(wi[rows])
     to, po = _direction_degrees(wo[rows])
     st = _parse_stride(stride)
     meta = {"source_format": "MERL BRDF binary", "stride": ",".join(map(str, st)),
             "channel_scales": "R 1/1500, G 1.15/1500, B 1.66/1500",
             "bins_read": str(len(i)), "sample": Path(table.path).stem}
-    return Measurement(
+    return split_gaps(Measurement(
         path=table.path, sha256=table.sha256, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po,
-        wi=wi[rows], wo=wo[rows], value=values[chan, rows], sigma=None, channel=chan,
-        channel_names=CHANNELS, wavelength_nm=None, quantity="bsdf", file_quantity="bsdf",
-        metadata=meta, lines=flat_index(i, j, k)[rows],
-    )
+        wi=wi[rows], wo=wo[rows], value=np.where(gap, np.nan, values[chan, rows]), sigma=None,
+        channel=chan, channel_names=CHANNELS, wavelength_nm=None, quantity="bsdf",
+        file_quantity="bsdf", metadata=meta, lines=flat_index(i, j, k)[rows],
+    ), gap, "no_reading")
 
 
 def read_merl(path, stride=DEFAULT_STRIDE) -> Measurement:
@@ -325,4 +327,4 @@ def describe_merl(path, format_name: str = "merl", accept=()) -> dict:
 
 FORMAT = Format("merl", "MERL BRDF database binary (90×90×180 RGB half/difference table)",
                 _detect, read_merl, describe_merl, "data_formats/merl_binary.md",
-                suffixes=(".binary",), binary=True)
+                suffixes=(".binary",), binary=True, whole={"stride": 1})

@@ -54,6 +54,11 @@ NM_DECIMALS = 6
 #: The prefix of the metadata keys a Measurement carries from the file's ``metadata``.
 META_PREFIX = "openmaterial_"
 HINT = f"give an ASAM OpenMATERIAL 3D BRDF look-up table ({SPEC})"
+#: The top-level field beside the standard's in which ``fitlab convert DATA --complete FIT.json
+#: OUT.xompt`` lists the rows whose value is a fit's, not a reading: {"rows": [[λ (m), θi, θo,
+#: φo (rad), reason], ...]} (data_formats/completion_json.md). fitlab reads those rows as no
+#: reading (the Measurement's gaps); other readers of the standard ignore the field.
+COMPLETION_FIELD = "fitlabCompletion"
 DEGREES_HINT = "convert the file's angles to radians (× π/180); fitlab converts them to degrees"
 
 
@@ -356,14 +361,56 @@ def _measurement(path, doc, arrays) -> Measurement:
         metadata=file_metadata(doc), lines=np.arange(1, len(rows) + 1), aperture_deg=aperture)
 
 
+def completion_labels(path, doc, rows) -> np.ndarray:
+    """Per table row MEASURED, or the reason the file's :data:`COMPLETION_FIELD` gives for a
+    row whose value a completion filled in; an InputFileError for a field that is not a list
+    of [wavelength, θi, θo, φo, reason] naming rows of the table."""
+    from fitlab.io.measurement import GAP_REASONS, MEASURED
+
+    labels = np.full(len(rows), MEASURED, dtype=object)
+    marks = doc.get(COMPLETION_FIELD)
+    if marks is None:
+        return labels
+    hint = ("list the completed rows as [wavelength, θi, θo, φo, reason] with a reason among "
+            f"{', '.join(GAP_REASONS)} (data_formats/completion_json.md), or remove the field")
+    listed = marks.get("rows") if isinstance(marks, dict) else None
+    if not isinstance(listed, list):
+        raise _fail(path, [COMPLETION_FIELD], "is not an object with a list rows", hint)
+    check_count(len(listed), path, what=f"field {COMPLETION_FIELD}.rows")
+    index = {tuple(r[:4]): k for k, r in enumerate(rows.tolist())}
+    for k, r in enumerate(listed):
+        where = [COMPLETION_FIELD, "rows", k]
+        if not (isinstance(r, list) and len(r) == 5 and all(map(is_finite_number, r[:4]))
+                and r[4] in GAP_REASONS):
+            raise _fail(path, where, "is not [wavelength, θi, θo, φo, reason]", hint)
+        j = index.get(tuple(float(x) for x in r[:4]))
+        if j is None:
+            raise _fail(path, where, "names no row of brdf.lookupTable", hint)
+        labels[j] = r[4]
+    return labels
+
+
+def _read(path, doc, arrays) -> Measurement:
+    """The Measurement of a checked document: the rows a completion filled in are its gaps."""
+    from fitlab.io.measurement import MEASURED, split_gaps
+
+    m = _measurement(path, doc, arrays)
+    labels = completion_labels(path, doc, arrays["rows"])
+    if np.all(labels != MEASURED):
+        raise _fail(path, [COMPLETION_FIELD], "marks every row as filled in: the file holds "
+                    "no reading", "give a file with measured rows")
+    return split_gaps(m, labels != MEASURED, labels)
+
+
 def read_openmaterial(path, accept=()) -> Measurement:
     """Read an OpenMATERIAL BRDF look-up table (validated) to a Measurement: one row per table
     row, the wavelengths as spectral channels, angles in degrees, f in 1/sr. ``lines`` holds
-    each row's 1-based index in ``brdf.lookupTable``. ``accept``: sanity gates accepted (they
-    run in read_any)."""
+    each row's 1-based index in ``brdf.lookupTable``; rows a completion filled in
+    (:data:`COMPLETION_FIELD`) are its gaps. ``accept``: sanity gates accepted (they run in
+    read_any)."""
     path = Path(path)
     doc = load_document(path)
-    return _measurement(path, doc, table_arrays(path, doc))
+    return _read(path, doc, table_arrays(path, doc))
 
 
 def view_directions(m, rows=None) -> int:
@@ -376,7 +423,7 @@ def describe_openmaterial(path, format_name: str = NAME, accept=()) -> dict:
     path = Path(path)
     doc = load_document(path)
     arrays = table_arrays(path, doc)
-    m = _measurement(path, doc, arrays)
+    m = _read(path, doc, arrays)
     info = describe_loaded(m, format_name, accept)
     views = view_directions(m)
     if views == 1:

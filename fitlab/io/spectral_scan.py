@@ -22,7 +22,7 @@ from fitlab.io.files import sha256_of
 from fitlab.io.format import Format
 from fitlab.io.gates import QUANTITIES
 from fitlab.io.measurement import (TO_F, Measurement, check_measurement, describe_loaded,
-                                   first_line)
+                                   first_line, split_gaps)
 
 ANGLE_COLUMNS = ("Incident_angle", "Measure_angle")
 #: A band column: a wavelength in nanometres followed by ``nm`` (spaces around it are allowed).
@@ -96,23 +96,24 @@ def _measurement(path, quantity: str | None) -> tuple[Measurement, dict]:
     values = np.stack([cols[c] for c in bands], axis=1)
     blocked = blocked_mask(ti, values)
     k = len(bands)
-    keep = ~blocked.reshape(-1)
-    if not np.any(keep):
+    gap = blocked.reshape(-1)  # no reading: the Measurement's gaps
+    if gap.all():
         raise InputFileError(path, "holds no reading", hint="give a file with positive values")
-    rep = lambda a: np.repeat(a, k)[keep]  # noqa: E731
+    rep = lambda a: np.repeat(a, k)  # noqa: E731
     theta_i, theta_o = rep(ti), rep(np.abs(m))
     phi_i = np.zeros_like(theta_i)
     phi_o = np.where(rep(m) > 0, 180.0, 0.0)
     wi, wo = degrees_to_direction(theta_i, phi_i), degrees_to_direction(theta_o, phi_o)
     stored = quantity or "relative"
-    value = values.reshape(-1)[keep] / TO_F["bsdf" if stored == "relative" else stored](wi, wo)
-    meas = check_measurement(Measurement(
+    value = np.where(gap, np.nan, values.reshape(-1)) \
+        / TO_F["bsdf" if stored == "relative" else stored](wi, wo)
+    meas = check_measurement(split_gaps(Measurement(
         path=str(path), sha256=sha256_of(path), theta_i=theta_i, phi_i=phi_i, theta_o=theta_o,
         phi_o=phi_o, wi=wi, wo=wo, value=value, sigma=None,
-        channel=np.tile(np.arange(k), len(ti))[keep], channel_names=tuple(f"{w:g}nm" for w in wl),
+        channel=np.tile(np.arange(k), len(ti)), channel_names=tuple(f"{w:g}nm" for w in wl),
         wavelength_nm=wl, quantity="relative" if stored == "relative" else "bsdf",
         file_quantity=stored if quantity else "undeclared (read as relative)",
-        metadata=dict(table.metadata), lines=rep(table.lines)))
+        metadata=dict(table.metadata), lines=rep(table.lines)), gap, "blocked"))
     per = {f"{t:g}": int(blocked[ti == t].sum()) for t in np.unique(ti)}
     return meas, {"blocked_readings": int(blocked.sum()), "blocked_by_incidence_deg": per,
                   "rows_in_file": int(len(ti)), "bands": k}
@@ -144,7 +145,8 @@ def describe_spectral_scan(path, format_name: str = "spectral_scan", accept=(),
         "wavelength_nm": [float(w) for w in m.wavelength_nm],
         "sign_convention": "measure angle > 0: specular side (phi_o = 180°, light at phi_i = 0); "
                            "< 0: the light's side (phi_o = 0°)",
-        "blocked": "exact zeros in a scan holding positive values: no reading, dropped",
+        "blocked": "exact zeros in a scan holding positive values: no reading, left out (the "
+                   "Measurement's gaps; fitlab convert --complete fills them from a fit)",
     })
     return info
 

@@ -30,7 +30,7 @@ from fitlab.io.format import Format
 from fitlab.io.validate import check_count, decode_text, parse_number, quote
 from fitlab.io.directions import degrees_to_direction, direction_to_degrees
 from fitlab.io.files import read_bytes, sha256_of
-from fitlab.io.measurement import Measurement, check_indices, describe_loaded
+from fitlab.io.measurement import Measurement, check_indices, describe_loaded, split_gaps
 from fitlab.io.gates import TisBlock
 
 SPEC = "data_formats/zemax_bsdf.md"
@@ -588,7 +588,11 @@ def to_measurement(zf: ZemaxFile, eta: float | None = None, keep_zeros: bool = F
         raise InputFileError(zf.path, "holds no nonzero value above the horizon",
                              hint="every stored value is 0 or on the wrong side of the surface")
     nonzero_below = int(np.sum(below & (value != 0.0)))
-    wo, value, lines, channel, rot, th_i = (a[keep] for a in (wo, value, lines, channel, rot, th_i))
+    # A stored zero above the horizon is no reading: kept as a gap (Measurement.gaps).
+    gap = (zero & ~keep)[~below]
+    wo, value, lines, channel, rot, th_i = (a[~below] for a in (wo, value, lines, channel, rot,
+                                                                 th_i))
+    value = np.where(gap, np.nan, value)
     theta_o, phi_o = direction_to_degrees(wo)
     phi_i = np.mod(rot, 360.0)
     wi = degrees_to_direction(th_i, phi_i)
@@ -610,14 +614,14 @@ def to_measurement(zf: ZemaxFile, eta: float | None = None, keep_zeros: bool = F
         metadata["nonzero_below_horizon"] = nonzero_below
     if zf.comments:
         metadata["comment"] = " | ".join(zf.comments)
-    return Measurement(
+    return split_gaps(Measurement(
         path=zf.path, sha256=sha256_of(zf.path), theta_i=th_i, phi_i=phi_i, theta_o=theta_o,
         phi_o=phi_o, wi=wi, wo=wo, value=value, sigma=None, channel=channel.astype(int),
         channel_names=zf.channels, wavelength_nm=None, quantity="bsdf", file_quantity="bsdf",
         metadata=metadata, lines=lines,
         tis_blocks=tuple(TisBlock(_block_label(r, zf), r["tis"], r["integral"], r["coverage"])
                          for r in rows),
-    )
+    ), gap, "no_reading")
 
 
 def _pole_text(scatter, eta, eta_source):
@@ -704,8 +708,10 @@ def _angles_line(values) -> str:
 
 
 def format_zemax(grid: Grid, channels: tuple, values, tis, scatter: str,
-                 comments=(), metadata: dict | None = None, digits: int = DIGITS) -> str:
-    """IS-BSDF text: header, then per channel an indicator line, DataBegin, blocks, DataEnd."""
+                 comments=(), metadata: dict | None = None, digits: int = DIGITS,
+                 tis_digits: int = 4) -> str:
+    """IS-BSDF text: header, then per channel an indicator line, DataBegin, blocks, DataEnd
+    (``tis_digits``: significant digits of the TIS lines; 10 keeps a file's own as read)."""
     if tuple(channels) == ("Y",):
         spectral, indicators = "Monochrome", ("Monochrome",)
     elif tuple(channels) == ("X", "Y", "Z"):
@@ -727,7 +733,7 @@ def format_zemax(grid: Grid, channels: tuple, values, tis, scatter: str,
         out += [indicator, "DataBegin"]
         for r in range(len(grid.rotation)):
             for k in range(len(grid.aoi)):
-                out.append(f"TIS {tis[c, r, k]:.4g}")
+                out.append(f"TIS {tis[c, r, k]:.{tis_digits}g}")
                 out += ["\t".join(fmt.format(v) for v in row) for row in values[c, r, k]]
         out.append("DataEnd")
     return "\n".join(out) + "\n"

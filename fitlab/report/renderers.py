@@ -45,7 +45,7 @@ def renderers_section(rep, fit_path) -> str:
     """HTML of the hand-off section (figures added to ``rep``)."""
     from fitlab.fitting.result import load_fit
     from fitlab.export.material import ExportError
-    from fitlab.export.renderers import EXPORTERS, material_of
+    from fitlab.export.renderers import EXPORTERS, material_of, spectral_for
 
     result = load_fit(fit_path)
     try:
@@ -61,8 +61,9 @@ def renderers_section(rep, fit_path) -> str:
     rows, preview_bsdf = [], None
     for e in EXPORTERS.values():
         rep.say(f"report: export {e.name}")
-        try:
-            made = e.build(material, e.suffixes[0], {})
+        try:  # a spectral fit: its colour block's RGB where the format takes RGB
+            written, _ = spectral_for(e, material)
+            made = e.build(written, e.suffixes[0], {})
         except ExportError as exc:
             rows.append([e.title, "refused", "", str(exc)])
             continue
@@ -73,7 +74,7 @@ def renderers_section(rep, fit_path) -> str:
                              "Mitsuba 3 is not installed (pip install 'fitlab[mitsuba]'): not "
                              "rendered"])
                 continue
-            g = fm.conversion_error(material, made.value)
+            g = fm.conversion_error(written, made.value)
             if preview_bsdf is None:
                 preview_bsdf = (e.title, made.value)
             rows.append([e.title, f"bsdf type {conv['translation']}",

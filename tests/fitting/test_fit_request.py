@@ -58,7 +58,7 @@ def test_request_is_frozen_and_normalised():
     ({"share": ["alpha"], "fix": {"alpha": 0.3}}, "share alpha: alpha is fixed"),
     ({"sampler": "hmc"}, "sampler: unknown sampler"),
     ({"mcmc": True, "mcmc_steps": 99}, "mcmc_steps must be at least 100"),
-    ({"mcmc_steps": None}, "mcmc_steps must be at least 100, got None"),
+    ({"mcmc_steps": "many"}, "mcmc_steps must be at least 100, got 'many'"),
     ({"fix": [("alpha", 0.1)]}, "fix must be a mapping of names to values"),
     ({"options": "ggx"}, "options must be a mapping"),
     ({"channels": 3}, "channels must be channel names, got 3"),
@@ -180,3 +180,11 @@ def test_the_dask_runner_takes_one_checked_request(tmp_path):
     with pytest.raises(FitlabError, match="subset as an expression"):
         fit_files([WALTER], FitRequest("rough_dielectric", subset=[True] * 276), tmp_path / "o")
     assert not (tmp_path / "o").exists()
+
+
+def test_mcmc_steps_default_to_the_samplers_own():
+    """emcee's 3000 steps a walker, NUTS's 1000 adaptation steps and draws a chain; a number
+    given is kept."""
+    assert FitRequest("rough_dielectric").mcmc_steps == 3000
+    assert FitRequest("rough_dielectric", sampler="nuts").mcmc_steps == 1000
+    assert FitRequest("rough_dielectric", sampler="nuts", mcmc_steps=400).mcmc_steps == 400

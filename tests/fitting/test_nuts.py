@@ -66,17 +66,52 @@ def test_diagnostics_flag_disagreeing_chains():
 
 
 def test_cli_sampler_nuts_writes_it_in_the_file(tmp_path, capsys):
+    """Three chains: on a machine with two or more cores they run one per core, the second
+    core's spare slot filled by a copy that is dropped (nuts.chain_layout)."""
     out = tmp_path / "fit.json"
     code = main(["fit", str(WALTER), "--model", "rough_dielectric", "--fit-subset",
                  "theta_i == 0", "--mcmc", "--sampler", "nuts", "--mcmc-steps", "500",
-                 "--bootstrap", "0", "--out", str(out), "--chain", str(tmp_path / "c.npz"),
-                 "--quiet"])
+                 "--walkers", "3", "--bootstrap", "0", "--out", str(out), "--chain",
+                 str(tmp_path / "c.npz"), "--quiet"])
     assert code == 0, capsys.readouterr().err
     r = fitlab.load_fit(out)
     mc = r.record["fits"][0]["mcmc"]
-    assert mc["sampler"] == "nuts" and mc["nwalkers"] == 4 and mc["nsteps"] == 500
-    assert r.samples("Y").shape == (2000, 2)
+    assert mc["sampler"] == "nuts" and mc["nwalkers"] == 3 and mc["nsteps"] == 500
+    assert r.samples("Y").shape == (1500, 2)
     assert r.posterior("Y") is not None
+    with np.load(tmp_path / "c.npz") as z:
+        chain = z["chain_Y"]  # (draws, chains, coordinates): three different chains
+    assert chain.shape == (500, 3, 3)
+    assert len({chain[:, k].tobytes() for k in range(3)}) == 3
+
+
+def test_chains_are_laid_out_one_per_core():
+    """As many devices as the chains fill evenly, the chains one after another on each."""
+    from fitlab.fitting.nuts import chain_layout
+
+    assert chain_layout(4, 2) == (2, 2)
+    assert chain_layout(3, 2) == (2, 2)  # one spare slot on the second device
+    assert chain_layout(4, 16) == (4, 1)
+    assert chain_layout(4, 1) == (1, 4)
+    assert chain_layout(5, 4) == (3, 2)  # 2 + 2 + 1: three devices, no fourth to wait for
+    assert chain_layout(1, 8) == (1, 1)
+
+
+def test_fitlab_gives_jax_one_cpu_device_per_core():
+    """fitlab/_jax.py sets XLA's host device count to the cores when JAX has not started (a
+    user's own count is kept); NUTS's chains run one per device."""
+    import os
+    import subprocess
+    import sys
+
+    from fitlab._jax import HOST_DEVICES_FLAG, host_cores, host_device_flags
+
+    assert host_device_flags("", 2) == f"{HOST_DEVICES_FLAG}=2"
+    assert host_device_flags(f"--a=1 {HOST_DEVICES_FLAG}=5", 2) == f"--a=1 {HOST_DEVICES_FLAG}=5"
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", "import fitlab, jax; print(jax.device_count())"],
+                         env=env, capture_output=True, text=True, check=True).stdout
+    assert int(out) == host_cores()
 
 
 def test_unknown_sampler_is_refused(capsys):

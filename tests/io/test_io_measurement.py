@@ -224,7 +224,7 @@ def test_dataset_column_splits_rows_keeping_channels_and_provenance(tmp_path):
 @pytest.mark.parametrize("later, fragment", [
     ("0,0,10,180,0.3\n0,0,20,180\n", "fields but the header"),  # a short row after it
     ("0,0,10,180,0.3\n0\t0,20,180,0.2\n", "tab"),  # a tab after it
-    ("0,0,10,180,nan\n", "finite"),  # another bad cell after it
+    ("0,0,10,180,inf\n", "finite"),  # another bad cell after it (a NaN value is no reading)
 ])
 def test_a_bad_cell_is_named_before_any_later_error(tmp_path, later, fragment):
     """The columns are converted at once; the error is still the first bad cell in file order

@@ -159,6 +159,8 @@ def test_a_receiver_solid_angle_is_a_detector_cone(tmp_path):
     ("openmaterial_solid_angle.xompt", "field brdf.receiverSolidAngles[0].solidAngle is 7 sr",
      "steradians"),
     ("openmaterial_not_json.xompt", "is not valid JSON", "OpenMATERIAL"),
+    ("openmaterial_completion_unmatched.xompt", "field fitlabCompletion.rows[1] names no row "
+     "of brdf.lookupTable", "completed rows"),
 ])
 def test_invalid(name, fragment, hint, capsys):
     path = INVALID / name
@@ -178,7 +180,7 @@ def test_every_invalid_openmaterial_example_is_documented_and_tested():
     spec = (ROOT / "data_formats" / "openmaterial_xompt.md").read_text()
     tested = Path(__file__).read_text()
     found = list(INVALID.glob("openmaterial_*.xompt"))
-    assert len(found) == 13
+    assert len(found) == 14
     for p in found:
         assert p.name in spec and p.name in tested, p.name
 
