@@ -39,9 +39,10 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab._jax import jax, jnp
+from fitlab.fitting.cores import over_cores, usable_cores
 from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XTOL, ROW_MASK,
                                           FitData, at_bound_mask, local_stage,
-                                          lm_stop_reason, names_at_bound, pad_to, padded_size,
+                                          lm_stop_reasons, names_at_bound_many, pad_to, padded_size,
                                           predict_data, residuals_z, scan_costs)
 from fitlab.fitting.lm_fixed import lm_fixed
 from fitlab.fitting.losses import has_absolute_noise, residuals
@@ -230,13 +231,16 @@ def _batched(static, loss, steps):
     """The kernels: the single fit's scan vmapped over datasets (points shared, problem per
     dataset), the shared scan (:func:`shared_scan_costs`) and the local stage with the
     fixed-budget solver, ``steps`` steps a call, vmapped over *lanes*: one start of one dataset
-    each (start, weights and problem per lane), always ``LANES`` of them a call."""
+    each (start, weights and problem per lane), always ``LANES`` of them a call, shared out
+    over the CPU's cores."""
     local = fixed_local(static, loss, int(steps))
     cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
     one = lambda z, u, w, problem: local(z[None], u[None], w[None], problem)  # noqa: E731
+    # the lanes are independent: on the CPU, shared out over its cores (fitting/cores.py)
+    lanes = over_cores(jax.vmap(one), usable_cores(LANES), (True, True, True, True))
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
             "shared_scan": jax.jit(functools.partial(shared_scan_costs, static, loss)),
-            "lanes_local": jax.jit(jax.vmap(one))}
+            "lanes_local": lanes}
 
 
 def _run_lanes(k, stacked, which, u0, z=None) -> dict:
@@ -276,6 +280,23 @@ def _suspect(run: dict, n_rows: np.ndarray, d: int, loss: str) -> np.ndarray:
         | run["rule_unmet"]
 
 
+def smallest(costs: np.ndarray, k: int) -> np.ndarray:
+    """Per row of ``costs`` (datasets, points), the indices of its ``k`` smallest in ascending
+    order, ties in index order: ``np.argsort(costs, axis=1, kind="stable")[:, :k]``, without
+    sorting whole rows (a row whose k-th smallest value is tied with a value left out is
+    sorted whole, so the ties fall as the stable sort has them)."""
+    n = costs.shape[1]
+    if k >= n:
+        return np.argsort(costs, axis=1, kind="stable")[:, :k]
+    part = np.argpartition(costs, k - 1, axis=1)[:, :k]
+    vals = np.take_along_axis(costs, part, axis=1)
+    out = np.take_along_axis(part, np.lexsort((part, vals), axis=1), axis=1)
+    tied = np.sum(costs <= vals.max(axis=1, keepdims=True), axis=1) > k
+    if tied.any():
+        out[tied] = np.argsort(costs[tied], axis=1, kind="stable")[:, :k]
+    return out
+
+
 def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN,
               seed: int = 0, lm_maxiter: int = LM_MAXITER,
               batch: int | None = None) -> BatchResult:
@@ -305,7 +326,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     costs = np.where(np.isfinite(costs), costs, np.inf)
     # 2. LM from the scan's best point; where that end is suspect (:func:`_suspect`), from the
     #    model's defaults and the scan's next `starts` best points too
-    order = np.argsort(costs, axis=1, kind="stable")[:, :starts + 1]
+    order = smallest(costs, starts + 1)
     u_default = (p0.space.to_unit(np.stack([p.start_native for p in problems]))
                  if all(p.space is p0.space for p in problems)
                  else np.stack([p.space.to_unit(p.start_native) for p in problems]))
@@ -315,30 +336,35 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     run = functools.partial(_run_lanes, k, problem)
     every = np.arange(B)
     first = run(every, lanes[:, 0])
-    out = {key: np.concatenate([v[:, None], np.zeros((B, lanes.shape[1] - 1) + v.shape[1:],
-                                                     v.dtype)], axis=1)
-           for key, v in first.items()}
-    out["cost"][:, 1:] = np.inf
-    out["end_finite"][:, 1:] = False
+    # every run's results by (lane, dataset): lane 0 written now, a later lane only where it
+    # runs (its cost is inf until then, so it is never picked), so that the Jacobians and
+    # residuals of lanes that never run are never written (np.empty: their pages stay
+    # untouched)
+    out = {}
+    for key, v in first.items():
+        out[key] = np.empty((lanes.shape[1],) + v.shape, v.dtype)
+        out[key][0] = v
+    out["cost"][1:] = np.inf
+    out["end_finite"][1:] = False
     n_lanes = np.ones(B, dtype=int)
     # a first run still short of its rule goes on before it is judged
     _continue(run, out, np.zeros(B, dtype=int), lm_maxiter)
-    todo = np.flatnonzero(_suspect({key: v[:, 0] for key, v in out.items()}, n_rows, d, loss))
+    todo = np.flatnonzero(_suspect({key: v[0] for key, v in out.items()}, n_rows, d, loss))
     if todo.size and lanes.shape[1] > 1:
         more_idx = np.repeat(todo, lanes.shape[1] - 1)
         more_lane = np.tile(np.arange(1, lanes.shape[1]), todo.size)
         more = run(more_idx, lanes[more_idx, more_lane])
         for key in out:
-            out[key][more_idx, more_lane] = more[key]
+            out[key][more_lane, more_idx] = more[key]
         n_lanes[todo] = lanes.shape[1]
     cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
-    ib = np.argmin(cost, axis=1)
+    ib = np.argmin(cost, axis=0)
     # 3. the datasets whose best run has not met its stopping rule go on from where it ended,
     #    `steps` more at a time, until it does or at least lm_maxiter steps are spent (the same
     #    compiled call)
     _continue(run, out, ib, lm_maxiter)
     cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
-    pick = lambda a: a[np.arange(B), ib]  # noqa: E731
+    pick = lambda a: a[ib, np.arange(B)]  # noqa: E731
     theta, J, r = pick(out["native"]), pick(out["jacobian"]), pick(out["residuals"])
     dof = np.maximum(n_rows - d, 1)
     cost_b = 0.5 * np.einsum("bn,bn->b", r, r)
@@ -347,11 +373,9 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     stderr = np.sqrt(np.clip(np.einsum("bii->bi", cov), 0, None))
     u_end = pick(out["u"])
     names = p0.space.names
-    at_bound = [names_at_bound(names, row) for row in u_end]
+    at_bound = names_at_bound_many(names, u_end)
     iters = pick(out["iters"])
-    stopped = [lm_stop_reason(float(c), int(it), bool(ru), int(lm_maxiter))
-               for c, it, ru in zip(np.where(np.isfinite(pick(cost)), pick(cost), np.nan),
-                                    iters, pick(out["rule_unmet"]))]
+    stopped = lm_stop_reasons(pick(cost), iters, pick(out["rule_unmet"]), int(lm_maxiter))
     keep = slice(0, n_real)
     return BatchResult([p.key for p in problems[keep]], names, theta[keep], stderr[keep],
                        cov[keep], cost_b[keep], dof[keep], noise[keep], iters[keep],
@@ -363,20 +387,20 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
 def _continue(run, out: dict, lane: np.ndarray, lm_maxiter: int) -> None:
     """Run each dataset's lane ``lane`` on from where it ended, ``STEPS`` steps a call, while
     it has not met its stopping rule, ended finite and spent fewer than ``lm_maxiter`` steps
-    (``out`` updated in place)."""
+    (``out``, arrays by (lane, dataset), updated in place)."""
     B = len(lane)
     while True:
-        at = np.arange(B), lane
+        at = lane, np.arange(B)
         todo = np.flatnonzero(out["rule_unmet"][at] & out["end_finite"][at]
                               & (out["iters"][at] < lm_maxiter))
         if todo.size == 0:
             return
         li = lane[todo]
-        more = run(todo, out["u"][todo, li], z=out["z"][todo, li])
-        more["iters"] = more["iters"] + out["iters"][todo, li]
-        more["start_native"] = out["start_native"][todo, li]
+        more = run(todo, out["u"][li, todo], z=out["z"][li, todo])
+        more["iters"] = more["iters"] + out["iters"][li, todo]
+        more["start_native"] = out["start_native"][li, todo]
         for key in out:
-            out[key][todo, li] = more[key]
+            out[key][li, todo] = more[key]
 
 
 def chunks(n: int, chunk: int) -> list[range]:

@@ -86,15 +86,24 @@ class LeastSquaresResult(NamedTuple):
 LM_STOPPED = (Status.CONVERGED, Status.MAX_ITERATIONS, Status.NON_FINITE)
 
 
+def lm_stop_reasons(cost, iterations, rule_unmet, max_iterations: int) -> list[Status]:
+    """One of LM_STOPPED per fit (arrays of the fits' costs, iteration counts and whether
+    their stopping rule was unmet). A NaN gradient also ends the solvers' loops (their
+    stopping tests compare NaN), so a non-finite end is named before the iteration count is
+    looked at."""
+    cost = np.asarray(cost, dtype=float).ravel()
+    out_of_steps = np.asarray(rule_unmet, dtype=bool).ravel() & (
+        np.asarray(iterations).ravel() >= max_iterations)
+    which = np.where(~np.isfinite(cost), LM_STOPPED.index(Status.NON_FINITE),
+                     np.where(out_of_steps, LM_STOPPED.index(Status.MAX_ITERATIONS),
+                              LM_STOPPED.index(Status.CONVERGED)))
+    return [LM_STOPPED[k] for k in which]
+
+
 def lm_stop_reason(cost: float, iterations: int, rule_unmet: bool,
                    max_iterations: int) -> Status:
-    """One of LM_STOPPED. A NaN gradient also ends the solvers' loops (their stopping tests
-    compare NaN), so a non-finite end is named before the iteration count is looked at."""
-    if not np.isfinite(cost):
-        return Status.NON_FINITE
-    if rule_unmet and iterations >= max_iterations:
-        return Status.MAX_ITERATIONS
-    return Status.CONVERGED
+    """One fit's :func:`lm_stop_reasons`."""
+    return lm_stop_reasons([cost], [iterations], [rule_unmet], max_iterations)[0]
 
 
 def problem_of(space: FitSpace, data: FitData) -> dict:
@@ -237,6 +246,14 @@ def at_bound_mask(u) -> np.ndarray:
 def names_at_bound(names, u) -> tuple[str, ...]:
     """The names whose unit-box coordinate in ``u`` lies within AT_BOUND_UNIT of a bound."""
     return tuple(n for n, b in zip(names, at_bound_mask(u)) if b)
+
+
+def names_at_bound_many(names, U) -> list[tuple[str, ...]]:
+    """:func:`names_at_bound` of every row of ``U`` (fits, coordinates): each distinct pattern
+    named once."""
+    patterns, which = np.unique(at_bound_mask(U), axis=0, return_inverse=True)
+    named = [tuple(n for n, b in zip(names, row) if b) for row in patterns]
+    return [named[k] for k in np.ravel(which)]
 
 
 @functools.lru_cache(maxsize=64)

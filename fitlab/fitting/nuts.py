@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from fitlab._jax import jax, jnp
+from fitlab.fitting.cores import host_devices, over_cores
 from fitlab.fitting.mcmc import MCMCResult, log_posterior_fn, unit_stderr
 from fitlab.fitting.least_squares import pad_rows, problem_of
 from fitlab.fitting.exchange import canonical, order_keys
@@ -96,12 +97,6 @@ def chain_layout(nchains: int, ndevices: int) -> tuple[int, int]:
     return -(-nchains // per_device), per_device
 
 
-def _host_devices() -> list:
-    """The devices chains are spread over: the host's CPU devices when JAX computes on the CPU
-    (one per core, fitlab/_jax.py); none on an accelerator (the chains are vmapped there)."""
-    return jax.devices() if jax.default_backend() == "cpu" else []
-
-
 @functools.lru_cache(maxsize=32)
 def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: int,
              ndevices: int = 0):
@@ -117,27 +112,14 @@ def _sampler(static, loss: str, order: tuple, ndim: int, nsteps: int, warmup: in
     def local(keys, starts, inverse_mass, problem):
         return jax.lax.map(lambda a: chain(a[0], a[1], inverse_mass, problem), (keys, starts))
 
-    if ndevices == 1:
-        return jax.jit(local)
-    return _over_cores(local, ndevices, (True, True, False, False))
-
-
-def _over_cores(local, ndevices: int, split: tuple):
-    """``local`` compiled to run on the first ``ndevices`` host devices at once: the arguments
-    marked in ``split`` shared out along their first axis (a multiple of ``ndevices``), the
-    others copied to every device; the results gathered along their first axis."""
-    spec = jax.sharding.PartitionSpec
-    mesh = jax.sharding.Mesh(np.array(_host_devices()[:ndevices]), ("core",))
-    return jax.jit(jax.shard_map(local, mesh=mesh,
-                                 in_specs=tuple(spec("core") if s else spec() for s in split),
-                                 out_specs=spec("core"), check_vma=False))
+    return over_cores(local, ndevices, (True, True, False, False))
 
 
 def _run_chains(static, loss, order, ndim, nsteps, warmup, keys, starts, inverse_mass,
                 problem):
     """Every chain of one dataset, one chain per core on the CPU (:func:`_sampler`)."""
     nchains = int(starts.shape[0])
-    devices = _host_devices()
+    devices = host_devices()
     if not devices:
         run = _sampler(static, loss, order, ndim, nsteps, warmup, 0)
         return run(keys, starts, inverse_mass, problem)
@@ -153,7 +135,7 @@ def _run_chains(static, loss, order, ndim, nsteps, warmup, keys, starts, inverse
 def run_nuts(space: FitSpace, data, loss: str, ls, *, seed: int, nsteps: int = 1000,
              nchains: int = 4, warmup: int | None = None, progress: bool = False) -> MCMCResult:
     """NUTS from the least-squares optimum: ``warmup`` adaptation steps (default ``nsteps``),
-    then ``nsteps`` draws per chain, ``nchains`` chains vmapped."""
+    then ``nsteps`` draws per chain, ``nchains`` chains, one per core on the CPU."""
     t0 = time.perf_counter()
     problem = problem_of(space, pad_rows(space.static, data))
     nuisance = not has_absolute_noise(loss)
@@ -270,7 +252,7 @@ def run_nuts_many(items, *, seed: int, nsteps: int = 1000, nchains: int = 4,
     names = space0.names + (("log_noise",) if nuisance else ())
     warmup = nsteps if warmup is None else warmup
     n_real = len(items)
-    ndevices = min(len(_host_devices()), n_real)
+    ndevices = min(len(host_devices()), n_real)
     if ndevices > 1:  # every device the same share: copies of the last dataset, dropped below
         items = list(items) + [items[-1]] * (-n_real % ndevices)
     rng = np.random.default_rng(seed)
@@ -300,7 +282,7 @@ def _sampler_many(static, loss: str, order: tuple, ndim: int, nsteps: int, warmu
     local = jax.vmap(jax.vmap(chain, in_axes=(0, 0, None, None)), in_axes=(0, 0, 0, 0))
     if not ndevices:
         return jax.jit(local)
-    return _over_cores(local, ndevices, (True, True, True, True))
+    return over_cores(local, ndevices, (True, True, True, True))
 
 
 def diagnostics(chain_unit: np.ndarray, names) -> tuple[np.ndarray, np.ndarray]:
