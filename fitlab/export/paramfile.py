@@ -247,7 +247,7 @@ def first_non_finite(obj, where: str = "") -> str | None:
 def read_fit(path) -> dict:
     """Read and validate a parameter file: JSON (UTF-8, bounded nesting), schema name and
     version, every field the tools read checked for type and finiteness
-    (``fitlab.io.fitfile.FIT_SCHEMA``), and a model this fitlab knows."""
+    (its JSON Schema, data_formats/schemas/fit.schema.json), and a model this fitlab knows."""
     from fitlab.io.fitfile import check_fit_record
     from fitlab.io.validate import load_json
 

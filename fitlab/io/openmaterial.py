@@ -32,7 +32,8 @@ from fitlab.io.directions import degrees_to_direction
 from fitlab.io.files import read_bytes, sha256_of
 from fitlab.io.format import Format
 from fitlab.io.measurement import MAX_ABS_VALUE, Measurement, describe_loaded
-from fitlab.io.validate import check_count, is_finite_number, kind_of, load_json
+from fitlab.io.validate import (check_count, is_finite_number, json_path, kind_of, load_json,
+                                shown_number)
 
 NAME = "openmaterial"
 SUFFIX = ".xompt"
@@ -92,19 +93,6 @@ def meta_key(field: str) -> str:
     return META_PREFIX + re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", field).lower()
 
 
-def json_path(items) -> str:
-    """``brdf.lookupTable[12][3]`` of a path of keys and indices."""
-    out = ""
-    for p in items:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
-    return out
-
-
-def _number(value) -> str:
-    small = isinstance(value, (int, float)) and abs(value) < 1e15
-    return f"{value:g}" if small else quote(value, 24)
-
-
 def _field_name(items) -> str:
     """The field's JSON path, with what a lookupTable entry holds."""
     where = json_path(items) or "the top level"
@@ -136,7 +124,7 @@ def _schema_problem(error) -> tuple[str, str, str]:
                    "reflection only)", 2: "a zenith angle is measured from the normal, 0 to "
                    "π/2 rad (the file holds reflection only)", 3: "an azimuth is 0 to 2π rad",
                 0: "a wavelength is in metres (550 nm is 5.5e-07)", 4: "a BRDF is >= 0 (1/sr)"}
-        return (where, f"is {_number(inst)}; the schema requires {bounds[v]} {rule:.10g}",
+        return (where, f"is {shown_number(inst)}; the schema requires {bounds[v]} {rule:.10g}",
                 hint.get(path[3], f"give a value within the schema's range ({SPEC})")
                 if in_table else f"give a value within the schema's range ({SPEC})")
     if v == "pattern":
@@ -180,7 +168,7 @@ def check_schema(path, doc) -> None:
             and len(items) == 4 and items[3] in (1, 2, 3):
         top = _angle_maximum(doc)
         if 2 * math.pi < top <= 360.0:
-            raise InputFileError(path, f"field {where} is {_number(error.instance)}: the "
+            raise InputFileError(path, f"field {where} is {shown_number(error.instance)}: the "
                                  f"largest angle in the table is {top:g}, so the angles look "
                                  "like degrees, but the standard states radians (θ up to π/2, "
                                  "φ up to 2π)", hint=DEGREES_HINT)
@@ -285,7 +273,7 @@ def table_arrays(path, doc) -> dict:
                         "give one solid angle per wavelength")
         omega = entry["solidAngle"]
         if not (is_finite_number(omega) and omega < 2 * math.pi):
-            raise _fail(path, where + ["solidAngle"], f"is {_number(omega)} sr; a receiver "
+            raise _fail(path, where + ["solidAngle"], f"is {shown_number(omega)} sr; a receiver "
                         "sees less than a hemisphere (2π sr)", "give the receiver's solid "
                         "angle in steradians")
         solid[c] = float(omega)

@@ -11,10 +11,11 @@ One place per concern, shared by the readers of every format:
 * **sizes** — ``check_count`` and ``check_allocation``: what a header declares is checked against
   the bytes actually present and against ``max_values()``, the most one file may make fitlab
   allocate, *before* anything is allocated;
-* **structure** — ``load_json`` / ``load_toml`` (parse errors, nesting depth), and ``check``:
-  a small declarative schema (``Num``, ``Int``, ``Str``, ``Bool``, ``Null``, ``Any``, ``List``,
-  ``Map``, ``Record``, ``Either``) that names the field (``fits[0].covariance.matrix[1][0]``)
-  whose type or value is wrong;
+* **structure** — ``load_json`` / ``load_toml`` (parse errors, nesting depth), and
+  ``check_schema``: a record checked against one of fitlab's published JSON Schemas
+  (``data_formats/schemas/``, packaged in ``fitlab/io/schemas/``) by ``jsonschema``, its first
+  error turned into a message that names the field (``fits[0].covariance.matrix[1][0]``), what
+  is wrong and what to do;
 * **archives** — ``read_npz``: a NumPy ``.npz`` read member by member, each member's header
   (dtype, shape) checked against its declared size and the allocation bound before its data are
   read, object arrays refused, corrupted compression reported.
@@ -25,13 +26,14 @@ member), saying what is wrong and what to do.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
 import os
 import zipfile
 import zlib
-from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -282,21 +284,12 @@ def load_toml(path, raw: bytes, *, what: str, hint: str | None = None) -> dict:
 
 
 # --------------------------------------------------------------------------------------------
-# Schemas for JSON / TOML records
+# fitlab's own JSON formats: published JSON Schemas (data_formats/schemas/)
 # --------------------------------------------------------------------------------------------
 
-
-class Spec:
-    """What a field must be. ``errors(value, where)`` yields (where, problem) pairs."""
-
-    description = "a value"
-
-    def errors(self, value, where):  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def matches(self, value) -> bool:
-        """Whether ``value`` is of this spec's type (its content may still be wrong)."""
-        return True
+#: Where the package's copies of fitlab's JSON Schemas live (package data; the published copies
+#: in data_formats/schemas/ are the same bytes, tests/io/test_schemas.py).
+SCHEMA_DIR = Path(__file__).resolve().parent / "schemas"
 
 
 def kind_of(value) -> str:
@@ -316,236 +309,135 @@ def kind_of(value) -> str:
     return type(value).__name__
 
 
-@dataclass(frozen=True)
-class Num(Spec):
-    lo: float | None = None
-    hi: float | None = None
-    lo_open: bool = False
-
-    @property
-    def description(self):
-        return "a finite number"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-    def errors(self, value, where):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            yield where, f"is {kind_of(value)}; expected {self.description}"
-            return
-        if not is_finite_number(value) or abs(value) > 1.7e308:
-            yield where, "is not a finite number"
-            return
-        low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
-        if low or (self.hi is not None and value > self.hi):
-            lo = "" if self.lo is None else (f"> {self.lo:g}" if self.lo_open else f">= {self.lo:g}")
-            hi = "" if self.hi is None else f"<= {self.hi:g}"
-            shown = f"{value:g}" if abs(value) < 1e15 else quote(value, 24)
-            yield where, f"is {shown}; it must be {' and '.join(s for s in (lo, hi) if s)}"
+def schema_file(name: str) -> Path:
+    """The package's copy of fitlab's JSON Schema ``name`` (``fit``: fit.schema.json)."""
+    return SCHEMA_DIR / f"{name}.schema.json"
 
 
-@dataclass(frozen=True)
-class Int(Spec):
-    lo: int | None = None
-    hi: int | None = None
-    description = "a whole number"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, int) and not isinstance(value, bool)
-
-    def errors(self, value, where):
-        if isinstance(value, bool) or not isinstance(value, int):
-            yield where, f"is {kind_of(value)}; expected {self.description}"
-        elif (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
-            rule = " and ".join(s for s in (f">= {self.lo}" if self.lo is not None else "",
-                                            f"<= {self.hi}" if self.hi is not None else "") if s)
-            shown = value if abs(value) < 10 ** 15 else quote(value, 24)
-            yield where, f"is {shown}; it must be {rule}"
+@functools.cache
+def load_schema(name: str) -> dict:
+    """fitlab's JSON Schema ``name``, parsed once."""
+    return json.loads(schema_file(name).read_text(encoding="utf-8"))
 
 
-@dataclass(frozen=True)
-class Str(Spec):
-    choices: tuple = ()
-    max_len: int = 100_000
-    description = "a string"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, str)
-
-    def errors(self, value, where):
-        if not isinstance(value, str):
-            yield where, f"is {kind_of(value)}; expected a string"
-        elif self.choices and value not in self.choices:
-            yield where, f"is {quote(value)}; expected one of {', '.join(self.choices)}"
-        elif len(value) > self.max_len:
-            yield where, f"is a string of {len(value)} characters; at most {self.max_len} expected"
+def _is_number(checker, value) -> bool:
+    return is_finite_number(value) and abs(float(value)) <= 1.7e308
 
 
-@dataclass(frozen=True)
-class Bool(Spec):
-    description = "true or false"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, bool)
-
-    def errors(self, value, where):
-        if not isinstance(value, bool):
-            yield where, f"is {kind_of(value)}; expected true or false"
+def _is_integer(checker, value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
-@dataclass(frozen=True)
-class Null(Spec):
-    description = "null"
+@functools.cache
+def _validator_class():
+    """Draft 2020-12 whose ``number`` is a finite number (a JSON number beyond the float range,
+    which Python reads as infinity or as a huge integer, is not) and whose ``integer`` is a
+    number written without a fraction (1.0 is not)."""
+    import jsonschema
 
-    def matches(self, value) -> bool:
-        return value is None
-
-    def errors(self, value, where):
-        if value is not None:
-            yield where, f"is {kind_of(value)}; expected null"
-
-
-@dataclass(frozen=True)
-class Any(Spec):
-    description = "any value"
-
-    def errors(self, value, where):
-        return iter(())
+    base = jsonschema.Draft202012Validator
+    checker = base.TYPE_CHECKER.redefine_many({"number": _is_number, "integer": _is_integer})
+    return jsonschema.validators.extend(base, type_checker=checker)
 
 
-@dataclass(frozen=True)
-class Either(Spec):
-    options: tuple
-
-    @property
-    def description(self):
-        return " or ".join(o.description for o in self.options)
-
-    def matches(self, value) -> bool:
-        return any(o.matches(value) for o in self.options)
-
-    def errors(self, value, where):
-        typed = [o for o in self.options if o.matches(value)]
-        if not typed:
-            yield where, f"is {kind_of(value)}; expected {self.description}"
-            return
-        found = []
-        for o in typed:
-            errs = list(o.errors(value, where))
-            if not errs:
-                return
-            found.append(errs)
-        yield from found[0]
+@functools.cache
+def schema_validator(name: str):
+    """A validator of fitlab's JSON Schema ``name`` (built once)."""
+    return _validator_class()(load_schema(name))
 
 
-def Optional(spec: Spec) -> Either:  # noqa: N802 - reads like the types above
-    """``spec`` or null."""
-    return Either((spec, Null()))
+#: How a JSON Schema type reads in a message.
+TYPE_WORDS = {"number": "a finite number", "integer": "a whole number", "string": "a string",
+              "boolean": "true or false", "null": "null", "array": "a list",
+              "object": "an object"}
 
 
-def _length_problem(n: int, min_len: int, max_len: int | None, length: int | None = None):
-    """What is wrong with a list or object of ``n`` entries, or None."""
-    if length is not None and n != length:
-        return f"has {n} entries; expected {length}"
-    if n < min_len:
-        return f"has {n} entries; expected at least {min_len}"
-    if max_len is not None and n > max_len:
-        return f"has {n} entries; expected at most {max_len}"
-    return None
+def json_path(items) -> str:
+    """A field in fitlab's spelling, ``fits[0].covariance.matrix[1][0]``, of a path of keys
+    and indices."""
+    out = ""
+    for p in items:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
 
 
-@dataclass(frozen=True)
-class List(Spec):
-    item: Spec = field(default_factory=Any)
-    min_len: int = 0
-    max_len: int | None = None
-    length: int | None = None
-
-    @property
-    def description(self):
-        return "a list"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, list)
-
-    def errors(self, value, where):
-        if not isinstance(value, list):
-            yield where, f"is {kind_of(value)}; expected a list"
-            return
-        problem = _length_problem(len(value), self.min_len, self.max_len, self.length)
-        if problem:
-            yield where, problem
-            return
-        for i, v in enumerate(value):
-            yield from self.item.errors(v, f"{where}[{i}]")
+def shown_number(value) -> str:
+    """A number as a message shows it (``1e+20``; an integer of many digits quoted short)."""
+    return f"{value:g}" if isinstance(value, (int, float)) and abs(value) < 1e15 \
+        else quote(value, 24)
 
 
-@dataclass(frozen=True)
-class Map(Spec):
-    """An object whose keys are names (strings) and values all ``value``."""
-
-    value: Spec = field(default_factory=Any)
-    min_len: int = 0
-    max_len: int | None = 4096
-
-    @property
-    def description(self):
-        return "an object"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, dict)
-
-    def errors(self, value, where):
-        if not isinstance(value, dict):
-            yield where, f"is {kind_of(value)}; expected an object"
-            return
-        problem = _length_problem(len(value), self.min_len, self.max_len)
-        if problem:
-            yield where, problem
-            return
-        for k, v in value.items():
-            yield from self.value.errors(v, _join(where, k))
+def _entries(n: int, node: dict, low: str, high: str) -> str:
+    lo, hi = node.get(low), node.get(high)
+    if lo is not None and lo == hi:
+        return f"has {n} entries; expected {lo}"
+    if lo is not None and n < lo:
+        return f"has {n} entries; expected at least {lo}"
+    return f"has {n} entries; expected at most {hi}"
 
 
-@dataclass(frozen=True)
-class Record(Spec):
-    """An object with named fields: ``required`` and ``optional`` {name: Spec}; other fields are
-    allowed (files from newer versions may add some)."""
+def schema_problem(error) -> tuple[list, str]:
+    """(the field's path, what is wrong) of a jsonschema error, in fitlab's words, quoting file
+    content briefly."""
+    items, inst, kw, rule, node = (list(error.absolute_path), error.instance, error.validator,
+                                   error.validator_value, error.schema)
+    if kw == "required":
+        missing = next((k for k in rule if isinstance(inst, dict) and k not in inst), rule[0])
+        return items + [missing], "is missing"
+    if kw == "type":
+        kinds = rule if isinstance(rule, list) else [rule]
+        if isinstance(inst, (int, float)) and not isinstance(inst, bool) \
+                and not _is_number(None, inst) and {"number", "integer"} & set(kinds):
+            return items, "is not a finite number"
+        return items, f"is {kind_of(inst)}; expected {' or '.join(TYPE_WORDS[k] for k in kinds)}"
+    if kw in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        rules = [f"{op} {node[k]:g}" for k, op in (("minimum", ">="), ("exclusiveMinimum", ">"),
+                                                     ("maximum", "<="), ("exclusiveMaximum", "<"))
+                 if k in node]
+        return items, f"is {shown_number(inst)}; it must be {' and '.join(rules)}"
+    if kw == "enum":
+        return items, f"is {quote(inst)}; expected one of " \
+                      f"{', '.join(str(c) for c in rule if c is not None)}"
+    if kw == "const":
+        return items, f"is {quote(inst)}; expected {quote(rule)}"
+    if kw in ("minItems", "maxItems"):
+        return items, _entries(len(inst), node, "minItems", "maxItems")
+    if kw in ("minProperties", "maxProperties"):
+        return items, _entries(len(inst), node, "minProperties", "maxProperties")
+    if kw == "maxLength":
+        return items, f"is a string of {len(inst)} characters; at most {rule} expected"
+    return items, f"does not match the schema ({quote(error.message, 120)})"
 
-    required: dict = field(default_factory=dict)
-    optional: dict = field(default_factory=dict)
 
-    @property
-    def description(self):
-        return "an object"
-
-    def matches(self, value) -> bool:
-        return isinstance(value, dict)
-
-    def errors(self, value, where):
-        if not isinstance(value, dict):
-            yield where, f"is {kind_of(value)}; expected an object"
-            return
-        for k, spec in self.required.items():
-            if k not in value:
-                yield _join(where, k), "is missing"
-                return
-            yield from spec.errors(value[k], _join(where, k))
-        for k, spec in self.optional.items():
-            if k in value:
-                yield from spec.errors(value[k], _join(where, k))
+def _description(name: str, items) -> str | None:
+    """The ``description`` of the schema's property at ``items`` (what the field holds), if
+    the schema gives one."""
+    node = load_schema(name)
+    for p in items:
+        if not isinstance(node, dict):
+            return None
+        if isinstance(p, int):
+            node = node.get("items")
+        else:
+            props = node.get("properties") or {}
+            node = props.get(p, node.get("additionalProperties"))
+    return node.get("description") if isinstance(node, dict) else None
 
 
-def _join(where: str, key) -> str:
-    return f"{where}.{key}" if where else str(key)
-
-
-def check(value, spec: Spec, path, *, where: str = "", hint: str | None = None):
-    """``value`` if it matches ``spec``; else an InputFileError naming the first field that does
-    not (``field fits[0].parameters.alpha.value: is a string; expected a finite number``)."""
-    for at, problem in spec.errors(value, where):
-        raise InputFileError(path, f"field {at or 'at the top level'} {problem}", hint=hint)
-    return value
+def check_schema(value, name: str, path, *, hint: str | None = None):
+    """``value`` (a parsed file) if it is valid against fitlab's JSON Schema ``name``; else an
+    InputFileError naming the first field that is not, in fitlab's spelling (``field
+    fits[0].covariance.matrix[1][0] is a string; expected a finite number or null``), with the
+    field's ``description`` from the schema ahead of ``hint`` (what to do)."""
+    error = next(iter(schema_validator(name).iter_errors(value)), None)
+    if error is None:
+        return value
+    items, problem = schema_problem(error)
+    about = _description(name, items)
+    advice = "; ".join(s for s in (about and f"{json_path(items) or 'the file'}: {about}", hint)
+                       if s)
+    raise InputFileError(path, f"field {json_path(items) or 'at the top level'} {problem}",
+                         hint=advice or None)
 
 
 # --------------------------------------------------------------------------------------------
@@ -608,6 +500,6 @@ def read_npz(path, *, what: str, hint: str | None = None) -> dict[str, np.ndarra
 
 __all__ = ["quote", "kind_of", "decode_text", "parse_number", "check_range", "check_finite",
            "max_values", "check_count", "check_allocation", "MAX_DEPTH", "nesting_depth",
-           "load_json", "load_toml", "Spec", "Num", "Int", "Str", "Bool", "Null", "Any", "Either",
-           "Optional", "List", "Map", "Record", "check", "read_npz", "QUOTE_CHARS",
-           "DEFAULT_MAX_VALUES", "MAX_VALUES_ENV"]
+           "load_json", "load_toml", "SCHEMA_DIR", "schema_file", "load_schema",
+           "schema_validator", "json_path", "shown_number", "schema_problem", "check_schema", "read_npz",
+           "QUOTE_CHARS", "DEFAULT_MAX_VALUES", "MAX_VALUES_ENV"]

@@ -18,6 +18,7 @@ import pytest
 import fitlab
 from fitlab.cli import main
 from fitlab.export import zemax as zemax_export
+from fitlab.io.validate import check_schema
 from fitlab.io import zemax as zemax_io
 from fitlab.io.directions import degrees_to_direction
 from fitlab.io.measurement import MEASURED, format_measurement_csv
@@ -70,6 +71,7 @@ def test_nan_readings_of_a_csv_are_completed_marked_and_read_back_as_gaps(tmp_pa
     text = out.read_text()
     assert text.count(",no_reading\n") == 3 and text.count(f",{MEASURED}\n") == 57
     record = json.loads((tmp_path / "vinyl45_complete.csv.completion.json").read_text())
+    check_schema(record, "completion", "the record")  # data_formats/schemas/completion.schema.json
     assert record["values"] == {"places": 60, "measured": 57, "completed": 3}
     assert record["output"]["marks"] == "in the file: its column completion"
     assert record["data"]["path"] == "vinyl45.csv" and record["fit"]["path"].endswith(

@@ -74,21 +74,53 @@ def test_json_depth_and_constants():
 
 
 def test_schema_names_the_field():
-    spec = V.Record(required={"fits": V.List(V.Record(required={"value": V.Num(lo=0)}), min_len=1)},
-                    optional={"mode": V.Str(choices=("a", "b")), "n": V.Optional(V.Int(lo=1))})
-    V.check({"fits": [{"value": 1.0}], "n": None}, spec, "f")
-    cases = [({"fits": []}, "field fits has 0 entries; expected at least 1"),
-             ({"fits": [{"value": "1"}]}, "field fits[0].value is a string; expected a finite number"),
-             ({"fits": [{"value": -1}]}, "field fits[0].value is -1; it must be >= 0"),
-             ({"fits": [{}]}, "field fits[0].value is missing"),
-             ({"fits": [{"value": 1}], "mode": "c"}, "field mode is 'c'; expected one of a, b"),
-             ({"fits": [{"value": 1}], "n": 0}, "field n is 0; it must be >= 1"),
-             ({"fits": [{"value": True}]}, "is true/false"),
-             ([], "at the top level is a list; expected an object")]
+    """fitlab's JSON Schemas through jsonschema: the first error names the field in fitlab's
+    spelling, what is wrong, and (the schema's description, then the caller's hint) what to do."""
+    import copy
+    import json
+    from pathlib import Path
+
+    good = json.loads((Path(__file__).resolve().parents[2] / "fits" / "walter_rough_glass.json")
+                      .read_text(encoding="utf-8"))
+    assert V.check_schema(good, "fit", "f.json") is good
+
+    def at(*keys_value):
+        rec = copy.deepcopy(good)
+        *keys, value = keys_value
+        node = rec
+        for k in keys[:-1]:
+            node = node[k]
+        if value is KeyError:
+            del node[keys[-1]]
+        else:
+            node[keys[-1]] = value
+        return rec
+
+    fe = ("fits", 0, "statistics", "fit_error")
+    cases = [(at("fits", []), "field fits has 0 entries; expected at least 1"),
+             (at("fits", 0, "parameters", "alpha", "value", "1"),
+              "field fits[0].parameters.alpha.value is a string; expected a finite number"),
+             (at("fits", 0, "covariance", "matrix", 1, 0, "x"),
+              "field fits[0].covariance.matrix[1][0] is a string; expected a finite number or null"),
+             (at(*fe, "floor", -1), "field fits[0].statistics.fit_error.floor is -1; it must be >= 0"),
+             (at("fits", 0, "channel", KeyError), "field fits[0].channel is missing"),
+             (at(*fe, "floor_rule", "c"), "is 'c'; expected one of incidence_peak"),
+             (at("fits", 0, "statistics", "n_fit", 1.0), "n_fit is a number; expected a whole number"),
+             (at("fits", 0, "parameters", "alpha", "value", True), "is true/false"),
+             (at("fits", 0, "parameters", "alpha", "value", float("inf")), "value is not a finite number"),
+             (at("fits", 0, "parameters", "alpha", "value", 10 ** 400), "value is not a finite number"),
+             (at("fits", 0, "parameters", "alpha", "bounds", [0]), "bounds has 1 entries; expected 2"),
+             (at("model", "name", "x" * 10_001), "is a string of 10001 characters; at most 10000"),
+             ([], "field at the top level is a list; expected an object")]
     for record, fragment in cases:
         with pytest.raises(InputFileError) as e:
-            V.check(record, spec, "f.json")
-        assert fragment in str(e.value) and str(e.value).startswith("f.json: "), (record, str(e.value))
+            V.check_schema(record, "fit", "f.json", hint="do this")
+        assert fragment in str(e.value) and str(e.value).startswith("f.json: field "), \
+            (fragment, str(e.value))
+        assert e.value.hint.endswith("do this")
+    with pytest.raises(InputFileError) as e:
+        V.check_schema(at("fits", 0, "channel", KeyError), "fit", "f.json", hint="do this")
+    assert e.value.hint.startswith("fits[0].channel: the channel's name")
 
 
 def _npz(members, compression=zipfile.ZIP_STORED):

@@ -302,7 +302,7 @@ def load_compare(path) -> CompareResult:
     candidates' fits (``fits`` is empty): its tables, summary and report page are the same."""
     from fitlab.errors import InputFileError
     from fitlab.io.files import read_bytes
-    from fitlab.io.validate import load_json
+    from fitlab.io.validate import check_schema, load_json
 
     hint = "give a compare.json written by `fitlab compare --out DIR`"
     rec = load_json(path, read_bytes(path), what="fitlab comparison", hint=hint)
@@ -313,9 +313,5 @@ def load_compare(path) -> CompareResult:
         raise InputFileError(path, f"has schema_version {rec.get('schema_version')!r}; this "
                              f"fitlab reads {READABLE_VERSIONS[0]} to {SCHEMA_VERSION}",
                              hint="rerun fitlab compare")
-    for key, kind in (("data", dict), ("settings", dict), ("candidates", list),
-                      ("channels", list), ("warnings", list), ("software", dict)):
-        if not isinstance(rec.get(key), kind):
-            what = "an object" if kind is dict else "a list"
-            raise InputFileError(path, f"field {key!r} is missing or not {what}", hint=hint)
+    check_schema(rec, "compare", path, hint=hint)  # data_formats/schemas/compare.schema.json
     return CompareResult.from_record(rec, (), None, str(Path(path).parent))
