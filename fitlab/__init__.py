@@ -2,7 +2,8 @@
 
 The stable entry points for scripts: :func:`read` (any measurement file), :func:`fit` (→ an
 immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked once), :func:`fit_many` (many datasets at once, batched), :func:`fit_maps` (a capture stack
-fitted texel by texel into texture maps),
+fitted texel by texel into texture maps; :func:`render_maps_gltf`: its glTF hand-off rendered by
+three.js beside the input images),
 :func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
 held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
 glTF 2.0), :func:`complete_measurement` (a measurement with its missing readings filled by a
@@ -36,6 +37,7 @@ _SOURCES = {
     "complete_measurement": "fitlab.export.completion",
     "fit_many": "fitlab.fitting.many", "ManyResult": "fitlab.fitting.many",
     "fit_maps": "fitlab.fitting.maps", "MapsResult": "fitlab.fitting.maps",
+    "render_maps_gltf": "fitlab.export.gltf_maps_render",
     "eval_bsdf": "fitlab.api", "sample_bsdf": "fitlab.api", "pdf_bsdf": "fitlab.api",
     "MODELS": "fitlab.models", "get_model": "fitlab.models", "register_model": "fitlab.models",
     "tradeoffs": "fitlab.tradeoffs", "Tradeoffs": "fitlab.tradeoffs",

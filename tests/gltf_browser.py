@@ -59,6 +59,12 @@ def _chromium() -> str:
     return path
 
 
+def require_three_js() -> None:
+    """Skip (fail in CI) unless three.js and Chromium can render here."""
+    ensure_node_modules()
+    _chromium()
+
+
 def render_gltf_goniometer(gltf_path, wi, wo, *, size: int = 8) -> tuple[np.ndarray, dict]:
     """three.js's pixel values (N, 3) for each pair (wi[k], wo[k]): the glTF file's material on
     a flat patch under one directional light of irradiance 1 from wi, seen from wo, linear,

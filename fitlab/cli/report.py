@@ -25,7 +25,9 @@ def add_parser(sub):
     p.add_argument("fit", metavar="FIT.json",
                    help="parameter file written by `fitlab fit --out`, or a folder written by "
                    "`fitlab fit-maps` (its maps with colour bars, the fit error and status maps, "
-                   "histograms and a few texels against their readings)")
+                   "histograms, a few texels against their readings and, with --gltf, its glTF "
+                   "rendered by three.js beside the input images where Chromium and three are "
+                   "installed)")
     p.add_argument("--data", metavar="FILE",
                    help="the data file (default: the path recorded in FIT.json; its SHA-256 "
                    "must match the recorded one)")

@@ -70,6 +70,19 @@ def _plane(h: int, w: int):
     return pos, nrm, uv, idx
 
 
+def texel_centres(h: int, w: int) -> np.ndarray:
+    """(h, w, 3): where texel (x, y)'s centre, texture coordinate ((x + ½)/w, (y + ½)/h),
+    lies on the quad of :func:`_plane`, in the glTF file's world frame (y up)."""
+    pos, _, uv, _ = _plane(h, w)
+    # the quad's corners: uv (0, 0), (1, 0), (0, 1) span it (a parallelogram)
+    o, du, dv = pos[0], pos[1] - pos[0], pos[3] - pos[0]
+    assert (uv[0] == (0, 0)).all() and (uv[1] == (1, 0)).all() and (uv[3] == (0, 1)).all()
+    u = (np.arange(w) + 0.5) / w
+    v = (np.arange(h) + 0.5) / h
+    return (o[None, None] + u[None, :, None] * du[None, None]
+            + v[:, None, None] * dv[None, None]).astype(float)
+
+
 def gltf_maps(conv, model_name: str) -> tuple[dict, dict]:
     """(glTF document, {texture name: PNG bytes}) of the conversion ``conv`` (a MapsResult of
     ``gltf_pbr``); the document embeds the textures (data: URIs), as fitlab's glTF exports
@@ -146,4 +159,4 @@ def _no_data_code() -> int:
     return Status.NO_DATA.code
 
 
-__all__ = ["FOLDER", "DOCUMENT", "png_bytes", "gltf_maps"]
+__all__ = ["FOLDER", "DOCUMENT", "png_bytes", "gltf_maps", "texel_centres"]

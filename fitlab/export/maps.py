@@ -341,6 +341,22 @@ def _gltf_part(result, conv, images: dict, others: dict) -> dict:
             "status_counts": conv.counts()}
 
 
+def read_maps_record(folder) -> dict:
+    """A map-fit folder's ``maps.json``, checked against its JSON Schema
+    (data_formats/schemas/maps.schema.json): what ``fitlab report`` and the three.js render
+    read; InputFileError naming the file and field otherwise."""
+    from fitlab.errors import InputFileError
+    from fitlab.io.files import read_bytes
+    from fitlab.io.validate import check_schema, load_json
+
+    path = Path(folder) / "maps.json"
+    rec = load_json(path, read_bytes(path), what="maps record")
+    hint = "give a folder written by fitlab fit-maps"
+    if not isinstance(rec, dict) or rec.get("schema") != "fitlab-maps":
+        raise InputFileError(path, "is not a fitlab-maps record", column="schema", hint=hint)
+    return check_schema(rec, "maps", path, hint=hint)
+
+
 def write_maps(result, out_dir, *, gltf=None) -> dict:
     """Write ``result`` (fitlab.fitting.maps.MapsResult) into ``out_dir`` (module text);
     returns ``maps.json``'s record. ``gltf``: the glTF conversion

@@ -7,7 +7,10 @@ pair (wi, wo) a flat patch (normal +z, tangent +x: fitlab's local frame) with th
 material under one directional light of irradiance 1 from wi, seen by an orthographic camera
 from wo, rendered into a float target with no tone mapping; each pixel is f(wi, wo)·cos θi as
 three.js computes it. The page loads three.js from a ``node_modules`` folder (never a CDN) and is
-served from localhost (ES modules do not load from ``file://``).
+served from localhost (ES modules do not load from ``file://``). The views page
+(``web/gltf_views.html``, :func:`render_views`) renders a file's own scene, e.g. a map fit's
+textured quad, under the same light and camera and returns whole images with the cameras'
+matrices (fitlab/export/gltf_maps_render.py). :func:`run_page` is the plumbing both share.
 
 What it needs, found here (:func:`missing`): the npm package ``three`` (and ``gltf-validator``
 for the validator) in a ``node_modules`` folder (``$FITLAB_NODE_MODULES``, else ``./node_modules``,
@@ -35,6 +38,7 @@ from fitlab.errors import FitlabError
 
 WEB = Path(__file__).resolve().parent / "web"
 PAGE = WEB / "gltf_goniometer.html"
+VIEWS_PAGE = WEB / "gltf_views.html"
 VALIDATOR_SCRIPT = WEB / "validate_gltf.mjs"
 #: Environment variables naming the node_modules folder and the browser.
 NODE_MODULES_ENV = "FITLAB_NODE_MODULES"
@@ -107,22 +111,21 @@ class _Quiet(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-def render_goniometer(gltf_path, wi, wo, *, size: int = 8, timeout: float = 180.0
-                      ) -> tuple[np.ndarray, dict]:
-    """three.js's pixel values (N, 3) for each pair (wi[k], wo[k]): f(wi, wo)·cos θi of the
-    file's first material (linear, no tone mapping), and the page's report (``three``: its
-    revision, ``material``: the three.js material type)."""
+def run_page(page: Path, config: dict, files: dict, *, timeout: float = 180.0) -> dict:
+    """Serve ``page`` (as index.html) with ``config`` (config.json), ``files`` (name -> path,
+    copied beside it) and node_modules from localhost, load it in headless Chromium and return
+    the JSON the page writes into ``<pre id="result">`` (``ok`` true, or ``error``). The
+    plumbing of every three.js page of fitlab (web/)."""
     mods, chrome = node_modules(), browser()
     if mods is None or chrome is None:
         raise RenderError(f"three.js cannot render here: {missing()}; install {INSTALL}")
-    pairs = np.concatenate([np.atleast_2d(wi), np.atleast_2d(wo)], axis=1)
     with tempfile.TemporaryDirectory(prefix="fitlab-gltf-page-") as tmp:
         tmp = Path(tmp)
         (tmp / "node_modules").symlink_to(mods.resolve())
-        shutil.copy(PAGE, tmp / "index.html")
-        shutil.copy(gltf_path, tmp / "material.gltf")
-        (tmp / "config.json").write_text(json.dumps(
-            {"gltf": "material.gltf", "pairs": pairs.tolist(), "size": int(size)}))
+        shutil.copy(page, tmp / "index.html")
+        for name, source in files.items():
+            shutil.copy(source, tmp / name)
+        (tmp / "config.json").write_text(json.dumps(config))
         handler = functools.partial(_Quiet, directory=str(tmp))
         server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
         thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -156,10 +159,45 @@ def render_goniometer(gltf_path, wi, wo, *, size: int = 8, timeout: float = 180.
         raise RenderError(f"three.js gave no result (the page says {body[:200]!r})") from None
     if not report.get("ok"):
         raise RenderError(f"three.js could not render the file: {report.get('error')}")
+    return report
+
+
+def render_goniometer(gltf_path, wi, wo, *, size: int = 8, timeout: float = 180.0
+                      ) -> tuple[np.ndarray, dict]:
+    """three.js's pixel values (N, 3) for each pair (wi[k], wo[k]): f(wi, wo)·cos θi of the
+    file's first material (linear, no tone mapping), and the page's report (``three``: its
+    revision, ``material``: the three.js material type)."""
+    pairs = np.concatenate([np.atleast_2d(wi), np.atleast_2d(wo)], axis=1)
+    report = run_page(PAGE, {"gltf": "material.gltf", "pairs": pairs.tolist(),
+                             "size": int(size)}, {"material.gltf": gltf_path}, timeout=timeout)
     values = np.asarray(report["values"], dtype=float)
     if values.shape != (pairs.shape[0], 3):
         raise RenderError(f"three.js returned {values.shape} values for {pairs.shape[0]} pairs")
     return values, report
+
+
+def render_views(gltf_path, wi, wo, *, size: int, extent: float, timeout: float = 180.0
+                 ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The glTF file's own scene seen from each pair (wi[k], wo[k]), directions in the file's
+    world frame (glTF: y up): one directional light of irradiance 1 from wi, an orthographic
+    camera from wo covering [-extent, extent]² of its view, a float image of ``size`` ×
+    ``size`` pixels with no tone mapping (``web/gltf_views.html``). Returns the images (N,
+    size, size, 3), row 0 at the bottom (OpenGL's order), the world-to-clip matrices (N, 4, 4)
+    of the cameras, and the page's report."""
+    import base64
+
+    pairs = np.concatenate([np.atleast_2d(wi), np.atleast_2d(wo)], axis=1)
+    report = run_page(VIEWS_PAGE, {"gltf": "scene.gltf", "pairs": pairs.tolist(),
+                                   "size": int(size), "extent": float(extent)},
+                      {"scene.gltf": gltf_path}, timeout=timeout)
+    if len(report.get("images", ())) != len(pairs):
+        raise RenderError(f"three.js returned {len(report.get('images', ()))} images for "
+                          f"{len(pairs)} pairs")
+    images = np.stack([np.frombuffer(base64.b64decode(b), dtype="<f4").reshape(size, size, 3)
+                       for b in report.pop("images")]).astype(float)
+    # three.js's Matrix4.elements are column-major
+    vp = np.asarray(report.pop("view_projection"), dtype=float).reshape(-1, 4, 4)
+    return images, np.transpose(vp, (0, 2, 1)), report
 
 
 def validate(path, *, timeout: float = 120.0) -> dict:
@@ -186,4 +224,4 @@ def validate(path, *, timeout: float = 120.0) -> dict:
 
 
 __all__ = ["INSTALL", "RenderError", "browser", "missing", "node_modules", "render_goniometer",
-           "validate", "validator_missing"]
+           "render_views", "run_page", "validate", "validator_missing"]

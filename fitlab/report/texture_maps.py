@@ -16,9 +16,10 @@ from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.ticker import MaxNLocator
 
 from fitlab.errors import FitlabError, InputFileError
+from fitlab.export.maps import read_maps_record
 from fitlab.io.atomic import atomic_open
 from fitlab.report.html import (document, note_html, paragraph, table_html)
-from fitlab.report.style import CMAP_VALUES, Figures, new_figure, styled
+from fitlab.report.style import CMAP_RESIDUAL, CMAP_VALUES, Figures, new_figure, styled
 
 #: Texels whose readings are plotted against the model: the best, the median and the worst fit
 #: error among the converged texels, and the first texel of each other status.
@@ -30,17 +31,6 @@ STATUS_COLOURS = ("#2b8a3e", "#e67700", "#c92a2a", "#5f3dc4", "#868e96", "#1971c
 def is_maps_folder(path) -> bool:
     """Whether ``path`` is a ``fitlab fit-maps`` folder (it holds maps.json)."""
     return Path(path).is_dir() and (Path(path) / "maps.json").is_file()
-
-
-def _read_record(folder: Path) -> dict:
-    from fitlab.io.files import read_bytes
-    from fitlab.io.validate import load_json
-
-    rec = load_json(folder / "maps.json", read_bytes(folder / "maps.json"), what="maps record")
-    if not isinstance(rec, dict) or rec.get("schema") != "fitlab-maps":
-        raise InputFileError(folder / "maps.json", "is not a fitlab-maps record",
-                             column="schema", hint="give a folder written by fitlab fit-maps")
-    return rec
 
 
 def _image(folder: Path, name: str, channels) -> np.ndarray:
@@ -196,12 +186,87 @@ def _scans(figs, folder, rec, values, channels, status, rms):
     return "".join(body)
 
 
+@styled
+def _render_figure(r):
+    """Per rendered stack row: the input image, three.js's render of the glTF (both f in 1/sr,
+    the mean over the channels, one colour scale) and their relative difference."""
+    n = len(r.rows)
+    fig = new_figure(10.2, 2.9 * n)
+    axes = fig.subplots(n, 3, squeeze=False)
+    diff = r.relative_difference()
+    for k in range(n):
+        t_i, p_i, t_o, p_o = r.angles[k]
+        where = f"row {r.rows[k]}: θi {t_i:g}°, φi {p_i:g}°, θo {t_o:g}°, φo {p_o:g}°"
+        inp = r.input[:, :, k].mean(axis=-1)  # NaN where a channel has no reading
+        ren = r.render[:, :, k].mean(axis=-1)
+        both = np.concatenate([inp[np.isfinite(inp)], ren[np.isfinite(ren)]])
+        lo, hi = (both.min(), both.max()) if both.size else (0.0, 1.0)
+        d = diff[:, :, k].mean(axis=-1)
+        lim = max(float(np.nanmax(np.abs(d))) if np.isfinite(d).any() else 0.0, 1e-3)
+        for ax, a, title, cmap, (vmin, vmax), label in (
+                (axes[k, 0], inp, f"input, {where}", CMAP_VALUES, (lo, hi), "f (1/sr)"),
+                (axes[k, 1], ren, f"three.js render / cos θi, row {r.rows[k]}", CMAP_VALUES,
+                 (lo, hi), "f (1/sr)"),
+                (axes[k, 2], d, f"(render - input) / input, row {r.rows[k]}", CMAP_RESIDUAL,
+                 (-lim, lim), "relative difference")):
+            im = ax.imshow(np.ma.masked_invalid(a), cmap=cmap, vmin=vmin, vmax=vmax,
+                           interpolation="nearest")
+            ax.set_title(title, fontsize=7.5)
+            _texel_axes(ax)
+            fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+    return fig
+
+
+def _threejs_section(figs, folder, rec):
+    """The glTF hand-off rendered by three.js beside the input images
+    (fitlab/export/gltf_maps_render.py), or why it is not."""
+    from fitlab.export import threejs
+    from fitlab.export.gltf_maps_render import gltf_handoff, render_maps_gltf
+
+    gltf, why = gltf_handoff(folder, rec)
+    if gltf is None:
+        return note_html(f"No three.js render: {why}.")
+    lacks = threejs.missing()
+    if lacks:
+        return note_html(f"The three.js render of material.gltf was skipped: {lacks} (install "
+                         f"{threejs.INSTALL}).")
+    try:
+        r = render_maps_gltf(folder, record=rec)
+    except FitlabError as exc:  # RenderError, a stack that is not the one fitted ...
+        return note_html(f"The three.js render of material.gltf was skipped: {exc}")
+    med = r.median_relative_difference()
+    body = figs.add("threejs_render", _render_figure(r), (
+        f"material.gltf (the glTF hand-off) rendered by three.js r{r.three} in headless "
+        f"Chromium under the capture's own geometry, for {len(r.rows)} rows of the stack (near "
+        "normal, middle, grazing): a directional light of irradiance 1 from wi, an orthographic "
+        f"camera from wo, {r.size} × {r.size} float pixels, no tone mapping; the render "
+        "resampled to the texel grid (each texel's centre projected by the camera) and divided "
+        "by cos θi, so both it and the input are f in 1/sr (shown: the mean over the channels, "
+        "one colour scale per row). Right: the relative difference (mean over the channels), "
+        "blank where the input has no reading. It holds the map fit's error, the glTF "
+        "conversion's (gltf/conversion_rms.exr) and three.js's departures from glTF's "
+        "specification (tests/browser/README.md). Median |relative difference| per row: "
+        + ", ".join(f"row {i} {m:.3g}" for i, m in zip(r.rows, med)) + "."),
+        "input images, three.js renders of the glTF and their relative difference")
+    d = np.abs(r.relative_difference())
+    rows = []
+    for k, i in enumerate(r.rows):
+        per = [np.median(v[np.isfinite(v)]) if np.isfinite(v).any() else np.nan
+               for v in (d[:, :, k, c] for c in range(d.shape[3]))]
+        rows.append([str(i), ", ".join(f"{a:g}°" for a in r.angles[k]), f"{med[k]:.3g}"]
+                    + [f"{v:.3g}" for v in per])
+    body += table_html(["row", "θi, φi, θo, φo", "median |rel. diff.|"]
+                       + [f"median, {c}" for c in r.channels], rows,
+                       numeric=tuple(range(2, 3 + len(r.channels))))
+    return body
+
+
 def build_maps_report(folder, out_dir, *, progress: bool = True) -> dict:
     """Write ``out_dir/index.html`` and its figures for the map fit in ``folder``; returns a
     summary (``files``, ``figures``, ``index``) as ``build_report`` does."""
     folder = Path(folder)
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if progress else (lambda m: None)
-    rec = _read_record(folder)
+    rec = read_maps_record(folder)
     channels = rec["stack"]["channels"]
     figs = Figures(say)
     values, sections = {}, []
@@ -250,6 +315,8 @@ def build_maps_report(folder, out_dir, *, progress: bool = True) -> dict:
     sections.append(("histograms", "Histograms", hist))
     sections.append(("texels", "Texels against their readings",
                      _scans(figs, folder, rec, values, channels, status, rms)))
+    sections.append(("threejs", "The glTF hand-off in three.js",
+                     _threejs_section(figs, folder, rec)))
     mitsuba = rec["handoff"]["mitsuba"]
     prov = table_html([], [
         ["model", rec["model"]], ["options", json.dumps(rec["options"])],
