@@ -10,6 +10,7 @@ from fitlab.cli.common import (add_channel, add_format, add_model, add_option, a
                                add_read_options, add_verbose, read_kwargs)
 from fitlab.errors import FitlabError
 from fitlab.fitting.losses import LOSSES
+from fitlab.fitting.model_check import MODES as CHECK_MODES
 from fitlab.fitting.searches import add_global_search_option
 from fitlab.fitting.solvers import add_local_solver_option
 from fitlab.fitting.status import Status, channel_statuses
@@ -96,6 +97,14 @@ def add_parser(sub):
                    "colour parameter's spectrum to CIE XYZ and linear sRGB (CIE 1931 2 degree "
                    "observer): a colour-science name, D65 (default), D50, A, E, FL2, ...; "
                    "data_formats/fit_json.md, 'Colour of a spectral fit'")
+    p.add_argument("--check-model", choices=CHECK_MODES, default="auto",
+                   help="check a layered model against the Monte Carlo simulation of its own "
+                   "fitted stack at the fitted directions (at most 4000 rows), with paths for "
+                   "a relative standard error of 2%%; prints the model's error there beside "
+                   "the fit's and records both (fits[k].model_check): auto (default) runs it "
+                   "when its cost, estimated from a pilot run, is at most max(20%% of the "
+                   "fit's time, 10 s) and says why it skipped it otherwise; on: always; off: "
+                   "never (data_formats/fit_json.md, 'Model check')")
     p.add_argument("--walter-diagnostics", action="store_true",
                    help="add Walter 2007 section 6.1's empirical D points to the parameter file")
     p.add_argument("--out", metavar="FILE.json", help="parameter file (default: standard output)")
@@ -234,7 +243,7 @@ def request_of(args, **overrides):
         global_search=args.global_search, local_solver=args.local_solver,
         aperture_order=args.aperture_order, bootstrap=args.bootstrap,
         lm_maxiter=args.lm_maxiter, walter_diagnostics=args.walter_diagnostics,
-        progress=not args.quiet, illuminant=getattr(args, "illuminant", None))
+        progress=not args.quiet, illuminant=args.illuminant, check_model=args.check_model)
     return FitRequest(args.model, spelling="cli", **{**settings, **overrides})
 
 
@@ -278,6 +287,7 @@ def _print_brief(record):
         if st.get("prediction_error"):
             print(f"  predicted (not fitted): {fit_error_text(st['prediction_error'], 'rows')}",
                   file=sys.stderr)
+        _print_model_check(fit)
         trouble = [s.value for s in channel_statuses(fit) if not s.ok]
         n_warn = len(fit.get("warnings", []))
         if trouble or n_warn:
@@ -342,6 +352,7 @@ def _print_summary(record):
         if st.get("prediction_error"):
             print(f"  predicted (not fitted): {fit_error_text(st['prediction_error'], 'rows')}",
                   file=sys.stderr)
+        _print_model_check(fit, verbose=True)
         fitted_at = {(r["theta_i"], r["phi_i"]): r["rms_relative_error"]
                      for r in (fe or {}).get("per_incidence", ())}
         ap = fit.get("aperture")
@@ -369,6 +380,18 @@ def _print_summary(record):
                 print(f"status: channel {fit['channel']}: {status.value}: {status.advice}",
                       file=sys.stderr)
     _print_colour(record)
+
+
+def _print_model_check(fit, verbose: bool = False):
+    """The model check's line (fitlab.fitting.model_check), with ``verbose`` its reading."""
+    from fitlab.fitting.model_check import check_line, interpretation
+
+    line = check_line(fit["channel"], fit.get("model_check"))
+    if line:
+        print("  " + line, file=sys.stderr)
+        note = interpretation(fit.get("model_check")) if verbose else None
+        if note:
+            print("    " + note, file=sys.stderr)
 
 
 def _p(p):
@@ -409,7 +432,7 @@ def _print_goodness(fit):
 
 def _print_timings(timings):
     names = {"read": "read", "least_squares": "least squares", "mcmc": "MCMC",
-             "bootstrap": "bootstrap", "total": "total"}
+             "bootstrap": "bootstrap", "model_check": "model check", "total": "total"}
     print("time: " + ", ".join(f"{names[k]} {v:.2f} s" for k, v in timings.items()),
           file=sys.stderr)
 

@@ -105,6 +105,8 @@ def _channel_record(ch, model, fixed):
         rec["bootstrap"] = {k: v for k, v in ch["bootstrap"].items() if k != "parameters"}
     if ch.get("aperture") is not None:  # only for data with an aperture (fitlab.fitting.aperture)
         rec["aperture"] = ch["aperture"]
+    if ch.get("model_check") is not None:  # layered models (fitlab.fitting.model_check)
+        rec["model_check"] = ch["model_check"]
     return rec
 
 
@@ -120,6 +122,9 @@ def run_timings(result, read_s: float, total_s: float) -> dict:
     boot = [ch.get("seconds_bootstrap") or 0.0 for ch in result["channels"]]
     if any(boot):
         out["bootstrap"] = sum(boot)
+    check = [ch.get("seconds_model_check") or 0.0 for ch in result["channels"]]
+    if any(check):
+        out["model_check"] = sum(check)
     out["total"] = total_s
     return out
 

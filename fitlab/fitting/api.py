@@ -101,7 +101,12 @@ def fit(measurement, model, *, throw: bool = False, angles: str | None = None, a
     ``nuts``, blackjax's NUTS with ``walkers`` chains); illuminant: for a spectral fit (channels
     that are wavelengths spanning 380-780 nm), the CIE illuminant of the colour block that
     reduces its colour parameters to CIE XYZ and linear sRGB (a colour-science name such as
-    ``"D65"``, the default, ``"D50"``, ``"A"``; ``result.colour``; data_formats/fit_json.md).
+    ``"D65"``, the default, ``"D50"``, ``"A"``; ``result.colour``; data_formats/fit_json.md);
+    check_model: a layered model's check against the Monte Carlo simulation of its own fitted
+    stack at the fitted directions, to a relative standard error of 2% (``"auto"``, the
+    default: when its estimated cost is at most max(20% of the fit's time, 10 s), else the
+    record says why it skipped it; ``"on"``; ``"off"``; the record
+    ``result.record["fits"][c]["model_check"]``, fitlab.fitting.model_check).
     angles, accept, quantity: how a path is read (:func:`read`; not with a Measurement).
     Every fit is also checked for goodness of fit (``result.goodness()``; a failed check adds a
     warning). What limits trust in the fit is ``result.statuses(channel)`` (a

@@ -42,6 +42,7 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
     iteration limit). Rows with an aperture
     (``m.has_aperture``) are fitted by the aperture-averaged model, of quadrature order
     ``request.aperture_order`` (None: chosen automatically, fitlab.fitting.aperture)."""
+    t_start = time.perf_counter()
     setup = resolve_fit(m, request)
     model, options, fixed, notes, loss, start = setup
     quiet, seed, n_starts = not request.progress, request.seed, request.starts
@@ -54,6 +55,7 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
         from fitlab.fitting.joint import fit_joint
 
         results, joint = fit_joint(m, request, setup, rows_fit, fitted)
+        _check_models(m, request, results, rows_fit, t_start, quiet)
         for ch in results if warn else ():
             for w in ch["warnings"]:
                 _warnings.warn(f"channel {ch['channel']}: {w}", FitWarning, stacklevel=2)
@@ -135,8 +137,19 @@ def fit_measurement(m, request: FitRequest, *, warn: bool = True):
                         "prediction": full, "rows": np.flatnonzero(in_chan),
                         "warnings": channel_warnings,
                         **({"aperture": aperture} if aperture is not None else {})})
+        _check_models(m, request, results[-1:], rows_fit, t_start, quiet)
         if warn:
             for w in channel_warnings:
                 _warnings.warn(f"channel {name}: {w}", FitWarning, stacklevel=2)
     return {"model": model, "options": options, "fixed": fixed, "loss": loss,
             "notes": notes, "seed": seed, "subset_rows": rows_fit, "channels": results}
+
+
+def _check_models(m, request, results, rows_fit, t_start, quiet) -> None:
+    """The model check of each channel in ``results`` (fitlab.fitting.model_check), its budget
+    from the fit's time since ``t_start``."""
+    from fitlab.fitting.model_check import check_fit
+
+    check_fit(m, results, rows_fit, mode=request.check_model,
+              fit_seconds=time.perf_counter() - t_start, seed=request.seed,
+              log=lambda msg: log_line(quiet, msg))

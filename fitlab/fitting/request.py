@@ -129,6 +129,9 @@ class FitRequest:
     progress: bool = False
     #: the illuminant of a spectral fit's colour block (a colour-science name; None: D65)
     illuminant: str | None = None
+    #: the model check against the fitted stack's simulation (fitlab.fitting.model_check):
+    #: "auto", "on" or "off"
+    check_model: str = "auto"
     spelling: InitVar[str] = "python"
 
     def __post_init__(self, spelling: str) -> None:
@@ -250,6 +253,11 @@ class FitRequest:
                 illuminant_table(self.illuminant)
             except ValueError as exc:
                 raise FitlabError(f"{name('illuminant')}: {exc}") from None
+        from fitlab.fitting.model_check import MODES
+
+        if self.check_model not in MODES:
+            raise FitlabError(f"{name('check_model')} must be one of {', '.join(MODES)}, got "
+                              f"{self.check_model!r}")
 
     def replace(self, **changes) -> "FitRequest":
         """A variant with ``changes``, checked again (messages spelt as this one's)."""

@@ -219,6 +219,11 @@ def _error_tables(inp, ch, preds):
     head.append(f"{fit_error_text(fit_error_of(st))} ({st['n_fit']} of {st['n_total']} rows "
                 "fitted). The table's errors leave out the rows below "
                 f"{REL_ERR_FLOOR:g} × the maximum of their incidence.")
+    from fitlab.fitting.model_check import check_text
+
+    check = check_text(ch.fit.get("model_check"))
+    if check:
+        head.append(check)
     ap = ch.fit.get("aperture")
     if ap:
         err = ap.get("quadrature_error", {})

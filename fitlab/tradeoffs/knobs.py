@@ -244,46 +244,32 @@ SIM_SAMPLES_QUICK = (2_000, 16_000)
 SIM_THETA_I = (0.0, 30.0, 60.0)
 SIM_ARC = tuple(float(t) for t in np.arange(-85.0, 85.1, 5.0) if abs(t) > 1e-9) + (0.5,)
 SIM_ARC_T = tuple(float(s * t) for t in np.arange(95.0, 180.0, 10.0) for s in (1, -1))
-#: Cone of the simulator's detectors where point estimates are impossible (smooth interfaces).
-SIM_ACCEPTANCE_SR = 0.005
 
 
 def _scene_dicts(ctx: Context, model=None, options=None, channels=None) -> dict:
-    """{channel: scene dict} of the material's stack (Model.scene_of), detector and
-    illumination added; NotApplicable without a stack the simulator traces."""
+    """{channel: scene dict} of the material's stack with every effect traced
+    (fitlab.simulate.model_stack.stack_scene); NotApplicable without a stack the simulator
+    traces."""
     from fitlab.models import get_model
+    from fitlab.simulate.model_stack import stack_scene
 
     mdl = ctx.model if model is None else get_model(model)
-    scene_of = getattr(mdl, "scene_of", None)
-    if scene_of is None:
-        raise NotApplicable(f"{mdl.name} names no layer stack for the simulator "
-                            "(Model.scene_of; data_formats/layered_models.md)")
     out = {}
     for ch, p in (channels or ctx.material.channels).items():
         try:
-            s = scene_of(p, ctx.material.options if options is None else options)
+            out[ch] = stack_scene(mdl, p, ctx.material.options if options is None else options)
         except ValueError as exc:
             raise NotApplicable(str(exc)) from None
-        if s is None:
-            raise NotApplicable(f"{mdl.name} with these options has no stack the simulator "
-                                "traces")
-        out[ch] = full_physics(s)
     return out
-
-
-def full_physics(scene: dict) -> dict:
-    """The stack with every effect a model may approximate traced: all bounces and every
-    order of volume scattering (the delta components stay as the model declares them)."""
-    return {**scene, "effects": {**scene.get("effects", {}), "max_bounces": "all",
-                                 "volume_scattering": "multiple"}}
 
 
 def _simulation(ctx: Context, samples: int, again: bool = False):
     """{channel: SimulationResult} of the material's stack at SIM_THETA_I on an in-plane arc
-    (point estimates, or cones of SIM_ACCEPTANCE_SR where the stack allows none); cached
-    unless ``again`` (a second run: its time_s is without compilation)."""
-    from fitlab.errors import InputFileError
-    from fitlab.simulate import scene_from_dict, simulate
+    (point estimates, or cones where the stack allows none:
+    fitlab.simulate.model_stack.with_detector); cached unless ``again`` (a second run: its
+    time_s is without compilation)."""
+    from fitlab.simulate import simulate
+    from fitlab.simulate.model_stack import with_detector
 
     key = ("simulation", samples)
     if key in ctx.cache and not again:
@@ -291,31 +277,11 @@ def _simulation(ctx: Context, samples: int, again: bool = False):
     arc = SIM_ARC + (SIM_ARC_T if ctx.transmission else ())
     res = {}
     for ch, s in _scene_dicts(ctx).items():
-        base = {**s, "illumination": {"theta_i": list(SIM_THETA_I)}}
-        try:
-            scene = scene_from_dict({**base, "detector": {"type": "inplane",
-                                                          "theta_o": list(arc),
-                                                          "estimator": "point"}})
-        except InputFileError:
-            scene = scene_from_dict({**base, "detector": {"type": "inplane",
-                                                          "theta_o": list(arc),
-                                                          "acceptance_sr": SIM_ACCEPTANCE_SR}})
+        scene = with_detector({**s, "illumination": {"theta_i": list(SIM_THETA_I)}},
+                              {"type": "inplane", "theta_o": list(arc)})
         res[ch] = simulate(scene, samples, ctx.seed)
     ctx.cache[key] = res
     return res
-
-
-def _model_at_rows(evaluate, m) -> np.ndarray:
-    """The model at a simulation's rows, averaged over each row's cone (cos-weighted) as the
-    simulator tallies, or at the points (fitlab.aperture's rules)."""
-    from fitlab.aperture import row_rule
-
-    if m.aperture_deg is None or not np.any(m.aperture_deg > 0):
-        return evaluate(m.wi, m.wo)
-    nodes_i, nodes_o, w = row_rule(m.wi, m.wo, 6, aperture_deg=m.aperture_deg)
-    R, K = w.shape
-    v = evaluate(nodes_i.reshape(-1, 3), nodes_o.reshape(-1, 3)).reshape(R, K, -1)
-    return np.einsum("rk,rkc->rc", w, v)
 
 
 def simulator_samples(ctx: Context) -> list[Variant]:
@@ -404,6 +370,8 @@ def layered_physics(ctx: Context) -> list[Variant]:
     with every bounce and scattering order traced, at a stated standard error: relative RMS of
     f over the arc (rows above 1 % of the peak), the simulation's own relative RMS error beside
     it."""
+    from fitlab.simulate.model_stack import model_at_rows
+
     _scene_dicts(ctx)  # NotApplicable early
     n = SIM_REFERENCE_SAMPLES_QUICK if ctx.quick else SIM_REFERENCE_SAMPLES
     ctx.progress(f"layered physics: simulating the stack, {n:,} paths per incidence")
@@ -415,7 +383,7 @@ def layered_physics(ctx: Context) -> list[Variant]:
         rel, noise = [], []
         for k, (ch, r) in enumerate(sims.items()):
             mm = r.to_measurement()
-            pred = _model_at_rows(ev, mm)[:, k]
+            pred = model_at_rows(ev, mm)[:, k]
             v, s = mm.value, mm.sigma
             keep = v > 0.01 * v.max()
             rel.append((pred[keep] - v[keep]) / v[keep])

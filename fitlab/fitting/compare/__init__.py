@@ -156,10 +156,12 @@ def compare(measurement, models, *, fix: dict | None = None, free=(), options: d
         raise FitlabError(f"{m.path}: no row is left to fit (check --fit-subset and --channel)")
     # One request per candidate, all sharing these settings (checked once, by FitRequest). The
     # fits' block bootstrap does not enter the ranking (the cross-validation is its
-    # misfit-aware measure): left out.
+    # misfit-aware measure), nor does a layered model's check against its own stack
+    # (fitlab.fitting.model_check; `fitlab fit` of the chosen model gives it): left out.
     loss = loss or ("chi2" if m.sigma is not None else "relative")
     settings = {"loss": loss, "subset": rows_fit, "mcmc": mcmc, "mcmc_steps": mcmc_steps,
                 "walkers": walkers, "starts": starts, "seed": seed, "bootstrap": 0,
+                "check_model": "off",
                 "global_search": global_search, "local_solver": local_solver,
                 "channels": tuple(m.channel_names[c] for c in chan_ids)}
     cands = resolve_candidates(models, fix, options, free, settings)
