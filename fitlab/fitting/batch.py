@@ -39,7 +39,6 @@ from typing import NamedTuple
 import numpy as np
 
 from fitlab._jax import jax, jnp
-from fitlab.fitting.cores import over_cores, usable_cores
 from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XTOL, ROW_MASK,
                                           FitData, at_bound_mask, local_stage,
                                           lm_stop_reasons, names_at_bound_many, pad_to, padded_size,
@@ -231,16 +230,15 @@ def _batched(static, loss, steps):
     """The kernels: the single fit's scan vmapped over datasets (points shared, problem per
     dataset), the shared scan (:func:`shared_scan_costs`) and the local stage with the
     fixed-budget solver, ``steps`` steps a call, vmapped over *lanes*: one start of one dataset
-    each (start, weights and problem per lane), always ``LANES`` of them a call, shared out
-    over the CPU's cores."""
+    each (start, weights and problem per lane), always ``LANES`` of them a call."""
     local = fixed_local(static, loss, int(steps))
     cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
     one = lambda z, u, w, problem: local(z[None], u[None], w[None], problem)  # noqa: E731
-    # the lanes are independent: on the CPU, shared out over its cores (fitting/cores.py)
-    lanes = over_cores(jax.vmap(one), usable_cores(LANES), (True, True, True, True))
+    # (shared out over the CPU's cores with fitting/cores.py, the lanes gave no measurable
+    # gain: fit-maps' 256 x 256 benchmark warm 6.87 s against 6.91 s on one device)
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
             "shared_scan": jax.jit(functools.partial(shared_scan_costs, static, loss)),
-            "lanes_local": lanes}
+            "lanes_local": jax.jit(jax.vmap(one))}
 
 
 def _run_lanes(k, stacked, which, u0, z=None) -> dict:

@@ -1,6 +1,6 @@
 """Independent work spread over the host's cores: fitlab gives XLA's CPU backend one device per
-core (fitlab/_jax.py), and a computation made of independent pieces (NUTS's chains, the batched
-fits' Levenberg–Marquardt lanes) is compiled once with ``jax.shard_map`` so that each device
+core (fitlab/_jax.py), and a computation made of independent pieces (NUTS's chains, each a
+long sequential loop) is compiled once with ``jax.shard_map`` so that each device
 runs its share of them at the same time. One XLA CPU computation otherwise runs its small
 operations on one core; on an accelerator the pieces stay vmapped on the one device."""
 
@@ -17,13 +17,6 @@ def host_devices() -> list:
     return jax.devices() if jax.default_backend() == "cpu" else []
 
 
-def usable_cores(pieces: int) -> int:
-    """How many host devices ``pieces`` independent pieces (a multiple of the count returned)
-    are spread over: the most that divides them evenly, 1 without several CPU devices."""
-    n = len(host_devices())
-    return max((k for k in range(1, n + 1) if pieces % k == 0), default=1)
-
-
 def over_cores(local, ndevices: int, split: tuple):
     """``local`` compiled to run on the first ``ndevices`` host devices at once: the arguments
     marked in ``split`` shared out along their first axis (a multiple of ``ndevices``), the
@@ -38,4 +31,4 @@ def over_cores(local, ndevices: int, split: tuple):
                                  out_specs=spec("core"), check_vma=False))
 
 
-__all__ = ["host_devices", "over_cores", "usable_cores"]
+__all__ = ["host_devices", "over_cores"]
