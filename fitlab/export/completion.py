@@ -123,8 +123,10 @@ def _reason_counts(reason) -> dict:
 
 
 def _incidence_keys(theta_i, phi_i) -> np.ndarray:
-    return np.round(np.stack([np.asarray(theta_i, float),
-                              np.mod(np.asarray(phi_i, float), 360.0)], axis=1), 6) + 0.0
+    """The fit error's incidence keys (fitlab.metrics.incidence_keys), rounded for matching."""
+    from fitlab.metrics import incidence_keys
+
+    return np.round(incidence_keys(theta_i, phi_i), 6) + 0.0
 
 
 def by_incidence(filled, error: dict) -> tuple[list, dict | None]:

@@ -111,13 +111,14 @@ def fill(job: Job, channel, wi, wo) -> Filled:
     value = np.full(n, np.nan)
     reason = np.full(n, "uncovered", dtype=object)
     if n:
-        at = lookup(_keys(m.channel, m.wi, m.wo), _keys(channel, wi, wo))
+        query = _keys(channel, wi, wo)
+        at = lookup(_keys(m.channel, m.wi, m.wo), query)
         hit = at >= 0
         value[hit] = m.value[at[hit]]
         reason[hit] = np.where(job.replaced[at[hit]], "subset", MEASURED)
         if m.gaps is not None:
             g = m.gaps.rows
-            gat = lookup(_keys(g.channel, g.wi, g.wo), _keys(channel, wi, wo))
+            gat = lookup(_keys(g.channel, g.wi, g.wo), query)
             ghit = (gat >= 0) & ~hit
             reason[ghit] = m.gaps.reason[gat[ghit]]
     need = reason != MEASURED

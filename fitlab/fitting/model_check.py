@@ -23,6 +23,7 @@ for a file that must not.
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -118,35 +119,38 @@ def check_channel(model, params: dict, options: dict, rows, fit_rms, *, mode: st
         return record_of("skipped", "check_model off (--check-model off)",
                          fit_error=fit_rms), 0.0
     from fitlab.errors import InputFileError
-    from fitlab.simulate.model_stack import model_at_rows, simulate_rows
     from fitlab.fitting.space import model_values
+    from fitlab.simulate import simulate
+    from fitlab.simulate.model_stack import model_at_rows, rows_scene
 
     index = row_subset(np.arange(rows.n))
     sub = rows.take(index)
     subset = (f"{index.size} of the {rows.n} fitted rows, evenly spaced"
               if index.size < rows.n else f"all {rows.n} fitted rows")
-    try:
-        simulate_rows(scene, sub, WARMUP_SAMPLES, seed)  # compiles
-        t1 = time.perf_counter()
-        pilot = simulate_rows(scene, sub, PILOT_SAMPLES, seed)
-        t_pilot = time.perf_counter() - t1
-    except (InputFileError, ValueError) as exc:
-        return record_of("skipped", f"the simulator refused the stack or the rows: {exc}",
-                         fit_error=fit_rms), time.perf_counter() - t0
-    pilot_se, _ = relative_se(pilot)
-    n = samples_for(pilot_se, target=AIM_SE)
-    estimate = t_pilot * n / PILOT_SAMPLES
-    budget = budget_s(fit_seconds, min_budget_s)
-    if mode == "auto" and estimate > budget:
-        return record_of(
-            "skipped", f"auto: estimated {estimate:.3g} s for {n:,} paths per incidence "
-            f"(pilot relative SE {pilot_se:.3g}) is over the budget {budget:.3g} s (max of "
-            f"{BUDGET_FRACTION:g} x the fit's {fit_seconds:.3g} s and {min_budget_s:g} s); "
-            "--check-model on runs it", rows=int(index.size), samples=n,
-            fit_error=fit_rms), time.perf_counter() - t0
-    log(f"  model check: simulating the fitted stack at {subset}, {n:,} paths per incidence "
-        f"(estimated {estimate:.2g} s)")
-    sim = simulate_rows(scene, sub, n, seed)
+    with contextlib.ExitStack() as stack:  # one scene (the rows' file) for all three runs
+        try:
+            sc = stack.enter_context(rows_scene(scene, sub))
+            simulate(sc, WARMUP_SAMPLES, seed)  # compiles
+            t1 = time.perf_counter()
+            pilot = simulate(sc, PILOT_SAMPLES, seed)
+            t_pilot = time.perf_counter() - t1
+        except (InputFileError, ValueError) as exc:
+            return record_of("skipped", f"the simulator refused the stack or the rows: {exc}",
+                             fit_error=fit_rms), time.perf_counter() - t0
+        pilot_se, _ = relative_se(pilot)
+        n = samples_for(pilot_se, target=AIM_SE)
+        estimate = t_pilot * n / PILOT_SAMPLES
+        budget = budget_s(fit_seconds, min_budget_s)
+        if mode == "auto" and estimate > budget:
+            return record_of(
+                "skipped", f"auto: estimated {estimate:.3g} s for {n:,} paths per incidence "
+                f"(pilot relative SE {pilot_se:.3g}) is over the budget {budget:.3g} s (max of "
+                f"{BUDGET_FRACTION:g} x the fit's {fit_seconds:.3g} s and {min_budget_s:g} s); "
+                "--check-model on runs it", rows=int(index.size), samples=n,
+                fit_error=fit_rms), time.perf_counter() - t0
+        log(f"  model check: simulating the fitted stack at {subset}, {n:,} paths per "
+            f"incidence (estimated {estimate:.2g} s)")
+        sim = simulate(sc, n, seed)
     se, _ = relative_se(sim)
     mm = sim.to_measurement()
     opts = tuple(sorted(options.items()))

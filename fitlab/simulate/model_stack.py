@@ -4,12 +4,13 @@ simulation of the stack it approximates (``Model.scene_of``; data_formats/layere
 ``fitlab tradeoffs`` (its "layered physics" knob) and the fit's model check
 (:mod:`fitlab.fitting.model_check`) both use them: the scene with every effect a model may
 approximate traced (:func:`stack_scene`), the simulation at given rows or on an arc
-(:func:`simulate_rows`, :func:`with_detector`), and the model at the simulation's rows as the
+(:func:`rows_scene`, :func:`with_detector`), and the model at the simulation's rows as the
 simulator tallies them (:func:`model_at_rows`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import tempfile
 from pathlib import Path
 
@@ -65,18 +66,18 @@ def with_detector(scene: dict, detector: dict):
                                                       "acceptance_sr": ACCEPTANCE_SR}})
 
 
-def simulate_rows(scene: dict, rows, samples: int, seed: int = 0):
-    """The SimulationResult of ``scene`` at the directions of Measurement ``rows`` (a
-    measurement detector, :func:`with_detector`), ``samples`` paths per incidence. The rows
-    travel to the simulator as a temporary measurement CSV, removed at once."""
+@contextlib.contextmanager
+def rows_scene(scene: dict, rows):
+    """The validated Scene of ``scene`` at the directions of Measurement ``rows`` (a
+    measurement detector, :func:`with_detector`), for as many ``simulate`` runs as the context
+    lasts: the rows travel to the simulator as a temporary measurement CSV, written once and
+    removed when the context ends."""
     from fitlab.io.measurement import format_measurement_csv
-    from fitlab.simulate import simulate
 
     with tempfile.TemporaryDirectory(prefix="fitlab-stack-") as tmp:
         path = Path(tmp) / "rows.csv"
         path.write_text(format_measurement_csv(rows), encoding="utf-8")
-        sc = with_detector(scene, {"type": "measurement", "file": str(path)})
-        return simulate(sc, samples, seed)
+        yield with_detector(scene, {"type": "measurement", "file": str(path)})
 
 
 def model_at_rows(evaluate, m) -> np.ndarray:
@@ -93,5 +94,5 @@ def model_at_rows(evaluate, m) -> np.ndarray:
     return np.einsum("rk,rkc->rc", w, v)
 
 
-__all__ = ["ACCEPTANCE_SR", "full_physics", "is_layered", "model_at_rows", "simulate_rows",
+__all__ = ["ACCEPTANCE_SR", "full_physics", "is_layered", "model_at_rows", "rows_scene",
            "stack_scene", "with_detector"]
