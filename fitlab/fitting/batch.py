@@ -46,7 +46,7 @@ from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XT
 from fitlab.fitting.lm_fixed import lm_fixed
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.searches import SCAN_BLOCK, scan_points
-from fitlab.fitting.space import SCALE, FitSpace, to_native, z_from_unit
+from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
 #: the model's defaults.
@@ -125,21 +125,26 @@ def group(problems: list[Problem], *, joint: bool = False) -> list[list[int]]:
 
 def _stack(problems: list[Problem], size: int) -> dict:
     """The kernels' ``problem`` argument with a leading dataset axis, the rows padded to
-    ``size`` (least_squares.pad_to). Problems that share their space and direction arrays
-    (fitlab.fitting.maps: texels on one set of rows) keep one copy of those, broadcast."""
+    ``size`` (least_squares.pad_to). Problems that share their direction arrays (datasets of
+    one instrument, the texels of a map: fitlab.fitting.many and maps) keep one copy of those,
+    broadcast; problems that share their space, one copy of its bounds and fixed values."""
     p0 = problems[0]
     d0 = p0.data
     every = lambda x: np.broadcast_to(np.asarray(x), (len(problems),) + np.shape(x))  # noqa: E731
     datas = [p.data for p in problems]
-    if all(p.space is p0.space and d.wi is d0.wi and d.wo is d0.wo and d.weights is d0.weights
-           for p, d in zip(problems, datas)):
+    if all(p.space is p0.space for p in problems):
+        arrays = jax.tree.map(every, p0.space.arrays())
+    else:
+        arrays = {"lo": np.array([[q.lower for q in p.space.free] for p in problems]),
+                  "hi": np.array([[q.upper for q in p.space.free] for p in problems]),
+                  "fixed": {k: np.array([np.float64(p.space.fixed[k]) for p in problems])
+                            for k in p0.space.fixed}}
+    if all(d.wi is d0.wi and d.wo is d0.wo and d.weights is d0.weights for d in datas):
         first = pad_to(d0, size)
         own = _stacked_rows(datas, size, directions=False)
         data = own._replace(wi=every(first.wi), wo=every(first.wo),
                             weights=None if first.weights is None else every(first.weights))
-        return {**jax.tree.map(every, p0.space.arrays()), "data": data}
-    arrays = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]),
-                          *[p.space.arrays() for p in problems])
+        return {**arrays, "data": data}
     return {**arrays, "data": _stacked_rows(datas, size)}
 
 
@@ -325,9 +330,8 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     # 2. LM from the scan's best point; where that end is suspect (:func:`_suspect`), from the
     #    model's defaults and the scan's next `starts` best points too
     order = smallest(costs, starts + 1)
-    u_default = (p0.space.to_unit(np.stack([p.start_native for p in problems]))
-                 if all(p.space is p0.space for p in problems)
-                 else np.stack([p.space.to_unit(p.start_native) for p in problems]))
+    u_default = to_unit(static, np.stack([p.start_native for p in problems]), problem["lo"],
+                        problem["hi"])
     lanes = np.concatenate([U_scan[order[:, :1]], u_default[:, None],
                             U_scan[order[:, 1:]]], axis=1)
     lanes = np.clip(lanes, 1e-6, 1 - 1e-6)

@@ -14,7 +14,7 @@ from fitlab.errors import FitlabError
 from fitlab.fitting.least_squares import FitData
 from fitlab.fitting import progress
 from fitlab.fitting.losses import loss_weights
-from fitlab.fitting.space import SCALE, make_space, model_values
+from fitlab.fitting.space import SCALE, FreeParameter, make_space, model_values
 from fitlab.fitting.status import Status
 from fitlab.metrics import fit_error, incidence_keys
 from fitlab.models import Model
@@ -96,10 +96,18 @@ def alert_line(quiet, msg):
 
 
 def _scale_reference(model, options, start, m, rows, in_chan, memo=None):
-    """Least-squares scale of the model at ``start`` to the fitted rows' values. The model is
-    evaluated on every row of the channel (the shape the final prediction uses too, so both are
-    one compiled kernel). ``memo``: a dict kept by the caller across datasets of one request,
-    where the model's values on the same directions are looked up instead of evaluated."""
+    """Least-squares scale of the model at ``start`` to the fitted rows' values
+    (:func:`scale_of`). The model is evaluated on every row of the channel (the shape the final
+    prediction uses too, so both are one compiled kernel). ``memo``: a dict kept by the caller
+    across datasets of one request, where the model's values on the same directions are looked
+    up instead of evaluated."""
+    f_all = _start_values(model, options, start, m, in_chan, memo)
+    return scale_of(f_all[rows[in_chan]], m.value[rows])
+
+
+def _start_values(model, options, start, m, in_chan, memo=None):
+    """The model's values at ``start`` on the channel's rows (looked up in ``memo`` by the
+    start and the directions, else evaluated and kept there)."""
     wi, wo = m.wi[in_chan], m.wo[in_chan]
     key = None if memo is None else (tuple(sorted(start.items())), wi.tobytes(), wo.tobytes())
     f_all = None if memo is None else memo.get(key)
@@ -107,8 +115,13 @@ def _scale_reference(model, options, start, m, rows, in_chan, memo=None):
         f_all = model_values(model, tuple(sorted(options.items())), start, wi, wo)
         if memo is not None:
             memo[key] = f_all
-    f = f_all[rows[in_chan]]
-    v = m.value[rows]
+    return f_all
+
+
+def scale_of(f, v) -> float:
+    """The least-squares scale s of model values ``f`` to data ``v`` (min |s f - v|²); where
+    that is not finite or not positive, the median of |v| over the median of f on the rows
+    where f > 0 (1 if none); at least 1e-300."""
     den = float(f @ f)
     s = float(v @ f) / den if den > 0 else 0.0
     if not np.isfinite(s) or s <= 0:
@@ -257,6 +270,36 @@ def channel_problem(m, model, options, fixed, loss, start, rows, name, in_chan,
     start_native = [start[p.name] if p.name != SCALE else np.sqrt(np.prod(scale_bounds))
                     for p in space.free]
     return space, data, start_native
+
+
+def channel_problems_like(space, data, start_native, loss, values, sigma=None, f_start=None):
+    """The problems of datasets measured on the rows of one channel problem (``space``,
+    ``data``, ``start_native``: what :func:`channel_problem` made for the first of them) with
+    values of their own (``values``, and ``sigma`` or None: one dataset per row, the rows on the
+    last axis): per dataset (space, data, start_native) as channel_problem makes them from its
+    measurement (the same numbers: tested), the loss's constants of all at once, sharing the
+    first's direction arrays and, but for a relative fit, its space. ``f_start``: a relative
+    fit's model values at the start on the rows, each dataset's scale reference
+    (:func:`scale_of`) from them. The batched fits (fitlab.fitting.many) build thousands of
+    datasets of one instrument this way."""
+    values = np.asarray(values, float)
+    sigma = None if sigma is None else np.asarray(sigma, float)
+    consts = loss_weights(loss, values, sigma, data.wo[:, 2])
+    datas = [FitData(data.wi, data.wo, v, {k: x[j] if np.ndim(x) == 2 else x
+                                          for k, x in consts.items()}, data.weights)
+             for j, v in enumerate(values)]
+    start = np.asarray(start_native, float)
+    if not space.relative:
+        return [space] * len(values), datas, [start] * len(values)
+    s = np.array([scale_of(f_start, np.array(v)) for v in values])  # a fresh array, as
+    # channel_problem's (BLAS's dot may round by the alignment of its operands)
+    lo, hi = s * 1e-4, s * 1e4  # channel_problem's scale bounds
+    k, unit = space.names.index(SCALE), space.free[-1].unit
+    spaces = [space._replace(free=space.free[:-1] + (FreeParameter(SCALE, a, b, True, unit),))
+              for a, b in zip(lo.tolist(), hi.tolist())]
+    starts = np.repeat(start[None], len(values), axis=0)
+    starts[:, k] = np.sqrt(lo * hi)
+    return spaces, datas, list(starts)
 
 
 def prepare_channel(m, model, *, rows, channel=0, aperture_order=None, **settings):

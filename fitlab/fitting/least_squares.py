@@ -31,7 +31,8 @@ from fitlab.fitting.exchange import canonical_runs
 from fitlab.fitting.lm_fixed import value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.progress import line as progress_line
-from fitlab.fitting.searches import DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, global_start
+from fitlab.fitting.searches import (DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, START_ROWS,
+                                     global_start)
 from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER, LOCAL_SOLVERS, algorithm
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
@@ -299,14 +300,15 @@ def scan_costs(static: StaticSpace, loss: str, U, problem):
     return jax.lax.map(lambda u: cost_unit(static, loss, u, problem), U, batch_size=block)
 
 
-def scan_rows(static: StaticSpace, data: FitData) -> FitData:
-    """The rows the scan evaluates: all of them up to SCAN_ROWS, else SCAN_ROWS rows evenly
-    spread over the data (in their order). A structure whose kernels depend on its row counts
-    (``static.rows_fixed``: a joint fit) scans every row."""
+def scan_rows(static: StaticSpace, data: FitData, limit: int = SCAN_ROWS) -> FitData:
+    """The rows the scan evaluates (``limit`` SCAN_ROWS; the starts, START_ROWS): all of them
+    up to ``limit``, else ``limit`` rows evenly spread over the data (in their order). A
+    structure whose kernels depend on its row counts (``static.rows_fixed``: a joint fit)
+    keeps every row."""
     n = int(np.shape(data.value)[0])
-    if static.rows_fixed or n <= SCAN_ROWS:
+    if static.rows_fixed or n <= limit:
         return data
-    keep = np.unique(np.round(np.linspace(0, n - 1, SCAN_ROWS)).astype(int))
+    keep = np.unique(np.round(np.linspace(0, n - 1, limit)).astype(int))
     return jax.tree.map(lambda x: np.asarray(x)[keep], data)
 
 
@@ -314,12 +316,51 @@ def scan_rows(static: StaticSpace, data: FitData) -> FitData:
 _compiled_local = set()
 
 
-def _compile_local(k, problem, n_local, d):
-    """Compile (and run once, on placeholder starts) the local stage for this shape."""
+def _compile_local(k, problem, n_local, d, every_row=None):
+    """Compile (and run once, on placeholder starts) the local stage for this shape, and with
+    ``every_row`` (a fit whose starts run on START_ROWS of its rows, ``problem``) what
+    :func:`_refined` runs on every row: one start's local stage and the cost."""
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
-        n_rows = problem["data"].value.shape[0]
-        jax.block_until_ready(k["local"](np.zeros((n_local, d)), np.full((n_local, d), 0.5),
-                                         np.ones((n_local, n_rows)), problem))
+        for p, n in ((problem, n_local),) + (() if every_row is None else ((every_row, 1),)):
+            n_rows = p["data"].value.shape[0]
+            jax.block_until_ready(k["local"](np.zeros((n, d)), np.full((n, d), 0.5),
+                                             np.ones((n, n_rows)), p))
+        if every_row is not None:
+            jax.block_until_ready(k["value"](np.full(d, 0.5), every_row))
+
+
+def _refined(k, space, problem, loc: dict, lm_maxiter: int) -> dict:
+    """The starts' Levenberg–Marquardt ends on START_ROWS rows (``loc``, :func:`local_fits`)
+    carried to every row of ``problem``: the best end, and each end as good (cost within
+    EQUAL_COST_RTOL) at other parameters (more than DISTINCT_UNIT apart: one per such basin),
+    refined by Levenberg–Marquardt on every row (its steps added to the start's); every other
+    end's cost on every row where it is. The starts find the basins on a thousand rows,
+    and only the runs the fit reports pay for every row (benchmarks/README.md, "The single fit
+    at scale"). Returns ``loc`` so changed (its residuals and Jacobians those of every row, NaN
+    for ends not refined)."""
+    runs = lm_runs(loc, lm_maxiter)
+    best = min(runs, key=lambda r: r["cost"])
+    picked = []
+    for rr in sorted(runs, key=lambda r: r["cost"]):
+        good = rr is best or (np.isfinite(rr["cost"])
+                              and rr["cost"] <= best["cost"] * (1 + EQUAL_COST_RTOL) + 1e-300)
+        if good and all(np.max(np.abs(rr["u"] - p["u"])) > DISTINCT_UNIT for p in picked):
+            picked.append(rr)
+    n_rows = int(problem["data"].value.shape[0])
+    out = {key: v.copy() for key, v in loc.items() if key not in ("residuals", "jacobian")}
+    out["residuals"] = np.full((len(runs), n_rows), np.nan)
+    out["jacobian"] = np.full((len(runs), n_rows, space.ndim), np.nan)
+    for rr in runs:
+        i = rr["index"]
+        if any(p is rr for p in picked):
+            again = canonical_runs(space, local_fits(k, problem, [loc["u"][i]]))
+            for key in out:
+                out[key][i] = again[key][0]
+            out["iters"][i] = loc["iters"][i] + again["iters"][0]
+            out["start_native"][i] = loc["start_native"][i]
+        elif loc["end_finite"][i]:
+            out["cost"][i] = float(k["value"](loc["u"][i], problem))
+    return out
 
 
 def local_fits(k, problem, starts_u, weights=None):
@@ -391,13 +432,20 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                                                                           scan_data))
     d = space.ndim
     n_local = 1 + n_starts + (start_native is not None)
+    # more rows than START_ROWS: the starts run on START_ROWS of them, and the best of their
+    # ends (with any as good at other parameters) is refined on every row (:func:`_refined`)
+    start_data = scan_rows(space.static, scan_data, START_ROWS)
+    every_row = start_data is scan_data and scanned_all
+    start_problem = problem if every_row else problem_of(space, pad_rows(space.static,
+                                                                         start_data))
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The first fit of this shape in the process compiles the local stage meanwhile (XLA
         # compiles outside the GIL, so with two cores the two compilations overlap).
         key = (space.static, loss, int(lm_maxiter), solver, n_local, int(data.value.shape[0]),
-               None if data.weights is None else tuple(data.weights.shape))
+               every_row, None if data.weights is None else tuple(data.weights.shape))
         warm = None if key in _compiled_local else pool.submit(
-            _compile_local, k, problem, n_local, d)
+            _compile_local, k, start_problem, n_local, d,
+            None if every_row else problem)
         U_glob, glob_info = global_start(search, k, problem, scan_problem,
                                          int(scan_data.value.shape[0]), d, seed, n_starts,
                                          global_maxeval, progress)
@@ -412,13 +460,17 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
         starts_u.append(space.to_unit(np.asarray(start_native, dtype=float)))
     if progress:
         progress_line(f"  Levenberg-Marquardt from {len(starts_u)} starts at once...")
-    loc = canonical_runs(space, local_fits(k, problem, starts_u))  # one labelling of
+    loc = canonical_runs(space, local_fits(k, start_problem, starts_u))  # one labelling of
     # interchangeable lobes (a sum that repeats a component: fitlab/fitting/exchange.py)
+    if not every_row:
+        loc = _refined(k, space, problem, loc, lm_maxiter)
+        glob_info = dict(glob_info, lm_rows=int(start_data.value.shape[0]))
     runs = lm_runs(loc, lm_maxiter)
     best = min(runs, key=lambda r: r["cost"])
     u_bound = near_bounds(best["u"]) if np.isfinite(best["cost"]) else None
     if u_bound is not None:  # one more start: the best end moved onto the bounds it nears
-        again = canonical_runs(space, local_fits(k, problem, [u_bound] * len(starts_u)))
+        again = canonical_runs(space, local_fits(
+            k, problem, [u_bound] * (len(starts_u) if every_row else 1)))
         loc = {key: np.concatenate([v, again[key][:1]]) for key, v in loc.items()}
         starts_u.append(u_bound)
         runs = lm_runs(loc, lm_maxiter)

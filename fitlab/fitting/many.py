@@ -13,6 +13,7 @@ checks are the single fit's (``fitlab.fit``).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from types import SimpleNamespace
@@ -223,13 +224,16 @@ def _least_squares_result(f: Fitted, settings: dict) -> LeastSquaresResult:
 
 
 def _problems(measurements, request):
-    """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss)."""
-    from fitlab.fitting.channel import channel_problem, fitted_rows, resolve_fit
+    """Every dataset's Problem, with what records need (spaces, rows, fixed, notes, loss).
+    Datasets of one instrument (the same directions, channels, fitted rows and fit set-up as
+    an earlier one: :func:`_geometry`) take that one's problems with their own values
+    (fitlab.fitting.channel ``channel_problems_like``: the same numbers, built at once)."""
+    from fitlab.fitting.channel import resolve_fit
     from fitlab.fitting.subset import rows_of
     from fitlab.io.gates import notes as read_notes
 
-    problems, spaces, rows, fixed_all, notes_all, losses = [], {}, [], [], [], {}
-    setups, memo = {}, {}  # resolve_fit depends on a file's eta and sigma only
+    per, spaces, rows, fixed_all, notes_all, losses = {}, {}, [], [], [], {}
+    setups, memo, protos, likes, seen = {}, {}, {}, {}, {}  # resolve_fit: eta and sigma
     for i, m in enumerate(measurements):
         key = (m.eta(), m.sigma is None)
         if key not in setups:
@@ -237,28 +241,97 @@ def _problems(measurements, request):
                 setups[key] = resolve_fit(m, request)
             except ValueError as exc:
                 raise FitlabError(f"{m.path}: {exc}") from None
-        mdl, opts, fixed, notes, lss, start = setups[key]
         _, mask = rows_of(request.subset, m)
         rows.append(mask)
-        fixed_all.append(dict(fixed))
-        notes_all.append(list(notes) + read_notes(m))  # how the file was read, if not by default
-        losses[i] = lss
+        fixed_all.append(dict(setups[key].fixed))
+        notes_all.append(list(setups[key].notes) + read_notes(m))  # how the file was read
+        losses[i] = setups[key].loss
         if m.has_aperture:
             raise FitlabError(f"{m.path}: data with an aperture are fitted one at a time "
                               "(fitlab fit), whose quadrature order adapts per file")
-        for c in range(len(m.channel_names)):
-            name, in_chan, r = fitted_rows(m, c, mask)
-            if r is None:
-                continue
-            try:
-                space, data, start_native = channel_problem(m, mdl, opts, fixed, lss, start, r,
-                                                            name, in_chan, memo=memo)
-            except ValueError as exc:
-                raise FitlabError(f"{m.path}: {exc}") from None
-            spaces[(i, name)] = space
-            problems.append(Problem(space, data, np.asarray(start_native, float), lss,
-                                    int(r.sum()), (i, name)))
+        # the same arrays as an earlier dataset's (datasets of one file, or made from one
+        # template): that one's geometry, else the arrays' contents digested
+        same = (key, m.quantity, m.channel_names, id(m.wi), id(m.wo), id(m.channel),
+                None if request.subset is None else mask.tobytes())
+        g = seen.get(same)
+        if g is None:
+            g = seen[same] = _geometry(m, mask, key)
+        if g in protos:
+            likes[g].append(i)
+            continue
+        protos[g], likes[g] = i, []
+        per[i] = _own_problems(i, m, mask, setups[key], memo)
+    for g, members in likes.items():
+        if members:
+            m0 = measurements[protos[g]]
+            per.update(_like_problems(per[protos[g]], m0, rows[protos[g]],
+                                      [measurements[i] for i in members], members,
+                                      setups[(m0.eta(), m0.sigma is None)], memo))
+    problems = [p for i in range(len(measurements)) for p in per[i]]
+    for p in problems:
+        spaces[p.key] = p.space
+    opts = next(iter(setups.values())).options
     return problems, spaces, rows, fixed_all, notes_all, losses, opts
+
+
+def _geometry(m, mask, setup_key):
+    """What datasets must share to take one's problems with their own values: the fit's
+    set-up, the quantity, the channels, and the directions and fitted rows (their shapes, and
+    a BLAKE2 digest of their bytes: equal digests of different arrays are not to be met)."""
+    arrays = (m.wi, m.wo, m.channel, mask)
+    h = hashlib.blake2b(b"".join(np.ascontiguousarray(x).tobytes() for x in arrays),
+                        digest_size=32)
+    return (setup_key, m.quantity, m.channel_names, *(x.shape for x in arrays),
+            *(x.dtype for x in arrays), h.digest())
+
+
+def _own_problems(i, m, mask, setup, memo) -> list:
+    """Dataset ``i``'s problems, one per channel with rows to fit (the single fit's
+    ``channel_problem``)."""
+    from fitlab.fitting.channel import channel_problem, fitted_rows
+
+    mdl, opts, fixed, _, lss, start = setup
+    out = []
+    for c in range(len(m.channel_names)):
+        name, in_chan, r = fitted_rows(m, c, mask)
+        if r is None:
+            continue
+        try:
+            space, data, start_native = channel_problem(m, mdl, opts, fixed, lss, start, r,
+                                                        name, in_chan, memo=memo)
+        except ValueError as exc:
+            raise FitlabError(f"{m.path}: {exc}") from None
+        out.append(Problem(space, data, np.asarray(start_native, float), lss, int(r.sum()),
+                           (i, name)))
+    return out
+
+
+def _like_problems(proto: list, m0, mask0, ms: list, index: list, setup, memo) -> dict:
+    """{dataset index: its problems} of the datasets ``ms`` (indices ``index``), on the
+    geometry of ``m0`` (fitted rows ``mask0``) whose problems are ``proto``: each channel's at once
+    (fitlab.fitting.channel ``channel_problems_like``)."""
+    from fitlab.fitting.channel import _start_values, channel_problems_like, fitted_rows
+
+    mdl, opts, _, _, lss, start = setup
+    value = np.stack([m.value for m in ms])
+    sigma = None if m0.sigma is None else np.stack([m.sigma for m in ms])
+    out = {i: [] for i in index}
+    for p in proto:
+        c = m0.channel_names.index(p.key[1])
+        in_chan = m0.channel == c
+        r = in_chan & mask0
+        v = value[:, r]
+        empty = ~np.any(v != 0, axis=1)
+        if empty.any():  # the single fit's message, naming the file
+            j = int(np.flatnonzero(empty)[0])
+            fitted_rows(ms[j], c, mask0)
+        f = (_start_values(mdl, opts, start, m0, in_chan, memo)[r[in_chan]]
+             if m0.is_relative else None)
+        got = channel_problems_like(p.space, p.data, p.start_native, lss, v,
+                                    None if sigma is None else sigma[:, r], f)
+        for i, space, data, x0 in zip(index, *got):
+            out[i].append(Problem(space, data, x0, lss, p.n_rows, (i, p.key[1])))
+    return out
 
 
 def _posteriors(problems, res: BatchResult, *, seed, nsteps, chains, batch):

@@ -38,7 +38,12 @@ SCAN_MAX_POINTS = 4096
 #: The scan evaluates the cost on at most this many rows (evenly spread over the data; a fit of
 #: more rows scans a subset: the scan only chooses a start, and LM then fits every row) ...
 SCAN_ROWS = 4096
-#: ... and on at most this many point-row pairs at once (memory: a block of points at a time).
+#: The Levenberg–Marquardt starts of a fit of more rows than this run on this many rows, evenly
+#: spread (they find the basins; the best end is refined on every row:
+#: fitlab.fitting.least_squares ``_refined``) ...
+START_ROWS = 1024
+#: ... and the scan on at most this many point-row pairs at once (memory: a block of points at
+#: a time).
 SCAN_BLOCK = 1 << 20
 
 

@@ -97,15 +97,9 @@ class FitSpace(NamedTuple):
         return out
 
     def to_unit(self, native):
-        native = np.asarray(native, dtype=float)
-        out = np.empty_like(native)
-        for k, p in enumerate(self.free):
-            v = native[..., k]
-            if p.log:
-                out[..., k] = np.log(v / p.lower) / np.log(p.upper / p.lower)
-            else:
-                out[..., k] = (v - p.lower) / (p.upper - p.lower)
-        return np.clip(out, 0.0, 1.0)
+        """Native values (..., ndim) → unit-box coordinates, clipped to [0, 1] (NumPy)."""
+        return to_unit(self.static, native, np.array([p.lower for p in self.free]),
+                       np.array([p.upper for p in self.free]))
 
     def predict(self, native, wi, wo):
         """scale · f(wi, wo) at native parameter values, as a NumPy array (one jitted call)."""
@@ -128,6 +122,21 @@ def to_native(static: StaticSpace, u, lo, hi):
     safe_hi = jnp.where(is_log, hi, 1.0)
     logv = jnp.exp(jnp.log(safe_lo) + (jnp.log(safe_hi) - jnp.log(safe_lo)) * u)
     return jnp.where(is_log, logv, lin)
+
+
+def to_unit(static: StaticSpace, native, lo, hi) -> np.ndarray:
+    """Native values (..., ndim) → unit-box coordinates in [0, 1], in NumPy, with bounds
+    ``lo``, ``hi`` broadcasting against them (one dataset's, or one per dataset of a batch)."""
+    native = np.asarray(native, dtype=float)
+    lo, hi = np.broadcast_to(lo, native.shape), np.broadcast_to(hi, native.shape)
+    out = np.empty_like(native)
+    for k, log in enumerate(static.log):
+        v = native[..., k]
+        if log:
+            out[..., k] = np.log(v / lo[..., k]) / np.log(hi[..., k] / lo[..., k])
+        else:
+            out[..., k] = (v - lo[..., k]) / (hi[..., k] - lo[..., k])
+    return np.clip(out, 0.0, 1.0)
 
 
 def predict(static: StaticSpace, theta, fixed: dict, wi, wo):

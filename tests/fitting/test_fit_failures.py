@@ -435,3 +435,29 @@ def test_fit_statuses_and_throw(oren_nayar_data, tmp_path, monkeypatch):
     assert fitlab.load_fit(bad.save(tmp_path / "f.json").path).statuses() == bad.statuses()
     with pytest.raises(FitlabError, match="max_iterations.*--lm-maxiter"):
         fitlab.fit(m, "oren_nayar", starts=2, bootstrap=0, lm_maxiter=2, throw=True)
+
+
+def test_starts_on_a_subset_of_many_rows_end_at_the_every_row_optimum(oren_nayar_data,
+                                                                      monkeypatch):
+    """A fit of more rows than START_ROWS runs its starts on START_ROWS of them and refines the
+    best end on every row (least_squares._refined): the same optimum as the starts run on every
+    row, the record says how many rows the starts fitted, and every start's cost is its end's
+    cost on every row (computed here in NumPy from the model's values)."""
+    from fitlab.fitting.channel import prepare_channel
+
+    m = oren_nayar_data
+    p = prepare_channel(m, "oren_nayar", rows=np.ones(m.n, bool))
+    space, data, loss = p["space"], p["data"], p["loss"]
+    full = fls.fit_least_squares(space, data, loss, n_starts=3, seed=1)
+    assert "lm_rows" not in full.global_search
+    monkeypatch.setattr(fls, "START_ROWS", 16)
+    sub = fls.fit_least_squares(space, data, loss, n_starts=3, seed=1)
+    assert m.n > 16 and sub.global_search["lm_rows"] == 16
+    np.testing.assert_allclose(sub.native, full.native, rtol=1e-7)
+    np.testing.assert_allclose(sub.stderr, full.stderr, rtol=1e-5)
+    assert sub.solver["stopped"] == "converged" and sub.residuals.shape == (m.n,)
+    w = np.asarray(data.consts["w"])
+    for st in sub.starts:
+        end = np.array([st["end"][n] for n in space.names])
+        r = (space.predict(end, data.wi, data.wo) - data.value) * w
+        assert st["cost"] == pytest.approx(0.5 * float(r @ r), rel=1e-9)

@@ -326,3 +326,46 @@ def test_relative_datasets_on_one_geometry_share_the_scan(synthetic, monkeypatch
     once = real(problems, **kw)
     monkeypatch.setattr(batch, "shares_scan", lambda static, stacked: False)
     np.testing.assert_array_equal(real(problems, **kw).native, once.native)
+
+
+@pytest.mark.parametrize("which", ["relative", "chi2"])
+def test_datasets_of_one_geometry_get_the_single_fits_problems(synthetic, which):
+    """Datasets measured on one geometry take the first one's problems with values of their
+    own (fitlab.fitting.channel ``channel_problems_like``, all at once): the same spaces, data
+    and starts, number for number, as ``channel_problem`` makes for each dataset alone; the
+    directions are shared, and a copy of the directions (equal, not the same array) is
+    recognized too."""
+    from fitlab.fitting import many
+    from fitlab.fitting.channel import resolve_fit
+    from fitlab.fitting.request import as_request
+
+    if which == "relative":
+        ms, _ = synthetic
+        model = "rough_dielectric"
+    else:  # nine channels, sigma, the chi2 loss, each dataset its own values and sigma
+        m = fitlab.read(ROOT / "data_formats" / "examples" / "measurement_spectral_visible.csv")
+        rng = np.random.default_rng(7)
+        ms = [m._replace(value=m.value * rng.uniform(0.8, 1.2, m.n),
+                         sigma=m.sigma * rng.uniform(0.8, 1.2, m.n), path=f"rgb_{k}.csv")
+              for k in range(4)]
+        model = "lambertian+rough_conductor"
+    ms = list(ms)
+    ms[-1] = ms[-1]._replace(wi=ms[-1].wi.copy(), wo=ms[-1].wo.copy())
+    request = as_request(model, dict(many.MANY_DEFAULTS))
+    got = many._problems(ms, request)[0]
+    want = [p for i, m in enumerate(ms)
+            for p in many._own_problems(i, m, np.ones(m.n, bool), resolve_fit(m, request), None)]
+    assert len(got) == len(want) == len(ms) * len(ms[0].channel_names)
+    for p, q in zip(got, want):
+        assert p.key == q.key and p.loss == q.loss and p.n_rows == q.n_rows
+        assert p.space == q.space  # bounds (a relative fit's scale: each dataset's own) exact
+        np.testing.assert_array_equal(p.start_native, q.start_native)
+        for field in ("wi", "wo", "value"):
+            np.testing.assert_array_equal(getattr(p.data, field), getattr(q.data, field))
+        assert p.data.consts.keys() == q.data.consts.keys()
+        for k in p.data.consts:
+            np.testing.assert_array_equal(p.data.consts[k], q.data.consts[k])
+    # the datasets but the first share the first one's direction arrays (stacked at once)
+    per_channel = len(ms[0].channel_names)
+    assert all(p.data.wi is got[c].data.wi for c in range(per_channel)
+               for p in got[c::per_channel])
