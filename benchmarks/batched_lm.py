@@ -1,9 +1,9 @@
 """The batched Levenberg–Marquardt step alone (issue 35 item 1: "Optimistix's
 LevenbergMarquardt under vmap with throw=False, or a short own one where it measures faster;
-say which and why"): fitlab's fixed-budget solver (fitlab/fitting/lm_fixed.py, the batched
-fits' solver) against ``optimistix.least_squares`` with ``optimistix.LevenbergMarquardt``
-(rtol = atol = 1e-10, max_steps 200, throw=False), both vmapped over 2,048 datasets, from the
-same starts (each dataset's best point of fitlab's 256-point scan), on the same residuals
+say which and why"): fitlab's batched solver (fitlab/fitting/lm_fixed.py ``lm_queue``: lanes
+refilled as runs end, fitlab.fitting.batch's ``queue`` kernel) against
+``optimistix.least_squares`` with ``optimistix.LevenbergMarquardt`` (rtol = atol = 1e-10,
+max_steps 200, throw=False) vmapped over the 2,048 datasets, from the same starts (each dataset's best point of fitlab's 256-point scan), on the same residuals
 (fitlab's, in logit coordinates of the unit box), in one run. Datasets: benchmarks/fit_many.py's
 (``--kind walter|conductor``). Printed: compile + first run, warm (best of 3), lanes per second,
 steps taken (median, max), and the largest difference between the two optima.
@@ -41,7 +41,6 @@ def main(argv=None) -> int:
     from fitlab.fitting import batch, many
     from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_XTOL, ROW_WEIGHT,
                                               padded_size, residuals_unit)
-    from fitlab.fitting.lm_fixed import lm_fixed
     from fitlab.fitting.request import FitRequest
     from fitlab.fitting.searches import scan_points
     from fitlab.fitting.space import unit_from_z, z_from_unit
@@ -57,7 +56,7 @@ def main(argv=None) -> int:
     static, loss, d = p0.space.static, p0.loss, p0.space.ndim
     size = padded_size(max(p.n_rows for p in problems))
     stacked = batch._stack(problems, size)
-    k = batch._batched(static, loss, batch.STEPS)
+    k = batch._batched(static, loss, batch.LM_MAXITER)
     U = scan_points(batch.SCAN, d, 0)
     costs = np.asarray(k["batch_scan"](U, stacked))
     Z0 = z_from_unit(np.clip(U[np.argmin(costs, axis=1)], 1e-6, 1 - 1e-6))
@@ -66,9 +65,16 @@ def main(argv=None) -> int:
     def r_z(z, args):
         return residuals_unit(static, loss, unit_from_z(z), args) * args[ROW_WEIGHT]
 
-    def own(z0, w, args):
-        out = lm_fixed(r_z, z0, {**args, ROW_WEIGHT: w}, steps=batch.STEPS, xtol=LM_XTOL,
-                       gtol=LM_GTOL, tau=LM_DAMPING)
+    which = np.arange(len(problems))
+    dd = stacked["data"]
+    directions = None  # as fitlab.fitting.batch._run_starts passes them: once when shared
+    if batch._alike(dd.wi) and batch._alike(dd.wo) and dd.weights is None:
+        directions = (dd.wi[0], dd.wo[0], None)
+
+    def own(z0, w, args):  # the batched fits' kernel (it gives every dataset weights of 1)
+        if directions is not None:
+            args = {**args, "data": args["data"]._replace(wi=None, wo=None, weights=None)}
+        out = k["queue"](z0, which, len(problems), args, directions)
         return out["z"], out["iters"]
 
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10)
@@ -81,8 +87,8 @@ def main(argv=None) -> int:
     print(machine_line(machine()))
     print(f"{len(problems)} datasets ({args.kind}, {p0.n_rows} rows, {d} free), one start each")
     ends = {}
-    for name, f in (("fitlab lm_fixed", own), ("optimistix LevenbergMarquardt", optimistix)):
-        g = jax.jit(jax.vmap(f))
+    for name, g in (("fitlab lm_queue", own),
+                    ("optimistix LevenbergMarquardt", jax.jit(jax.vmap(optimistix)))):
         t0 = time.perf_counter()
         jax.block_until_ready(g(Z0, W, stacked))
         t_first = time.perf_counter() - t0

@@ -14,14 +14,13 @@ in chunks of ``chunk`` datasets, each chunk with a few batched calls:
 2. Levenberg–Marquardt from the scan's best point, and only where that end is suspect
    (:func:`_suspect`: not finite, at a bound, out of steps, or disagreeing with the data) from
    the model's defaults and the scan's next ``starts`` best points too; the best end is kept.
-   The solver is fitlab.fitting.lm_fixed's (the single fit's damping and stopping rule, one
-   forward-mode pass a step), vmapped over *lanes* (one start of one dataset each), ``LANES``
-   lanes and ``STEPS`` steps a compiled call: a lane that has not met its stopping rule goes on
-   from where it ended in a further call with the others that have not, up to ``lm_maxiter``
-   steps, so a call's lanes are the ones still working (a converged lane in a call waits for
-   at most ``STEPS`` steps). Measured (benchmarks/fit_many.py, 10,000 datasets, 2 vCPUs,
-   benchmarks/README.md): 14.7x a SciPy loop's fits/s on Lambert + GGX conductor data and 16.0x
-   on Walter's (4.9x and 6.0x with two starts on every dataset and 30 steps a call), the same α;
+   The solver is fitlab.fitting.lm_fixed's ``lm_queue`` (the single fit's damping and
+   stopping rule, one forward-mode pass a step, each run step for step the single fit's) on
+   ``LANES`` *lanes* at once: a lane whose run meets its stopping rule or spends
+   ``lm_maxiter`` steps writes its end and takes the next start (as the simulator's walk
+   regenerates paths), so a chunk costs the sum of its runs' steps, not a fixed budget per
+   run or the slowest run's count. Measured (benchmarks/fit_many.py, 10,000 datasets, 2
+   vCPUs): benchmarks/README.md, "Batched fits";
 3. per dataset the best end, its covariance noise² (JᵀJ)⁻¹ from the Jacobian at the optimum
    (native units), the residual noise scale, which parameters sit at a bound, why LM stopped.
 
@@ -40,11 +39,11 @@ import numpy as np
 
 from fitlab._jax import jax, jnp
 from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XTOL, ROW_MASK,
-                                          FitData, at_bound_mask, local_stage,
+                                          ROW_WEIGHT, FitData, at_bound_mask, lm_end,
                                           lm_stop_reasons, names_at_bound_many, pad_to, padded_size,
                                           predict_data, residuals_z, scan_costs)
-from fitlab.fitting.lm_fixed import lm_fixed
-from fitlab.fitting.losses import has_absolute_noise, residuals
+from fitlab.fitting.lm_fixed import lm_queue
+from fitlab.fitting.losses import has_absolute_noise, is_weighted, residuals
 from fitlab.fitting.searches import SCAN_BLOCK, scan_points
 from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_unit
 
@@ -52,11 +51,8 @@ from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_uni
 #: the model's defaults.
 SCAN = 256
 STARTS = 4
-#: Levenberg–Marquardt steps per batched call (fitlab.fitting.lm_fixed): every lane runs this
-#: many (a lane that met its stopping rule stays put); a dataset whose best run has not met it
-#: goes on in further calls, up to lm_maxiter steps in all.
-STEPS = 16
-#: Lanes (one start of one dataset each) per compiled Levenberg–Marquardt call.
+#: Lanes of the batched Levenberg–Marquardt call (fitlab.fitting.lm_fixed ``lm_queue``): a
+#: lane whose run ends takes the next start.
 LANES = 256
 #: A first run's end is suspect (more starts are run) above this reduced chi-square (a noise
 #: model: chi2 loss) ...
@@ -64,8 +60,8 @@ SUSPECT_REDUCED_CHI2 = 2.0
 #: ... or, with no noise model, above this multiple of the chunk's median reduced cost.
 SUSPECT_COST_RATIO = 4.0
 #: The ``solver.algorithm`` of a batched fit's parameter file.
-BATCH_LM_ALGORITHM = (f"fitlab fixed-budget Levenberg-Marquardt (Madsen-Nielsen stopping rule, "
-                      f"{STEPS} steps a call)")
+BATCH_LM_ALGORITHM = (f"fitlab batched Levenberg-Marquardt (Madsen-Nielsen stopping rule, "
+                      f"{LANES} lanes refilled as runs end)")
 #: Datasets per batched call (memory: chunk × 2 starts × rows × free Jacobian entries).
 CHUNK = 1024
 
@@ -171,19 +167,6 @@ def _stacked_rows(datas: list[FitData], size: int, directions: bool = True) -> F
     return pad_to(stacked, size, axis=1)
 
 
-def fixed_local(static, loss, steps):
-    """The single fit's local stage (least_squares.local_stage) with the fixed-budget solver
-    (fitlab.fitting.lm_fixed), ``steps`` steps a call."""
-    residual = functools.partial(residuals_z, static, loss)
-
-    def run_lm(z0, problem):
-        sol = lm_fixed(residual, z0, problem, steps=steps, xtol=LM_XTOL, gtol=LM_GTOL,
-                       tau=LM_DAMPING)
-        return sol["z"], sol["iters"], ~sol["rule_met"]
-
-    return local_stage(static, loss, run_lm)
-
-
 def shared_scan_costs(static, loss: str, U, problem):
     """The scan's costs (datasets, points) of a chunk whose datasets share their directions,
     aperture weights, bounds and fixed values (:func:`shares_scan`), so that the model's
@@ -192,8 +175,11 @@ def shared_scan_costs(static, loss: str, U, problem):
     ``residuals``, times its ROW_MASK), as the single fit's scan (least_squares.scan_costs)
     computes it. A free ``scale`` (relative data) has bounds of its own per dataset: the
     predictions are computed with scale 1 and multiplied by each dataset's scale at the point
-    (the product the single fit's prediction forms). A block of points at a time: at most
-    SCAN_BLOCK point-row pairs of residuals over the chunk."""
+    (the product the single fit's prediction forms). A loss whose residual is (m - v) w
+    (``Loss.weighted``) gives every cost at once as a quadratic form in the predictions m,
+    ½ (s² Σ w² m² - 2 s Σ w² v m + Σ w² v²), by matrix products over the rows (the same costs
+    to rounding: tested); another, a block of points at a time (at most SCAN_BLOCK point-row
+    pairs of residuals over the chunk)."""
     d = problem["data"]
     B, rows = (int(n) for n in d.value.shape[:2])
     first = FitData(d.wi[0], d.wo[0], d.value[0], {},
@@ -202,14 +188,29 @@ def shared_scan_costs(static, loss: str, U, problem):
     fixed = jax.tree.map(lambda x: x[0], problem["fixed"])
     k = static.names.index(SCALE) if SCALE in static.names else None
 
-    def at(u):
+    def unscaled(u):  # the prediction at u, with scale 1 if the scale is free
         theta = to_native(static, u, lo[0], hi[0])
-        if k is None:
-            m = jnp.broadcast_to(predict_data(static, theta, fixed, first), (B, rows))
-        else:
-            f = predict_data(static, theta.at[k].set(1.0), fixed, first)  # (rows,)
-            scale = to_native(static, jnp.broadcast_to(u, lo.shape), lo, hi)[:, k]  # (B,)
-            m = scale[:, None] * f[None, :]
+        return predict_data(static, theta if k is None else theta.at[k].set(1.0), fixed, first)
+
+    def scales(u):  # (B,) each dataset's scale at u
+        return to_native(static, jnp.broadcast_to(u, lo.shape), lo, hi)[:, k]
+
+    if is_weighted(loss):
+        w = d.consts["w"] * d.consts.get(ROW_MASK, 1.0)
+        w2 = w * w
+        M = jax.lax.map(unscaled, U, batch_size=max(1, min(int(U.shape[0]),
+                                                            SCAN_BLOCK // max(rows, 1))))
+        quad = w2 @ (M * M).T  # (B, P)
+        cross = (w2 * d.value) @ M.T
+        const = jnp.sum(w2 * d.value * d.value, axis=1)[:, None]
+        if k is not None:
+            s = jax.vmap(scales, out_axes=1)(U)  # (B, P)
+            quad, cross = s * s * quad, s * cross
+        return jnp.maximum(0.5 * (quad - 2.0 * cross + const), 0.0)
+
+    def at(u):
+        f = unscaled(u)
+        m = jnp.broadcast_to(f, (B, rows)) if k is None else scales(u)[:, None] * f[None, :]
         r = jax.vmap(lambda mb, v, c: residuals(loss, mb, v, c))(m, d.value, d.consts)
         if ROW_MASK in d.consts:
             r = r * d.consts[ROW_MASK]
@@ -231,38 +232,73 @@ def shares_scan(static, stacked: dict) -> bool:
 
 
 @functools.lru_cache(maxsize=32)
-def _batched(static, loss, steps):
+def _batched(static, loss, maxiter):
     """The kernels: the single fit's scan vmapped over datasets (points shared, problem per
-    dataset), the shared scan (:func:`shared_scan_costs`) and the local stage with the
-    fixed-budget solver, ``steps`` steps a call, vmapped over *lanes*: one start of one dataset
-    each (start, weights and problem per lane), always ``LANES`` of them a call."""
-    local = fixed_local(static, loss, int(steps))
+    dataset), the shared scan (:func:`shared_scan_costs`), Levenberg–Marquardt from a chunk's
+    starts on ``LANES`` lanes refilled as runs end (fitlab.fitting.lm_fixed ``lm_queue``,
+    ``maxiter`` steps a run at most), and the runs' ends (least_squares ``lm_end``), ``LANES``
+    at a time."""
+    residual = functools.partial(residuals_z, static, loss)
+    end = lm_end(static, loss)
     cost_points = functools.partial(scan_costs, static, loss)  # the single fit's scan
-    one = lambda z, u, w, problem: local(z[None], u[None], w[None], problem)  # noqa: E731
+
+    def queue(Z0, which, n, problems, directions):
+        # directions: (wi, wo, weights) of every dataset alike, passed once (a lane then
+        # gathers its own values and constants only), or None (each dataset's in problems)
+        problems = {**problems, ROW_WEIGHT: jnp.ones(problems["data"].value.shape[:2])}
+        own = residual
+        if directions is not None:
+            def own(z, args):
+                d = args["data"]._replace(wi=directions[0], wo=directions[1],
+                                          weights=directions[2])
+                return residual(z, {**args, "data": d})
+        return lm_queue(own, Z0, problems, which, n, lanes=LANES, maxiter=int(maxiter),
+                        xtol=LM_XTOL, gtol=LM_GTOL, tau=LM_DAMPING)
+
+    def ends(z, iters, rule_unmet, z0, u0, problem):
+        w = jnp.ones(problem["data"].value.shape[:1])
+        return end(z, iters, rule_unmet, z0, u0, w, {**problem, ROW_WEIGHT: w})
+
     # (shared out over the CPU's cores with fitting/cores.py, the lanes gave no measurable
     # gain: fit-maps' 256 x 256 benchmark warm 6.87 s against 6.91 s on one device)
     return {"batch_scan": jax.jit(jax.vmap(cost_points, in_axes=(None, 0))),
             "shared_scan": jax.jit(functools.partial(shared_scan_costs, static, loss)),
-            "lanes_local": jax.jit(jax.vmap(one))}
+            "queue": jax.jit(queue), "ends": jax.jit(jax.vmap(ends))}
 
 
-def _run_lanes(k, stacked, which, u0, z=None) -> dict:
-    """The local stage of the datasets ``which`` of the chunk's stacked problems ``stacked``,
-    one lane each, from ``u0`` ((len(which), d) in the unit box; ``z``, if given, the logit
-    points to start from instead), in calls of ``LANES`` lanes (the last padded with copies of
-    its first lane, whose results are dropped): one compiled kernel, whatever the count."""
-    size = int(np.shape(stacked["data"].value)[1])
-    w = np.ones((LANES, size))
-    z0 = z_from_unit(u0) if z is None else np.asarray(z)
+def _run_starts(k, stacked, which, u0) -> dict:
+    """Levenberg–Marquardt from ``u0`` ((len(which), d) in the unit box) on the datasets
+    ``which`` of the chunk's stacked
+    problems ``stacked``: the runs in calls of as many starts as the chunk has datasets (one
+    compiled kernel, whatever the count: the unused slots are not run), their ends in calls of
+    ``LANES``."""
+    B = int(np.shape(stacked["data"].value)[0])
+    z0 = z_from_unit(u0)
+    d = stacked["data"]
+    directions, per = None, stacked
+    if all(x is None or _alike(x) for x in (d.wi, d.wo, d.weights)):  # one copy, not B
+        directions = tuple(None if x is None else x[0] for x in (d.wi, d.wo, d.weights))
+        per = {**stacked, "data": d._replace(wi=None, wo=None, weights=None)}
     parts = []
-    for a in range(0, len(which), LANES):
-        part = slice(a, min(a + LANES, len(which)))
-        n = part.stop - part.start
-        fill = np.concatenate([np.arange(part.start, part.stop), np.full(LANES - n, part.start)])
-        lanes = jax.tree.map(lambda x: x[which[fill]], stacked)
-        got = k["lanes_local"](z0[fill], u0[fill], w, lanes)
-        parts.append({key: np.asarray(v)[:n, 0] for key, v in got.items()})
+    for a in range(0, len(which), B):
+        part = np.arange(a, min(a + B, len(which)))
+        fill = np.concatenate([part, np.full(B - part.size, part[0])])
+        sol = k["queue"](z0[fill], which[fill], part.size, per, directions)
+        sol = {key: np.asarray(v)[:part.size] for key, v in sol.items()}
+        for c in range(0, part.size, LANES):
+            lane = np.arange(c, min(c + LANES, part.size))
+            pad = np.concatenate([lane, np.full(LANES - lane.size, lane[0])])
+            got = k["ends"](sol["z"][pad], sol["iters"][pad], ~sol["rule_met"][pad],
+                            z0[part[pad]], u0[part[pad]],
+                            jax.tree.map(lambda x: x[which[part[pad]]], stacked))
+            parts.append({key: np.asarray(v)[:lane.size] for key, v in got.items()})
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def _alike(x) -> bool:
+    """Whether a stacked array holds one array for every dataset (a broadcast view of it:
+    :func:`_stack` makes these of the directions the datasets share)."""
+    return isinstance(x, np.ndarray) and x.ndim > 0 and x.strides[0] == 0
 
 
 def _suspect(run: dict, n_rows: np.ndarray, d: int, loss: str) -> np.ndarray:
@@ -315,8 +351,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     # (rows left out carry ROW_MASK 0; n_rows counts the others, for the degrees of freedom)
     size = (int(np.shape(p0.data.value)[0]) if static.rows_fixed
             else padded_size(max(p.n_rows for p in problems)))
-    steps = min(int(lm_maxiter), STEPS)
-    k = _batched(static, loss, steps)
+    k = _batched(static, loss, int(lm_maxiter))
     problem = _stack(problems, size)
     B = len(problems)
     n_rows = np.array([p.n_rows for p in problems])
@@ -335,7 +370,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     lanes = np.concatenate([U_scan[order[:, :1]], u_default[:, None],
                             U_scan[order[:, 1:]]], axis=1)
     lanes = np.clip(lanes, 1e-6, 1 - 1e-6)
-    run = functools.partial(_run_lanes, k, problem)
+    run = functools.partial(_run_starts, k, problem)
     every = np.arange(B)
     first = run(every, lanes[:, 0])
     # every run's results by (lane, dataset): lane 0 written now, a later lane only where it
@@ -349,8 +384,6 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
     out["cost"][1:] = np.inf
     out["end_finite"][1:] = False
     n_lanes = np.ones(B, dtype=int)
-    # a first run still short of its rule goes on before it is judged
-    _continue(run, out, np.zeros(B, dtype=int), lm_maxiter)
     todo = np.flatnonzero(_suspect({key: v[0] for key, v in out.items()}, n_rows, d, loss))
     if todo.size and lanes.shape[1] > 1:
         more_idx = np.repeat(todo, lanes.shape[1] - 1)
@@ -361,11 +394,7 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
         n_lanes[todo] = lanes.shape[1]
     cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
     ib = np.argmin(cost, axis=0)
-    # 3. the datasets whose best run has not met its stopping rule go on from where it ended,
-    #    `steps` more at a time, until it does or at least lm_maxiter steps are spent (the same
-    #    compiled call)
-    _continue(run, out, ib, lm_maxiter)
-    cost = np.where(np.isfinite(out["cost"]) & out["end_finite"], out["cost"], np.inf)
+    # 3. per dataset its best run's end: covariance, noise scale, bounds, why it stopped
     pick = lambda a: a[ib, np.arange(B)]  # noqa: E731
     theta, J, r = pick(out["native"]), pick(out["jacobian"]), pick(out["residuals"])
     dof = np.maximum(n_rows - d, 1)
@@ -386,25 +415,6 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
                        n_lanes[keep])
 
 
-def _continue(run, out: dict, lane: np.ndarray, lm_maxiter: int) -> None:
-    """Run each dataset's lane ``lane`` on from where it ended, ``STEPS`` steps a call, while
-    it has not met its stopping rule, ended finite and spent fewer than ``lm_maxiter`` steps
-    (``out``, arrays by (lane, dataset), updated in place)."""
-    B = len(lane)
-    while True:
-        at = lane, np.arange(B)
-        todo = np.flatnonzero(out["rule_unmet"][at] & out["end_finite"][at]
-                              & (out["iters"][at] < lm_maxiter))
-        if todo.size == 0:
-            return
-        li = lane[todo]
-        more = run(todo, out["u"][li, todo], z=out["z"][li, todo])
-        more["iters"] = more["iters"] + out["iters"][li, todo]
-        more["start_native"] = out["start_native"][li, todo]
-        for key in out:
-            out[key][li, todo] = more[key]
-
-
 def chunks(n: int, chunk: int) -> list[range]:
     """Consecutive ranges of at most ``chunk`` indices covering range(n)."""
     chunk = max(1, int(chunk))
@@ -415,5 +425,5 @@ def n_chunks(sizes: list[int], chunk: int) -> int:
     return sum(math.ceil(s / max(1, int(chunk))) for s in sizes)
 
 
-__all__ = ["SCAN", "STARTS", "STEPS", "BATCH_LM_ALGORITHM", "CHUNK", "Problem", "BatchResult", "structure_of",
+__all__ = ["SCAN", "STARTS", "LANES", "BATCH_LM_ALGORITHM", "CHUNK", "Problem", "BatchResult", "structure_of",
            "group", "fit_chunk", "chunks", "n_chunks", "shared_scan_costs", "shares_scan"]

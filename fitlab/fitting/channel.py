@@ -285,9 +285,10 @@ def channel_problems_like(space, data, start_native, loss, values, sigma=None, f
     values = np.asarray(values, float)
     sigma = None if sigma is None else np.asarray(sigma, float)
     consts = loss_weights(loss, values, sigma, data.wo[:, 2])
-    datas = [FitData(data.wi, data.wo, v, {k: x[j] if np.ndim(x) == 2 else x
-                                          for k, x in consts.items()}, data.weights)
-             for j, v in enumerate(values)]
+    keys = list(consts)  # a constant per dataset (rows on the last axis) or one for all
+    per = [list(x) if np.ndim(x) == 2 else [x] * len(values) for x in consts.values()]
+    datas = [FitData(data.wi, data.wo, v, dict(zip(keys, own)), data.weights)
+             for v, *own in zip(values, *per)]
     start = np.asarray(start_native, float)
     if not space.relative:
         return [space] * len(values), datas, [start] * len(values)

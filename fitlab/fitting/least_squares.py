@@ -32,7 +32,7 @@ from fitlab.fitting.lm_fixed import value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.progress import line as progress_line
 from fitlab.fitting.searches import (DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, START_ROWS,
-                                     global_start)
+                                     START_SUBSET_ABOVE, global_start)
 from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER, LOCAL_SOLVERS, algorithm
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
@@ -206,16 +206,14 @@ def residuals_z(static: StaticSpace, loss: str, z, problem):
     return residuals_unit(static, loss, unit_from_z(z), problem) * problem[ROW_WEIGHT]
 
 
-def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False):
-    """``(Z0, U0, W, problem)`` -> per start (vmapped, or one after another with
-    ``sequential``): Levenberg–Marquardt by ``run_lm(z0, problem)`` -> (end, steps,
-    rule_unmet), then the end's cost, residuals and Jacobian in native units. The single fit's solvers (:func:`kernels`) and the batched fits' (fixed budget,
-    fitlab.fitting.batch) share it."""
+def lm_end(static: StaticSpace, loss: str):
+    """``(z_end, iters, rule_unmet, z0, u0, w, problem)`` -> the record of one
+    Levenberg–Marquardt run's end (row weights ``w``): where it ended, how, and its cost,
+    residuals and Jacobian in native units. :func:`local_stage` and the batched fits
+    (fitlab.fitting.batch) share it."""
     r_and_jac_native = value_and_jacobian(functools.partial(residuals_native, static, loss))
 
-    def one(z0, u0, w, problem):
-        problem = {**problem, ROW_WEIGHT: w}
-        z_end, iters, rule_unmet = run_lm(z0, problem)
+    def end(z_end, iters, rule_unmet, z0, u0, w, problem):
         # A flat cost (every residual's Jacobian exactly 0, e.g. a lobe so narrow that the
         # model is 0 at every measured direction: Beckmann's D underflows to 0 there) makes the
         # damping μ = τ max diag(JᵀJ) zero and the first step 0/0 = NaN. Such a run ends where
@@ -229,6 +227,20 @@ def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False
                 "u": unit_from_z(z), "native": theta, "cost": 0.5 * jnp.sum(r * r),
                 "residuals": r, "jacobian": J,
                 "start_native": to_native(static, u0, problem["lo"], problem["hi"])}
+
+    return end
+
+
+def local_stage(static: StaticSpace, loss: str, run_lm, sequential: bool = False):
+    """``(Z0, U0, W, problem)`` -> per start (vmapped, or one after another with
+    ``sequential``): Levenberg–Marquardt by ``run_lm(z0, problem)`` -> (end, steps,
+    rule_unmet), then the end's record (:func:`lm_end`)."""
+    end = lm_end(static, loss)
+
+    def one(z0, u0, w, problem):
+        problem = {**problem, ROW_WEIGHT: w}
+        z_end, iters, rule_unmet = run_lm(z0, problem)
+        return end(z_end, iters, rule_unmet, z0, u0, w, problem)
 
     def local(Z0, U0, W, problem):
         if sequential:
@@ -331,36 +343,47 @@ def _compile_local(k, problem, n_local, d, every_row=None):
 
 def _refined(k, space, problem, loc: dict, lm_maxiter: int) -> dict:
     """The starts' Levenberg–Marquardt ends on START_ROWS rows (``loc``, :func:`local_fits`)
-    carried to every row of ``problem``: the best end, and each end as good (cost within
-    EQUAL_COST_RTOL) at other parameters (more than DISTINCT_UNIT apart: one per such basin),
-    refined by Levenberg–Marquardt on every row (its steps added to the start's); every other
-    end's cost on every row where it is. The starts find the basins on a thousand rows,
-    and only the runs the fit reports pay for every row (benchmarks/README.md, "The single fit
-    at scale"). Returns ``loc`` so changed (its residuals and Jacobians those of every row, NaN
-    for ends not refined)."""
-    runs = lm_runs(loc, lm_maxiter)
-    best = min(runs, key=lambda r: r["cost"])
-    picked = []
-    for rr in sorted(runs, key=lambda r: r["cost"]):
-        good = rr is best or (np.isfinite(rr["cost"])
-                              and rr["cost"] <= best["cost"] * (1 + EQUAL_COST_RTOL) + 1e-300)
-        if good and all(np.max(np.abs(rr["u"] - p["u"])) > DISTINCT_UNIT for p in picked):
-            picked.append(rr)
+    carried to every row of ``problem``: each end's cost on every row, then the best end, and
+    each end as good (cost within EQUAL_COST_RTOL) at other parameters (more than DISTINCT_UNIT
+    apart: one per such basin), refined by Levenberg–Marquardt on every row (its steps added to
+    the start's), until the best end is a refined one. The starts find the basins on a thousand
+    rows, and only the runs the fit reports pay for every row (benchmarks/README.md, "The
+    single fit at scale"). Returns ``loc`` so changed (its residuals and Jacobians those of
+    every row, NaN for ends not refined)."""
+    n = len(loc["cost"])
     n_rows = int(problem["data"].value.shape[0])
     out = {key: v.copy() for key, v in loc.items() if key not in ("residuals", "jacobian")}
-    out["residuals"] = np.full((len(runs), n_rows), np.nan)
-    out["jacobian"] = np.full((len(runs), n_rows, space.ndim), np.nan)
-    for rr in runs:
-        i = rr["index"]
-        if any(p is rr for p in picked):
-            again = canonical_runs(space, local_fits(k, problem, [loc["u"][i]]))
-            for key in out:
-                out[key][i] = again[key][0]
-            out["iters"][i] = loc["iters"][i] + again["iters"][0]
-            out["start_native"][i] = loc["start_native"][i]
-        elif loc["end_finite"][i]:
+    out["residuals"] = np.full((n, n_rows), np.nan)
+    out["jacobian"] = np.full((n, n_rows, space.ndim), np.nan)
+    for i in range(n):
+        if loc["end_finite"][i]:
             out["cost"][i] = float(k["value"](loc["u"][i], problem))
-    return out
+    refined: list[int] = []
+
+    def refine(i):
+        again = canonical_runs(space, local_fits(k, problem, [loc["u"][i]]))
+        for key in out:
+            out[key][i] = again[key][0]
+        out["iters"][i] = loc["iters"][i] + again["iters"][0]
+        out["start_native"][i] = loc["start_native"][i]
+        refined.append(i)
+
+    def costs():
+        return np.array([r["cost"] for r in lm_runs(out, lm_maxiter)])
+
+    c = costs()
+    for i in np.argsort(c, kind="stable"):
+        if not np.isfinite(c[i]) or (refined and c[i] > c[refined[0]] * (1 + EQUAL_COST_RTOL)
+                                     + 1e-300):
+            break
+        if all(np.max(np.abs(loc["u"][i] - loc["u"][j])) > DISTINCT_UNIT for j in refined):
+            refine(i)
+    while True:  # an end not refined that is now the best: refined too
+        c = costs()
+        i = int(np.argmin(c))
+        if i in refined or not np.isfinite(c[i]):
+            return out
+        refine(i)
 
 
 def local_fits(k, problem, starts_u, weights=None):
@@ -432,10 +455,11 @@ def fit_least_squares(space: FitSpace, data: FitData, loss: str, *, start_native
                                                                           scan_data))
     d = space.ndim
     n_local = 1 + n_starts + (start_native is not None)
-    # more rows than START_ROWS: the starts run on START_ROWS of them, and the best of their
-    # ends (with any as good at other parameters) is refined on every row (:func:`_refined`)
-    start_data = scan_rows(space.static, scan_data, START_ROWS)
-    every_row = start_data is scan_data and scanned_all
+    # more rows than START_SUBSET_ABOVE: the starts run on START_ROWS of them, and the best of
+    # their ends (with any as good at other parameters) is refined on every row (:func:`_refined`)
+    start_data = (scan_rows(space.static, scan_data, START_ROWS)
+                  if n_rows > START_SUBSET_ABOVE else scan_data)
+    every_row = start_data is scan_data and (scanned_all or n_rows <= START_SUBSET_ABOVE)
     start_problem = problem if every_row else problem_of(space, pad_rows(space.static,
                                                                          start_data))
     with ThreadPoolExecutor(max_workers=1) as pool:

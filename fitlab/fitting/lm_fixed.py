@@ -1,29 +1,28 @@
-"""Levenberg–Marquardt with a fixed step budget, for many small problems at once
-(fitlab.fitting.batch): the batched fits' solver.
+"""fitlab's Levenberg–Marquardt: the single fit's solver (:func:`lm_until`, a
+``while_loop``) and the batched fits' (:func:`lm_queue`, fitlab.fitting.batch), one body.
 
-jaxopt's Levenberg–Marquardt (the single fit's solver, fitlab.fitting.least_squares) is a
-``while_loop``: vmapped over thousands of datasets and starts, every lane runs until the
-slowest one stops (median 20 steps, a chunk's slowest 71 on the Walter benchmark), and each
-step evaluates the model for the residual, for the Jacobian and for the trial point. Here:
+jaxopt's Levenberg–Marquardt (the reference, fitlab.fitting.solvers) evaluates the model for
+the residual, for the Jacobian and for the trial point each step, and vmapped over thousands of
+datasets and starts every lane of its ``while_loop`` runs until the slowest one stops (median
+20 steps, a chunk's slowest 71 on the Walter benchmark). Here:
 
 * one forward-mode pass per step: the residuals and the Jacobian at the trial point together
   (``jax.jacfwd`` with the value as auxiliary output); a rejected step costs that pass too;
-* a ``fori_loop`` of exactly ``steps`` steps; a lane that met the stopping rule stays where it
-  is (masked), so the cost is the budget, not the slowest lane's count;
 * the same damping and stopping rule as jaxopt's (Madsen & Nielsen, "Introduction to
   Optimization and Data Fitting", 2010, Algorithm 3.16): initial damping τ · max diag(JᵀJ), the
   gain ratio ρ = ΔF / ΔL, μ ← μ · max(1/3, 1 − (2ρ − 1)³) on success and μ ← μ ν, ν ← 2ν on
   failure; stop when ‖Jᵀr‖∞ ≤ gtol or ‖h‖ ≤ xtol (‖z‖ + xtol). The damped normal equations
-  (JᵀJ + μ I) h = −Jᵀr are solved by Cholesky.
+  (JᵀJ + μ I) h = −Jᵀr are solved by Cholesky;
+* batched (:func:`lm_queue`): a fixed number of lanes, each running one start at a time; a lane
+  whose run ends takes the next start, so the batch costs the sum of its runs' steps.
 
-A lane reports whether its stopping rule was met (``converged``), else it ran out of steps
+A run reports whether its stopping rule was met (``converged``), else it ran out of steps
 (``max_iterations``), and whether it ended finite.
 
 Why an own solver and not Optimistix's ``LevenbergMarquardt`` under vmap (the maintained
-library the project would otherwise use): measured on the same 2,048 datasets, starts and
-residuals (benchmarks/batched_lm.py, 2 vCPUs), this one is 2.8x (Walter: 12,807 against 4,506
-datasets/s) and 2.9x (Lambert + GGX conductor: 7,297 against 2,477) faster warm, compiles in
-half the time, and reaches the same optima to 4e-9 in the logit coordinates.
+library the project would otherwise use): measured on the same datasets, starts and residuals
+(benchmarks/batched_lm.py, 2 vCPUs), this one is several times faster warm, compiles in about
+half the time, and reaches the same optima (benchmarks/README.md, "Batched fits").
 """
 
 from __future__ import annotations
@@ -45,9 +44,9 @@ def value_and_jacobian(f):
     return both
 
 
-def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
-    """(initial state at z0, one step) of the solver: the shared body of :func:`lm_fixed` and
-    :func:`lm_until`.
+def _lm(residual, *, xtol: float, gtol: float, tau: float):
+    """(initial state at z0, one step) of the solver, each given the residual's ``args``: the
+    shared body of :func:`lm_until` and :func:`lm_queue`.
 
     The model is evaluated in the step alone: the state starts with the flag ``first``, whose
     step evaluates z0 itself (a zero step, accepted) and sets the initial damping; the compiled
@@ -57,7 +56,7 @@ def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
     Lambert + GGX conductor under the tests' XLA settings)."""
     both = value_and_jacobian(residual)
 
-    def init(z0):
+    def init(z0, args):
         p = z0.shape[0]
         r0 = jax.eval_shape(lambda z: residual(z, args), z0)
         return dict(z=z0, r=jnp.zeros(r0.shape, r0.dtype), A=jnp.zeros((p, p), z0.dtype),
@@ -66,7 +65,7 @@ def _lm(residual, args, *, xtol: float, gtol: float, tau: float):
                     done=jnp.asarray(False), first=jnp.asarray(True),
                     iters=jnp.asarray(0, jnp.int32))
 
-    def step(s):
+    def step(s, args):
         first = s["first"]
         eye = jnp.eye(s["z"].shape[0], dtype=s["z"].dtype)
         # the first step: A = 0, μ = 1 and g = 0, so h = 0 exactly (z0 itself is evaluated)
@@ -100,22 +99,69 @@ def _result(s):
             "finite": finite}
 
 
-def lm_fixed(residual, z0, args, *, steps: int, xtol: float, gtol: float, tau: float):
-    """Minimise ½‖residual(z, args)‖² from ``z0`` (p,) in at most ``steps`` steps, a
-    ``fori_loop`` of exactly ``steps`` (a lane that met the rule stays put; one more pass
-    evaluates z0). Returns ``z``, ``cost``, ``iters`` (steps taken before the rule was met, else
-    ``steps``), ``rule_met`` and ``finite``. Traceable: vmap it over starts and datasets."""
-    init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
-    return _result(jax.lax.fori_loop(0, int(steps) + 1, lambda _, s: step(s), init(z0)))
-
-
 def lm_until(residual, z0, args, *, maxiter: int, xtol: float, gtol: float, tau: float):
-    """:func:`lm_fixed` as a ``while_loop`` that ends when the stopping rule is met or after
-    ``maxiter`` steps: vmapped over a few starts (the single fit), the batch ends with its
-    slowest start, not at a budget."""
-    init, step = _lm(residual, args, xtol=xtol, gtol=gtol, tau=tau)
+    """Minimise ½‖residual(z, args)‖² from ``z0`` (p,): a ``while_loop`` that ends when the
+    stopping rule is met or after ``maxiter`` steps (one more pass evaluates z0). Returns
+    ``z``, ``cost``, ``iters`` (steps taken), ``rule_met`` and ``finite``. Traceable: the single
+    fit maps it over its starts (fitlab.fitting.solvers)."""
+    init, step = _lm(residual, xtol=xtol, gtol=gtol, tau=tau)
     return _result(jax.lax.while_loop(
-        lambda s: s["first"] | (~s["done"] & (s["iters"] < maxiter)), step, init(z0)))
+        lambda s: s["first"] | (~s["done"] & (s["iters"] < maxiter)),
+        lambda s: step(s, args), init(z0, args)))
 
 
-__all__ = ["lm_fixed", "lm_until", "value_and_jacobian"]
+def lm_queue(residual, Z0, problems, which, n, *, lanes: int, maxiter: int, xtol: float,
+             gtol: float, tau: float, between: int = 4):
+    """:func:`lm_until` from each start ``Z0[i]`` (i < ``n``; Z0 is (M, p)) on the problem
+    ``problems[which[i]]`` (a pytree with a leading dataset axis), on ``lanes`` lanes at once: a
+    lane whose run meets its stopping rule, or has spent ``maxiter`` steps, writes its end and
+    takes the next start (as the simulator's walk regenerates a lane's path), so the batch costs
+    the sum of its runs' steps over ``lanes``, not the number of runs times the slowest one's
+    (a vmapped ``while_loop``) or a fixed budget per run. Each run is
+    :func:`lm_until`'s, step for step. Returns per start ``z``, ``cost``, ``iters``,
+    ``rule_met`` and ``finite`` (starts from ``n`` on: not run, ``finite`` False). The lanes
+    are refilled every ``between`` steps (a lane whose run ended waits for at most
+    ``between`` - 1 steps; the refill's bookkeeping costs about one step)."""
+    init, step = _lm(residual, xtol=xtol, gtol=gtol, tau=tau)
+    M = Z0.shape[0]
+    L = min(int(lanes), M)
+    Z0, which = jnp.asarray(Z0), jnp.asarray(which)
+
+    def take(idx):
+        return jax.tree.map(lambda x: x[which[idx]], problems)
+
+    idx = jnp.arange(L)
+    state = jax.vmap(init)(Z0[idx], take(idx))
+    out = jax.vmap(_result)(jax.vmap(init)(Z0, jax.tree.map(lambda x: x[which], problems)))
+    active = idx < n
+
+    def advance(_, st, args):
+        # a run that has spent maxiter steps stays put (a run that met its rule does: step)
+        held = ~st["first"] & (st["iters"] >= maxiter)
+        new = jax.vmap(step)(st, args)
+        return jax.tree.map(
+            lambda a, b: jnp.where(held.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), st, new)
+
+    def body(c):
+        state, idx, nxt, out, active = c
+        args = take(idx)
+        state = jax.lax.fori_loop(0, int(between), lambda i, st: advance(i, st, args), state)
+        ended = active & ~state["first"] & (state["done"] | (state["iters"] >= maxiter))
+        res = jax.vmap(_result)(state)
+        out = jax.tree.map(lambda o, r: o.at[jnp.where(ended, idx, M)].set(r, mode="drop"),
+                           out, res)
+        new = nxt + jnp.cumsum(ended) - 1  # the next starts, in order, to the ended lanes
+        refill = ended & (new < n)
+        idx = jnp.where(refill, new, idx)
+        fresh = jax.vmap(init)(Z0[idx], take(idx))
+        state = jax.tree.map(
+            lambda a, b: jnp.where(refill.reshape((-1,) + (1,) * (a.ndim - 1)), b, a),
+            state, fresh)
+        return state, idx, nxt + jnp.sum(ended), out, (active & ~ended) | refill
+
+    _, _, _, out, _ = jax.lax.while_loop(lambda c: jnp.any(c[4]), body,
+                                         (state, idx, jnp.asarray(L), out, active))
+    return out
+
+
+__all__ = ["lm_until", "lm_queue", "value_and_jacobian"]

@@ -34,6 +34,10 @@ class Loss(NamedTuple):
     weights: Callable  # (value, sigma, cos_o) -> dict of per-row NumPy arrays
     residual: Callable  # (model_value, value, consts) -> r (JAX arrays)
     absolute_noise: bool  # residuals already in units of the data's σ (no nuisance scale)
+    #: the residual is (m - v) · w with w the constant "w": the cost ½ Σ w² (m - v)² is then a
+    #: quadratic form in m, which the batched scan evaluates by matrix products
+    #: (fitlab.fitting.batch ``shared_scan_costs``)
+    weighted: bool = False
 
 
 def _weighted_residual(model_value, value, consts):
@@ -72,13 +76,13 @@ def _cos_l2_weights(value, sigma, cos_o):
 LOSSES: Registry[Loss] = Registry("loss", {
     loss.name: loss for loss in (
         Loss("chi2", "(m - v)/sigma: data with absolute uncertainties, a true chi-square",
-             _chi2_weights, _weighted_residual, True),
+             _chi2_weights, _weighted_residual, True, True),
         Loss("relative", "(m - v)/max(|v|, 1% of max |v|): multiplicative noise",
-             _relative_weights, _weighted_residual, False),
+             _relative_weights, _weighted_residual, False, True),
         Loss("log", "log(1 + m|cos theta_o|) - log(1 + v|cos theta_o|): compresses peaks",
              _log_weights, _log_residual, False),
         Loss("cos_l2", "(m - v)|cos theta_o|: cosine-weighted L2 (the reflected flux)",
-             _cos_l2_weights, _weighted_residual, False),
+             _cos_l2_weights, _weighted_residual, False, True),
     )
 })
 
@@ -97,6 +101,11 @@ def loss_weights(loss: str, value, sigma, cos_o):
 
 def residuals(loss: str, model_value, value, consts):
     return get_loss(loss).residual(model_value, value, consts)
+
+
+def is_weighted(loss: str) -> bool:
+    """True when the residual is (m - v) · w (the constant ``w``): :attr:`Loss.weighted`."""
+    return get_loss(loss).weighted
 
 
 def has_absolute_noise(loss: str) -> bool:

@@ -440,13 +440,13 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
                 posts = _posteriors([problems[j] for j in idx], res, seed=seed,
                                     nsteps=request.mcmc_steps, chains=request.walkers or 4,
                                     batch=min(chunk, len(g)))
-            for k, j in enumerate(idx):
-                i, channel = problems[j].key
-                fits[j] = Fitted(i, channel, res.names, res.native[k], res.stderr[k],
-                                 res.covariance[k], float(res.cost[k]), int(res.dof[k]),
-                                 float(res.noise_scale[k]), int(res.iterations[k]),
-                                 res.stopped[k], res.at_bound[k], res.residuals[k],
-                                 float(res.scan_cost[k]), posts[k], int(res.lm_starts[k]))
+            # per dataset its row of each result (Python numbers converted at once)
+            for j, (i, channel), *row in zip(
+                    idx, res.keys, res.native, res.stderr, res.covariance,
+                    res.cost.tolist(), res.dof.tolist(), res.noise_scale.tolist(),
+                    res.iterations.tolist(), res.stopped, res.at_bound, res.residuals,
+                    res.scan_cost.tolist(), posts, res.lm_starts.tolist()):
+                fits[j] = Fitted(i, channel, res.names, *row)
             if bar is not None:
                 bar.update(len(idx))
     finally:

@@ -38,10 +38,13 @@ SCAN_MAX_POINTS = 4096
 #: The scan evaluates the cost on at most this many rows (evenly spread over the data; a fit of
 #: more rows scans a subset: the scan only chooses a start, and LM then fits every row) ...
 SCAN_ROWS = 4096
-#: The Levenberg–Marquardt starts of a fit of more rows than this run on this many rows, evenly
-#: spread (they find the basins; the best end is refined on every row:
-#: fitlab.fitting.least_squares ``_refined``) ...
+#: The Levenberg–Marquardt starts of a fit of more than START_SUBSET_ABOVE rows run on
+#: START_ROWS rows, evenly spread (they find the basins; the best end is refined on every row:
+#: fitlab.fitting.least_squares ``_refined``). Below it every start fits every row: on a few
+#: thousand rows a subset's basins may differ from the data's (a start that reaches the optimum
+#: on every row can stop elsewhere on a third of them), and every row costs little there ...
 START_ROWS = 1024
+START_SUBSET_ABOVE = 8192
 #: ... and the scan on at most this many point-row pairs at once (memory: a block of points at
 #: a time).
 SCAN_BLOCK = 1 << 20

@@ -439,7 +439,7 @@ def test_fit_statuses_and_throw(oren_nayar_data, tmp_path, monkeypatch):
 
 def test_starts_on_a_subset_of_many_rows_end_at_the_every_row_optimum(oren_nayar_data,
                                                                       monkeypatch):
-    """A fit of more rows than START_ROWS runs its starts on START_ROWS of them and refines the
+    """A fit of more rows than START_SUBSET_ABOVE runs its starts on START_ROWS of them, refines the
     best end on every row (least_squares._refined): the same optimum as the starts run on every
     row, the record says how many rows the starts fitted, and every start's cost is its end's
     cost on every row (computed here in NumPy from the model's values)."""
@@ -451,6 +451,7 @@ def test_starts_on_a_subset_of_many_rows_end_at_the_every_row_optimum(oren_nayar
     full = fls.fit_least_squares(space, data, loss, n_starts=3, seed=1)
     assert "lm_rows" not in full.global_search
     monkeypatch.setattr(fls, "START_ROWS", 16)
+    monkeypatch.setattr(fls, "START_SUBSET_ABOVE", 16)
     sub = fls.fit_least_squares(space, data, loss, n_starts=3, seed=1)
     assert m.n > 16 and sub.global_search["lm_rows"] == 16
     np.testing.assert_allclose(sub.native, full.native, rtol=1e-7)

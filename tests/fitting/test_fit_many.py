@@ -75,52 +75,64 @@ def test_a_fit_stopped_by_its_iteration_limit_is_not_ok(synthetic):
         fitlab.fit_many(ms[:2], "rough_dielectric", lm_maxiter=1, throw=True)
 
 
-def test_fixed_budget_solver_matches_scipy_and_masks_converged_lanes():
-    """fitlab.fitting.lm_fixed on a nonlinear least-squares problem (y = a exp(-b x)): the
-    optimum of scipy.optimize.least_squares; a lane that met its stopping rule stays put (its
-    step count is below the budget and does not grow), one that did not reports it."""
+def test_batched_solver_refills_its_lanes_and_runs_each_start_as_the_single_fit():
+    """fitlab.fitting.lm_fixed ``lm_queue`` on nonlinear least-squares problems (y = a exp(-b x),
+    three datasets): seven starts on two lanes, each start's run is the single fit's
+    (``lm_until``, run alone) and ends at scipy.optimize.least_squares's optimum; a run that
+    spends ``maxiter`` steps reports its rule unmet; the slots past ``n`` are not run."""
     import jax
     import jax.numpy as jnp
     from scipy.optimize import least_squares
 
-    from fitlab.fitting.lm_fixed import lm_fixed
+    from fitlab.fitting.lm_fixed import lm_queue, lm_until
 
     x = np.linspace(0.0, 4.0, 40)
-    y = 2.0 * np.exp(-1.3 * x) + 0.01 * np.random.default_rng(0).standard_normal(40)
+    rng = np.random.default_rng(0)
+    truth = [(2.0, 1.3), (0.5, 0.4), (3.0, 2.5)]
+    Y = np.stack([a * np.exp(-b * x) + 0.01 * rng.standard_normal(40) for a, b in truth])
 
-    def residual(z, args):
-        return z[0] * jnp.exp(-z[1] * args) - y
+    def residual(z, y):
+        return z[0] * jnp.exp(-z[1] * jnp.asarray(x)) - y
 
-    want = least_squares(lambda z: z[0] * np.exp(-z[1] * x) - y, [1.0, 0.5], xtol=1e-14,
-                         ftol=1e-14, gtol=1e-14).x
-    Z0 = jnp.array([[1.0, 0.5], [5.0, 5.0]])
-    run = jax.jit(jax.vmap(lambda z0, steps: lm_fixed(residual, z0, jnp.asarray(x), steps=steps,
-                                                      xtol=1e-10, gtol=1e-10, tau=1e-6),
-                           in_axes=(0, None)), static_argnums=1)
-    out = run(Z0, 60)
-    assert np.all(np.asarray(out["rule_met"])) and np.all(np.asarray(out["finite"]))
-    np.testing.assert_allclose(np.asarray(out["z"]), np.stack([want, want]), rtol=1e-7)
-    iters = np.asarray(out["iters"])
-    assert np.all(iters < 60)
-    longer = run(Z0, 120)  # a converged lane does not move: same steps, same point
-    np.testing.assert_array_equal(np.asarray(longer["iters"]), iters)
-    np.testing.assert_array_equal(np.asarray(longer["z"]), np.asarray(out["z"]))
-    short = run(Z0, 2)
-    assert not np.any(np.asarray(short["rule_met"])) and np.all(np.asarray(short["iters"]) == 2)
+    tol = dict(xtol=1e-10, gtol=1e-10, tau=1e-6)
+    Z0 = np.array([[1.0, 0.5], [5.0, 5.0], [1.0, 0.5], [0.1, 0.1], [2.0, 3.0], [1.0, 1.0],
+                   [4.0, 0.2], [9.0, 9.0]])
+    which = np.array([0, 0, 1, 1, 2, 2, 0, 0])
+    run = jax.jit(lambda Z0, n, maxiter: lm_queue(residual, Z0, jnp.asarray(Y), which, n,
+                                                  lanes=2, maxiter=maxiter, **tol),
+                  static_argnums=2)
+    out = {k: np.asarray(v) for k, v in run(Z0, 7, 200).items()}
+    alone = jax.jit(jax.vmap(lambda z0, y: lm_until(residual, z0, y, maxiter=200, **tol)))(
+        Z0[:7], Y[which[:7]])
+    np.testing.assert_allclose(out["z"][:7], np.asarray(alone["z"]), rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(out["iters"][:7], np.asarray(alone["iters"]))
+    assert np.all(out["rule_met"][:7]) and np.all(out["finite"][:7])
+    for i in range(7):
+        want = least_squares(lambda z: z[0] * np.exp(-z[1] * x) - Y[which[i]], Z0[i],
+                             xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+        np.testing.assert_allclose(out["z"][i], want, rtol=1e-6)
+    assert not out["finite"][7] and out["iters"][7] == 0  # past n: not run
+    short = {k: np.asarray(v) for k, v in run(Z0, 7, 2).items()}
+    assert not np.any(short["rule_met"][:7]) and np.all(short["iters"][:7] == 2)
 
 
-def test_a_dataset_past_one_call_goes_on_to_its_optimum(synthetic, monkeypatch):
-    """A dataset whose best run needs more than one call's steps continues in further calls
-    (fitlab.fitting.batch.STEPS) to the same optimum, its steps counted across them."""
+def test_more_lanes_or_fewer_give_the_same_fits(synthetic, monkeypatch):
+    """The batched fits' lanes (fitlab.fitting.batch.LANES) change how the runs are scheduled,
+    not where they end: two lanes for five datasets give the fits of the default."""
     from fitlab.fitting import batch
 
     ms, _ = synthetic
-    ref = fitlab.fit_many(ms[:2], "rough_dielectric")
-    monkeypatch.setattr(batch, "STEPS", 3)
-    many = fitlab.fit_many(ms[:2], "rough_dielectric")
+    ref = fitlab.fit_many(ms, "rough_dielectric")
+    monkeypatch.setattr(batch, "LANES", 2)
+    batch._batched.cache_clear()
+    try:
+        many = fitlab.fit_many(ms, "rough_dielectric")
+    finally:
+        monkeypatch.undo()
+        batch._batched.cache_clear()
     for a, b in zip(ref.fits, many.fits):
-        np.testing.assert_allclose(b.native, a.native, rtol=1e-7)
-        assert b.lm_stopped == "converged" and b.lm_iterations > 3
+        np.testing.assert_allclose(b.native, a.native, rtol=1e-9)
+        assert b.lm_stopped == "converged" and b.lm_iterations == a.lm_iterations
 
 
 def test_more_starts_only_where_the_first_is_suspect(synthetic, monkeypatch):
@@ -319,7 +331,7 @@ def test_relative_datasets_on_one_geometry_share_the_scan(synthetic, monkeypatch
     stacked = batch._stack(problems, batch.padded_size(p0.n_rows))
     assert len({float(x) for x in stacked["hi"][:, -1]}) == len(ms)  # scale bounds differ
     assert batch.shares_scan(p0.space.static, stacked)
-    k = batch._batched(p0.space.static, p0.loss, batch.STEPS)
+    k = batch._batched(p0.space.static, p0.loss, batch.LM_MAXITER)
     U = batch.scan_points(kw["scan"], p0.space.ndim, kw["seed"])
     np.testing.assert_allclose(np.asarray(k["shared_scan"](U, stacked)),
                                np.asarray(k["batch_scan"](U, stacked)), rtol=1e-12, atol=0)

@@ -161,7 +161,7 @@ def test_shared_scan_and_texel_setup_are_the_per_dataset_ones(monkeypatch):
     p0 = problems[0]
     stacked = batch._stack(problems, int(np.shape(p0.data.value)[0]))
     assert batch.shares_scan(p0.space.static, stacked)
-    k = batch._batched(p0.space.static, p0.loss, batch.STEPS)
+    k = batch._batched(p0.space.static, p0.loss, batch.LM_MAXITER)
     U = batch.scan_points(kw["scan"], p0.space.ndim, kw["seed"])
     shared = np.asarray(k["shared_scan"](U, stacked))
     each = np.asarray(k["batch_scan"](U, stacked))
