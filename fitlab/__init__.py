@@ -5,8 +5,8 @@ immutable :class:`FitResult`; its settings are a :class:`FitRequest`, checked on
 fitted texel by texel into texture maps; :func:`render_maps_gltf`: its glTF hand-off rendered by
 three.js beside the input images),
 :func:`load_fit` (a parameter file and its chain), :func:`compare` (candidate models ranked by
-held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3 or
-glTF 2.0), :func:`complete_measurement` (a measurement with its missing readings filled by a
+held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3,
+glTF 2.0 or MaterialX's OpenPBR), :func:`complete_measurement` (a measurement with its missing readings filled by a
 fit, ``fitlab convert --complete``), :func:`write_report` (the HTML report of a fit or of a comparison), and
 :func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in

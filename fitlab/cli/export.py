@@ -1,5 +1,6 @@
 """fitlab export: a fit (or a registry model) as a file a renderer loads: Mitsuba 3 scene XML or
-dictionary (Mitsuba's own plugins, or fitlab's plugin for any model), a glTF 2.0 material."""
+dictionary (Mitsuba's own plugins, or fitlab's plugin for any model), a glTF 2.0 material, a
+MaterialX OpenPBR Surface document."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ def add_parser(sub):
                         for e in EXPORTERS.values())
     p = sub.add_parser(
         "export", help="export a fit for a renderer: Mitsuba 3 (native or fitlab's plugin), "
-        "glTF 2.0, an ASAM OpenMATERIAL 3D BRDF table",
+        "glTF 2.0, an ASAM OpenMATERIAL 3D BRDF table, a MaterialX OpenPBR Surface",
         description="Write FIT.json (or --model with --param) as a file a renderer loads, "
         "atomically (nothing is left on failure). A fit's 'scale' (relative data) is not "
         "applied: the file holds the absolute model f. One channel exports grey, R, G, B in "
@@ -23,7 +24,8 @@ def add_parser(sub):
         "formats that take RGB as its colour block's linear sRGB (data_formats/fit_json.md, "
         "'Colour of a spectral fit'); other channel sets need --channel. A format that "
         "cannot represent the material is refused with what to use instead (exit status 2). Formats (--to; "
-        f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf, .xompt openmaterial): "
+        f"otherwise from the suffix: .xml/.json mitsuba, .gltf gltf, .xompt openmaterial, "
+        f".mtlx materialx): "
         f"{formats}.",
         epilog="examples: fitlab export fits/rgl_aurora_white_two_lobe_shared.json --to "
         "mitsuba --out aurora.xml --preview; fitlab export "
@@ -39,7 +41,7 @@ def add_parser(sub):
     p.add_argument("--to", choices=list(E), help="export format (default: from --out's suffix)")
     p.add_argument("--out", required=True, metavar="FILE",
                    help="output file (.xml scene or .json dictionary for Mitsuba, .gltf, .xompt "
-                   "for OpenMATERIAL)")
+                   "for OpenMATERIAL, .mtlx for MaterialX)")
     add_model(p, help="export this registry model instead of a fit (see `fitlab models`)")
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="a parameter of --model: NAME=V, or NAME=R,G,B for a colour material; "
@@ -59,7 +61,9 @@ def add_parser(sub):
                    "and largest difference of f cos theta_i) and what that means: Mitsuba 3 "
                    "for the Mitsuba exports; three.js in headless Chromium for glTF (and the "
                    "Khronos glTF validator, where Node.js has it), else Mitsuba with glTF's "
-                   "specified BRDF of the file's values. Without a renderer nothing is written "
+                   "specified BRDF of the file's values; MaterialX's own GLSL of the .mtlx "
+                   "document in Mesa's OpenGL (EGL, headless) against fitlab's OpenPBR of the "
+                   "file's values. Without a renderer nothing is written "
                    "(exit status 2, with what to install)")
     add_quiet(p, help="print nothing on success")
     return p
@@ -81,7 +85,10 @@ def run(args):
         if "what" in conv:
             line += f" ({conv['what']})"
         if "relative_rms" in conv:
-            line += (f"; glTF conversion error: relative RMS of f cos {conv['relative_rms']:.3g}")
+            line += (f"; {conv.get('target_title', 'glTF')} conversion error: relative RMS of "
+                     f"f cos {conv['relative_rms']:.3g}, largest {conv['relative_max']:.3g}")
+        elif conv.get("converted") is False:
+            line += f" ({conv['summary']})"
         print(line, file=sys.stderr)
         colour = conv.get("colour")
         if colour:
@@ -102,6 +109,10 @@ def check_lines(c: dict) -> list[str]:
     lines = [f"check: {c['renderer']} on {c['pairs']} goniometer pairs: relative RMS "
              f"{c['relative_rms']:.3g}, largest {c['relative_max']:.3g} against fitlab",
              f"  compared: {c['compared']}", f"  meaning: {c['meaning']}"]
+    a = c.get("against_fit")
+    if a:
+        lines.append(f"  against the material exported (conversion included): relative RMS "
+                     f"{a['relative_rms']:.3g}, largest {a['relative_max']:.3g}")
     s = c.get("specification")
     if s:
         lines.append(f"  glTF's specified BRDF with the file's values: relative RMS "

@@ -27,6 +27,10 @@ as one directional light of irradiance 1 from wi seen from wo: a pixel is f(wi, 
 
   Both over the pairs where the fit's value is above 1e-3 of its largest per channel (the
   conversion's own floor, ``fitlab.lobe_metrics.ERROR_FLOOR``), per channel combined.
+- **MaterialX** (``materialx``, renderer ``materialx-glsl``): MaterialX's own GLSL generator's
+  shader of the written document, run in Mesa's OpenGL through EGL, one directional light per
+  pair, against fitlab's OpenPBR evaluation of the values read from the file (and, for a
+  converted material, against the material too): fitlab.export.materialx.run_check.
 
 A check that cannot run (no renderer) raises :class:`~fitlab.export.material.ExportError` saying
 what to install, before anything is built or written.
@@ -43,7 +47,8 @@ import numpy as np
 from fitlab.export.material import ExportError, Material, material_from_model
 
 #: The renderers that check each export format, in the order they are tried.
-CHECKERS = {"mitsuba": ("mitsuba",), "mitsuba-plugin": ("mitsuba",), "gltf": ("three", "mitsuba")}
+CHECKERS = {"mitsuba": ("mitsuba",), "mitsuba-plugin": ("mitsuba",), "gltf": ("three", "mitsuba"),
+            "materialx": ("materialx-glsl",)}
 MITSUBA_INSTALL = "Mitsuba 3 (pip install mitsuba, a dependency of fitlab)"
 
 
@@ -75,6 +80,10 @@ def mitsuba_missing() -> str | None:
 
 
 def _missing(renderer: str) -> str | None:
+    if renderer == "materialx-glsl":
+        from fitlab.export import materialx
+
+        return materialx.check_missing()
     if renderer == "three":
         from fitlab.export import threejs
 
@@ -102,7 +111,10 @@ def renderer_for(format_name: str, renderer: str = "auto") -> str:
         if why is None:
             return name
         reasons.append(why)
-    install = {"three": f"for three.js: {INSTALL}", "mitsuba": f"for Mitsuba: {MITSUBA_INSTALL}"}
+    from fitlab.export.materialx import INSTALL as MATERIALX_INSTALL
+
+    install = {"three": f"for three.js: {INSTALL}", "mitsuba": f"for Mitsuba: {MITSUBA_INSTALL}",
+               "materialx-glsl": f"for MaterialX's GLSL: {MATERIALX_INSTALL}"}
     raise ExportError(f"--check cannot run: {'; '.join(reasons)}. The {format_name} check "
                       f"renders with {' or '.join(tried)}: install " + "; or ".join(
                           install[n] for n in tried))
@@ -260,6 +272,25 @@ def _check_gltf_three(material: Material, text: str) -> dict:
             "validator": validator}
 
 
+def check_materialx(material: Material | None, made) -> dict:
+    """The MaterialX check of an export ``made`` (its text read back and validated):
+    MaterialX's GLSL against fitlab's OpenPBR evaluation of the file's values, and (for a
+    converted ``material``) against the material exported (``against_fit``)."""
+    from fitlab.export import materialx as mx
+
+    doc = mx.load_document(made.text, "the MaterialX export")
+    back = mx.material_of_document(doc, "the MaterialX export")
+    wi, wo = check_geometries()
+    rendered, info = mx.render_goniometer(doc, wi, wo)
+    out = {"renderer": info["renderer"], "pairs": int(wi.shape[0]),
+           **mx.figure(material_values(back, wi, wo), rendered), "floor": mx.CHECK_FLOOR,
+           "geometry": geometry_text(), "directional_albedo": info["directional_albedo"],
+           "compared": mx.COMPARED, "meaning": mx.MEANING}
+    if made.conversion.get("converted"):
+        out["against_fit"] = mx.figure(material_values(material, wi, wo), rendered)
+    return out
+
+
 def run_check(format_name: str, renderer: str, material: Material, made) -> dict:
     """The check's figure of ``made`` (an :class:`~fitlab.export.renderers.Exported` of
     ``format_name``) rendered by ``renderer`` (:func:`renderer_for`) against ``material``:
@@ -267,10 +298,12 @@ def run_check(format_name: str, renderer: str, material: Material, made) -> dict
     ``geometry`` (glTF also ``specification``, ``validator``, ``floor``)."""
     if format_name.startswith("mitsuba"):
         return _check_mitsuba(material, made.value)
+    if renderer == "materialx-glsl":
+        return check_materialx(material, made)
     if renderer == "three":
         return _check_gltf_three(material, made.text)
     return _check_gltf_mitsuba(material, made.value, made.text)
 
 
-__all__ = ["CHECKERS", "check_geometries", "gltf_material", "material_values", "renderer_for",
+__all__ = ["CHECKERS", "check_geometries", "check_materialx", "gltf_material", "material_values", "renderer_for",
            "run_check"]

@@ -108,22 +108,34 @@ def _measurement(values: dict, wi, wo):
     return check_measurement(m)
 
 
-def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool):
+#: What the glTF conversion fit holds fixed, and the parameters it fits per channel.
+GLTF_FIXED = {"specular_color": 1.0}
+GLTF_PER_CHANNEL = ("base_color",)
+
+
+def _fit(model: str, values: dict, wi, wo, seed: int, progress: bool, fix: dict | None = None,
+         per_channel: tuple = GLTF_PER_CHANNEL):
+    """``model`` fitted to ``values`` at the pairs (log loss, 4 starts, no bootstrap), with
+    ``fix`` held and every free parameter but those of ``per_channel`` shared by the
+    channels."""
     from fitlab.fitting.api import fit
     from fitlab.models import get_model
 
+    fix = GLTF_FIXED if fix is None else fix
     keep = wo[:, 2] != 0
     m = _measurement({c: v[keep] for c, v in values.items()}, wi[keep], wo[keep])
     names = get_model(model).parameter_names
-    shared = [n for n in names if n != "base_color" and n != "specular_color"]
-    result = fit(m, model, fix={"specular_color": 1.0}, loss="log", starts=4,
+    shared = [n for n in names if n not in per_channel and n not in fix]
+    result = fit(m, model, fix=dict(fix), loss="log", starts=4,
                  seed=seed, bootstrap=0, share=shared if len(values) > 1 else (),
                  progress=progress)
     return result
 
 
-def conversion_errors(material: Material, model: str, params_by_channel: dict) -> dict:
-    """How far ``model`` with ``params_by_channel`` (glTF's BSDF) is from the material."""
+def conversion_errors(material: Material, model: str, params_by_channel: dict,
+                      label: str = "gltf") -> dict:
+    """How far ``model`` with ``params_by_channel`` (glTF's BSDF, or another target's:
+    ``label`` names it in the albedo figures) is from the material."""
     from fitlab.models import get_model
 
     # the whole hemisphere (both sides for a transmitting material): the figures do not
@@ -136,12 +148,12 @@ def conversion_errors(material: Material, model: str, params_by_channel: dict) -
     for t in (0.0, 30.0, 60.0, 80.0):
         a = albedo_sampled(material.model, material.channels, material.options, t)
         b = albedo_sampled(model, params_by_channel, {}, t)
-        albedo[f"{t:g}"] = {"material": [float(x) for x in a], "gltf": [float(x) for x in b]}
+        albedo[f"{t:g}"] = {"material": [float(x) for x in a], label: [float(x) for x in b]}
         if get_model(model).capabilities.transmission:
             a = albedo_sampled(material.model, material.channels, material.options, t, side=-1)
             b = albedo_sampled(model, params_by_channel, {}, t, side=-1)
             albedo[f"{t:g}"].update(material_transmitted=[float(x) for x in a],
-                                    gltf_transmitted=[float(x) for x in b])
+                                    **{f"{label}_transmitted": [float(x) for x in b]})
     images = {f"{t:g}": image_errors(lobe_image(src, t), lobe_image(dst, t))
               for t in (0.0, 30.0, 60.0)}
     return {"relative_rms": err["relative_rms"], "relative_max": err["relative_max"],
@@ -189,19 +201,40 @@ def convert(material: Material, *, seed: int = 0, progress: bool = False):
         raise ExportError(f"{material.source}: glTF takes linear RGB, not the spectrum "
                           f"{', '.join(material.channels)}; export one wavelength with "
                           "--channel")
-    caps = model.capabilities
+    return fit_conversion(material, [(name, GLTF_FIXED) for name in
+                                      candidates(model.capabilities)],
+                          simplify=simplified, seed=seed, progress=progress)
+
+
+def fit_conversion(material: Material, targets, *, per_channel: tuple = GLTF_PER_CHANNEL,
+                   gain: float = COAT_GAIN, label: str = "gltf", what: str = "glTF",
+                   simplify=None, seed: int = 0, progress: bool = False):
+    """(model name, {channel: its parameters}, conversion figures) of the best of ``targets``
+    ((registry model, {parameter: value held}) pairs, tried in order, a later one kept when
+    it lowers the relative RMS by more than ``gain``) fitted by least squares to
+    ``material`` on :func:`conversion_pairs`: what the glTF export does, and the MaterialX
+    export's conversion to OpenPBR (fitlab/export/materialx.py). ``simplify``: applied to the
+    fitted values before the errors are measured."""
+    from fitlab.models import get_model
+
+    caps = get_model(material.model).capabilities
+    if not caps.reflection:
+        raise ExportError(f"{material.model} reflects nothing (a transmission model); the "
+                          f"{what} material reflects: export a reflecting model")
     wi, wo = conversion_pairs(caps.isotropic, caps.transmission)
     values = _values(material, wi, wo)
     if not all(np.any(v[wo[:, 2] > 0] > 0) for v in values.values()):
         raise ExportError(f"{material.model} is 0 at every reflection direction of a channel; "
                           "there is nothing to convert")
     best = None
-    for name in candidates(caps):
-        result = _fit(name, values, wi, wo, seed, progress)
-        params = simplified({c: dict(p) for c, p in result.parameters.items()})
+    for name, fix in targets:
+        result = _fit(name, values, wi, wo, seed, progress, fix, per_channel)
+        params = {c: dict(p) for c, p in result.parameters.items()}
+        if simplify is not None:
+            params = simplify(params)
         errors = {"fit_pairs": int(np.sum(wo[:, 2] > 0)),
-                  **conversion_errors(material, name, params)}
-        if best is None or errors["relative_rms"] < (1.0 - COAT_GAIN) * best[2]["relative_rms"]:
+                  **conversion_errors(material, name, params, label)}
+        if best is None or errors["relative_rms"] < (1.0 - gain) * best[2]["relative_rms"]:
             best = (name, params, errors)
     return best
 
@@ -346,28 +379,31 @@ FAR = 0.25
 
 
 def conversion_warnings(material: Material, model: str, errors: dict,
-                        params: dict | None = None) -> list[str]:
+                        params: dict | None = None, *, what: str = "glTF",
+                        ordinary: set | None = None) -> list[str]:
     """Sentences for a conversion a user should not take at face value: a large error, and
-    glTF parameters that ended at a bound of their range (the material wants more than glTF's
-    BRDF offers there; metallic 0 or 1 and a zero clear coat are ordinary ends)."""
+    target (``what``: glTF, OpenPBR) parameters that ended at a bound of their range (the
+    material wants more than the target's BRDF offers there; ``ordinary``: the parameters
+    whose bounds are ordinary ends, for glTF metallic 0 or 1 and a zero clear coat)."""
     from fitlab.models import get_model
 
     out = []
     # shares that may well be 0 or 1, and the anisotropy's direction, whose bounds ±90° are the
     # same axis
-    ordinary = {"metallic", "base_color", "clearcoat", "specular", "specular_color",
-                "anisotropy_strength", "anisotropy_rotation", "transmission"}
+    if ordinary is None:
+        ordinary = {"metallic", "base_color", "clearcoat", "specular", "specular_color",
+                    "anisotropy_strength", "anisotropy_rotation", "transmission"}
     gltf = get_model(model)
     for p in gltf.parameters:
         if params is None or p.name in ordinary:
             continue
         v = float(next(iter(params.values()))[p.name])
         if min(v - p.lower, p.upper - v) <= 1e-6 * max(1.0, p.upper - p.lower):
-            out.append(f"glTF's {p.name} ended at a bound of its range ({v:.6g} in "
+            out.append(f"{what}'s {p.name} ended at a bound of its range ({v:.6g} in "
                        f"[{p.lower:g}, {p.upper:g}]): {material.model} asks for more than "
-                       "glTF's BRDF offers there")
+                       f"{what}'s BRDF offers there")
     if errors["relative_rms"] > FAR:
-        text = (f"the glTF material is far from {material.model}: relative RMS "
+        text = (f"the {what} material is far from {material.model}: relative RMS "
                 f"{errors['relative_rms']:.3g} of f·cos over the hemisphere")
         if "transmission" in gltf.parameter_names:
             text += ("; KHR_materials_transmission is a thin-walled surface (light leaves "

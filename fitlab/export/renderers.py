@@ -8,7 +8,8 @@ Formats: ``mitsuba`` (Mitsuba 3's own plugins: scene XML for ``.xml``, the ``mi.
 dictionary as JSON for ``.json``), ``mitsuba-plugin`` (the same forms with fitlab's plugin,
 for any model), ``gltf`` (a glTF 2.0 material fitted to the material, with a preview sphere),
 ``openmaterial`` (an ASAM OpenMATERIAL 3D BRDF look-up table: the writer of ``fitlab convert``,
-fitlab.export.openmaterial).
+fitlab.export.openmaterial), ``materialx`` (an OpenPBR Surface document, MaterialX 1.39: a fit of
+the OpenPBR model as it is, any other converted by least squares; fitlab.export.materialx).
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ class Exporter(NamedTuple):
     #: refused where the bands do not span 380-780 nm); "rgb or spectrum": the reduction where
     #: the bands span the visible range, else the spectrum as it is; "spectrum": the bands kept
     spectra: str = "rgb"
+    #: with_check(made, check) -> the file's text with the check's figure recorded in it
+    #: (fitlab.export.check); None: the text as built
+    with_check: Callable | None = None
 
 
 def _json_text(value) -> str:
@@ -80,6 +84,19 @@ def _gltf_build(material: Material, suffix: str, settings: dict) -> Exported:
 
     doc, conversion = gltf_export(material, progress=bool(settings.get("progress")))
     return Exported(gltf_text(doc), doc, conversion)
+
+
+def _materialx_build(material: Material, suffix: str, settings: dict) -> Exported:
+    from fitlab.export.materialx import materialx_export
+
+    text, doc, conversion = materialx_export(material, progress=bool(settings.get("progress")))
+    return Exported(text, doc, conversion)
+
+
+def _materialx_with_check(made: Exported, check: dict) -> str:
+    from fitlab.export.materialx import text_with_check
+
+    return text_with_check(made.text, check)
 
 
 def _openmaterial_build(material: Material, suffix: str, settings: dict) -> Exported:
@@ -123,6 +140,13 @@ EXPORTERS: Registry[Exporter] = Registry("export format", {
                  "OUT.xompt (which also takes --grid-from and the header's flags)",
                  (".xompt",), "data_formats/openmaterial_xompt.md", _openmaterial_build,
                  "spectrum"),
+        Exporter("materialx", "MaterialX (OpenPBR Surface)",
+                 "a MaterialX 1.39 document with one open_pbr_surface: a fit of the openpbr "
+                 "model written as it is, any other material converted to OpenPBR by least "
+                 "squares (the conversion error is reported); validated by the materialx "
+                 "package",
+                 (".mtlx",), "data_formats/materialx_export.md", _materialx_build,
+                 with_check=_materialx_with_check),
     )
 })
 
@@ -221,7 +245,8 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
     ``conversion["check"]`` holds how far its values are from the material's (relative RMS,
     largest relative difference, what was compared and what the figure means:
     fitlab.export.check). Mitsuba 3 checks the Mitsuba exports; three.js (headless Chromium)
-    checks a glTF file, else Mitsuba with glTF's specified BRDF of the file's values. ``True``
+    checks a glTF file, else Mitsuba with glTF's specified BRDF of the file's values;
+    MaterialX's own GLSL for the document, run in Mesa's OpenGL, checks a MaterialX file. ``True``
     (or ``"auto"``) takes the first that can run, ``"three"`` or ``"mitsuba"`` names one. When
     none can, ExportError says what to install, before anything is built or written; the file
     is written only after its check ran.
@@ -257,8 +282,10 @@ def export_material(fit=None, to: str | None = None, out=None, *, model: str | N
     if renderer is not None:
         from fitlab.export.check import run_check
 
-        made = made._replace(conversion={**made.conversion, "check": run_check(
-            exporter.name, renderer, material, made)})
+        check = run_check(exporter.name, renderer, material, made)
+        made = made._replace(conversion={**made.conversion, "check": check})
+        if exporter.with_check is not None:
+            made = made._replace(text=exporter.with_check(made, check))
     if out is not None:
         atomic_write_text(out, made.text)
     return made

@@ -26,7 +26,7 @@ _LOCK = threading.RLock()
 
 
 def _builtin() -> tuple[Model, ...]:
-    from fitlab.models import diffuse, gltf_pbr, rough_conductor, rough_dielectric
+    from fitlab.models import diffuse, gltf_pbr, openpbr, rough_conductor, rough_dielectric
 
     return (
         rough_dielectric.MODEL,
@@ -39,6 +39,7 @@ def _builtin() -> tuple[Model, ...]:
         gltf_pbr.CLEARCOAT_MODEL,
         gltf_pbr.ANISOTROPIC_MODEL,
         gltf_pbr.TRANSMISSION_MODEL,
+        openpbr.MODEL,
     )
 
 

@@ -274,11 +274,7 @@ def make(extension: str | None = None) -> Model:
         return out
 
     def lobe_pdf(dist, wi, wo):
-        h = wi + wo
-        hh = normalize(h)
-        o_h = dot(wo, hh)
-        p = safe_div(roughness.normal_pdf(dist, wi, hh, "visible", h), 4.0 * o_h)
-        return jnp.where(o_h > 0, p, 0.0)
+        return roughness.reflection_pdf(dist, wi, wo, "visible")
 
     def pdf(params, wi, wo):
         P = lobes(params, wi[..., 2])

@@ -46,12 +46,8 @@ def make(anisotropic: bool) -> Model:
     def pdf(params, wi, wo, distribution="ggx", fresnel="exact", sampling="standard"):
         """p_m(h_r) / (4|o·h_r|) (Walter eqs 14, 24, 38; Heitz 2018 for visible normals)."""
         dist = ndf(params, distribution)
-        ci, co = wi[..., 2], wo[..., 2]
-        h = wi + wo
-        hh = normalize(h)
-        o_h = dot(wo, hh)
-        p = safe_div(roughness.normal_pdf(dist, wi, hh, sampling, h), 4.0 * o_h)
-        return jnp.where((ci > 0) & (co > 0) & (o_h > 0), p, 0.0)
+        p = roughness.reflection_pdf(dist, wi, wo, sampling)
+        return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), p, 0.0)
 
     def sample(params, wi, u, distribution="ggx", fresnel="exact", sampling="standard"):
         """m ~ D(m)|m·n| (or D_wi(m)), o = reflect(i, m) (eq. 39); weight = F · eq. 41."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fitlab._jax import jnp
 from fitlab import microfacet
-from fitlab.frame import dot
+from fitlab.frame import dot, normalize
 from fitlab.models.base import Option, Parameter
 from fitlab.numerics import safe_div
 
@@ -87,6 +87,16 @@ def normal_pdf(dist, wi, m, sampling, h=None):
     if sampling == "visible":
         return safe_div(dist.G1(wi) * jnp.maximum(dot(wi, m), 0.0) * dist.D(h), wi[..., 2])
     return sampling_ndf(dist, wi[..., 2], sampling).D(h) * jnp.abs(m[..., 2])
+
+
+def reflection_pdf(dist, wi, wo, sampling):
+    """Density of o = reflect(i, m) for m from :func:`sample_normal`: p_m(h_r) / (4|o·h_r|)
+    (Walter eqs 14, 24, 38; Heitz 2018 for visible normals), 0 where o·h_r <= 0."""
+    h = wi + wo
+    hh = normalize(h)
+    o_h = dot(wo, hh)
+    p = safe_div(normal_pdf(dist, wi, hh, sampling, h), 4.0 * o_h)
+    return jnp.where(o_h > 0, p, 0.0)
 
 
 def sample_weight(dist, wi, wo, m, sampling):

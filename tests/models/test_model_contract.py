@@ -213,13 +213,13 @@ SLOW_MODELS = {"thin_layer(rough_conductor)", "thin_layer(rough_dielectric)",
 #: Layered models whose every contract case runs in the whole suite only: in the quick tier,
 #: and under XLA's defaults (tests/project/test_compiler_settings.py), each constructor runs
 #: over one base of each kind (a conductor, a dielectric, a diffuse one, a sum-like lobe) and
-#: its anisotropic and glTF bases run in the whole suite: their code is the constructor's,
+#: its anisotropic, glTF and OpenPBR bases run in the whole suite: their code is the constructor's,
 #: already checked, over bases checked on their own. (The coated and Weidlich–Wilkie models
 #: over every base took 42 of the quick tier's 105 s in this module.)
 SLOW_LAYERED = {f"{ctor}({base})" for ctor in ("coated", "weidlich_wilkie")
                 for base in ("gltf_pbr", "gltf_pbr_clearcoat", "gltf_pbr_anisotropic",
                              "gltf_pbr_transmission", "rough_conductor_anisotropic",
-                             "rough_dielectric_anisotropic")} | {"weidlich_wilkie(oren_nayar)"}
+                             "rough_dielectric_anisotropic", "openpbr")} | {"weidlich_wilkie(oren_nayar)"}
 
 
 def _marks(name, slow=False):
