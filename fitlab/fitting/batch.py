@@ -31,7 +31,9 @@ arrays (:class:`BatchResult`); fitlab/fitting/many.py turns them into parameter 
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import gc
 import math
 from typing import NamedTuple
 
@@ -413,6 +415,22 @@ def fit_chunk(problems: list[Problem], *, starts: int = STARTS, scan: int = SCAN
                        stopped[keep], at_bound[keep],
                        [r[i, :n] for i, n in enumerate(n_rows[keep])], costs.min(axis=1)[keep],
                        n_lanes[keep])
+
+
+@contextlib.contextmanager
+def paused_gc():
+    """Python's cyclic garbage collector paused while a batched fit makes its per-dataset
+    records (a Problem, its data and constants, a result row: tens of thousands of small
+    objects, none in a cycle), as it was before on leaving. Each collection walks every live
+    object; measured on 10,000 datasets (benchmarks/fit_many.py, conductor) they cost 0.13 s
+    of 0.67 s."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def chunks(n: int, chunk: int) -> list[range]:

@@ -24,6 +24,7 @@ import numpy as np
 
 from fitlab.errors import FitlabError
 from fitlab.fitting.batch import (CHUNK, SCAN, STARTS, BATCH_LM_ALGORITHM, BatchResult, Problem,
+                                  paused_gc,
                                   chunks, fit_chunk, group)
 from fitlab.fitting.least_squares import LeastSquaresResult, lm_record
 from fitlab.fitting.status import Status, channel_statuses, trusted
@@ -417,41 +418,42 @@ def fit_many(measurements, model, *, scan: int = SCAN, chunk: int = CHUNK,
         raise FitlabError("fit_many needs at least one measurement")
     starts, seed, lm_maxiter = request.starts, request.seed, request.lm_maxiter
     mdl, subset = request.model, request.subset
-    problems, spaces, rows, fixed, notes, losses, opts = _problems(ms, request)
-    if not problems:
-        raise FitlabError("no dataset has rows to fit (check the subset)")
-    groups = group(problems)
-    work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
-    bar = None
-    if request.progress:
-        from tqdm import tqdm
+    with paused_gc():  # thousands of small records: batch.paused_gc
+        problems, spaces, rows, fixed, notes, losses, opts = _problems(ms, request)
+        if not problems:
+            raise FitlabError("no dataset has rows to fit (check the subset)")
+        groups = group(problems)
+        work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
+        bar = None
+        if request.progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=len(problems), desc="fits", unit="fit", file=sys.stderr,
-                   mininterval=0.5, dynamic_ncols=True)
-    fits = [None] * len(problems)
-    try:
-        for g, r in work:
-            idx = [g[j] for j in r]
-            res: BatchResult = fit_chunk([problems[j] for j in idx], starts=starts, scan=scan,
-                                         seed=seed, lm_maxiter=lm_maxiter,
-                                         batch=min(chunk, len(g)))
-            posts = [None] * len(idx)
-            if request.mcmc:
-                posts = _posteriors([problems[j] for j in idx], res, seed=seed,
-                                    nsteps=request.mcmc_steps, chains=request.walkers or 4,
-                                    batch=min(chunk, len(g)))
-            # per dataset its row of each result (Python numbers converted at once)
-            for j, (i, channel), *row in zip(
-                    idx, res.keys, res.native, res.stderr, res.covariance,
-                    res.cost.tolist(), res.dof.tolist(), res.noise_scale.tolist(),
-                    res.iterations.tolist(), res.stopped, res.at_bound, res.residuals,
-                    res.scan_cost.tolist(), posts, res.lm_starts.tolist()):
-                fits[j] = Fitted(i, channel, res.names, *row)
+            bar = tqdm(total=len(problems), desc="fits", unit="fit", file=sys.stderr,
+                       mininterval=0.5, dynamic_ncols=True)
+        fits = [None] * len(problems)
+        try:
+            for g, r in work:
+                idx = [g[j] for j in r]
+                res: BatchResult = fit_chunk([problems[j] for j in idx], starts=starts, scan=scan,
+                                             seed=seed, lm_maxiter=lm_maxiter,
+                                             batch=min(chunk, len(g)))
+                posts = [None] * len(idx)
+                if request.mcmc:
+                    posts = _posteriors([problems[j] for j in idx], res, seed=seed,
+                                        nsteps=request.mcmc_steps, chains=request.walkers or 4,
+                                        batch=min(chunk, len(g)))
+                # per dataset its row of each result (Python numbers converted at once)
+                for j, (i, channel), *row in zip(
+                        idx, res.keys, res.native, res.stderr, res.covariance,
+                        res.cost.tolist(), res.dof.tolist(), res.noise_scale.tolist(),
+                        res.iterations.tolist(), res.stopped, res.at_bound, res.residuals,
+                        res.scan_cost.tolist(), posts, res.lm_starts.tolist()):
+                    fits[j] = Fitted(i, channel, res.names, *row)
+                if bar is not None:
+                    bar.update(len(idx))
+        finally:
             if bar is not None:
-                bar.update(len(idx))
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
     settings = {"starts": starts, "scan": scan, "seed": seed, "lm_maxiter": lm_maxiter,
                 "chunk": chunk, "mcmc": request.mcmc, "spaces": spaces, "rows": rows,
                 "subset_expr": subset if isinstance(subset, str) else None,

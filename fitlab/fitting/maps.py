@@ -274,7 +274,7 @@ def fit_maps(stack, model, *, out_dir=None, gltf: bool = False, workers: int | N
     ``tile_rows`` image rows on Dask.distributed workers, resumable
     (:func:`fit_maps_tiled`; needs ``out_dir``)."""
     from fitlab.fitting import progress
-    from fitlab.fitting.batch import CHUNK, SCAN, chunks, fit_chunk, group
+    from fitlab.fitting.batch import CHUNK, SCAN, chunks, fit_chunk, group, paused_gc
     from fitlab.fitting.channel import resolve_fit
     from fitlab.fitting.request import FitRequest, as_request
     from fitlab.fitting.subset import rows_of
@@ -321,49 +321,50 @@ def fit_maps(stack, model, *, out_dir=None, gltf: bool = False, workers: int | N
     per_texel = isinstance(request.subset, str) and _uses_value(request.subset)
     base = None if per_texel else rows_of(request.subset, template)[1]
     say(f"{H} x {W} texels, {n} images, {C} channel{'s' if C > 1 else ''}: setting up the fits")
-    problems, no_data = [None] * (H * W), np.zeros(H * W, dtype=bool)
-    rows_used = np.zeros((H * W, C * n), dtype=bool)
-    regular = (np.zeros(H * W, dtype=bool) if per_texel or template.is_relative
-               else np.all(finite, axis=1))
-    if np.any(regular):  # every reading finite: one structure, the values substituted
-        rows_used[regular] = base
-        for t, got in _regular_problems(np.flatnonzero(regular), readings, template, base,
-                                        request, setup):
+    with paused_gc():  # a record per texel: fitlab.fitting.batch.paused_gc
+        problems, no_data = [None] * (H * W), np.zeros(H * W, dtype=bool)
+        rows_used = np.zeros((H * W, C * n), dtype=bool)
+        regular = (np.zeros(H * W, dtype=bool) if per_texel or template.is_relative
+                   else np.all(finite, axis=1))
+        if np.any(regular):  # every reading finite: one structure, the values substituted
+            rows_used[regular] = base
+            for t, got in _regular_problems(np.flatnonzero(regular), readings, template, base,
+                                            request, setup):
+                no_data[t] = not got
+                problems[t] = got
+        for t in np.flatnonzero(~regular):
+            m = template._replace(value=np.where(finite[t], readings[t], 0.0))
+            if per_texel:
+                try:
+                    mask = rows_of(request.subset, m._replace(
+                        value=np.where(finite[t], readings[t], np.nan)))[1]
+                except FitlabError:  # selects none of this texel's readings
+                    mask = np.zeros(C * n, dtype=bool)
+            else:
+                mask = base
+            rows_used[t] = mask & finite[t]
+            got = _texel_problems(t, m, rows_used[t], request, setup)
             no_data[t] = not got
             problems[t] = got
-    for t in np.flatnonzero(~regular):
-        m = template._replace(value=np.where(finite[t], readings[t], 0.0))
-        if per_texel:
-            try:
-                mask = rows_of(request.subset, m._replace(
-                    value=np.where(finite[t], readings[t], np.nan)))[1]
-            except FitlabError:  # selects none of this texel's readings
-                mask = np.zeros(C * n, dtype=bool)
-        else:
-            mask = base
-        rows_used[t] = mask & finite[t]
-        got = _texel_problems(t, m, rows_used[t], request, setup)
-        no_data[t] = not got
-        problems[t] = got
-    problems = [p for got in problems for p in got]
-    groups = group(problems, joint=bool(share))
-    work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
-    bar = progress.bar(request.progress, len(problems), "texel fits", "fit")
-    fits = {}
-    try:
-        for g, r in work:
-            idx = [g[j] for j in r]
-            res = fit_chunk([problems[j] for j in idx], starts=request.starts, scan=scan,
-                            seed=request.seed, lm_maxiter=request.lm_maxiter,
-                            batch=min(chunk, len(g)))
-            for k, j in enumerate(idx):
-                fits[problems[j].key] = (problems[j], res.names, res.native[k], res.stderr[k],
-                                         res.stopped[k], res.at_bound[k])
+        problems = [p for got in problems for p in got]
+        groups = group(problems, joint=bool(share))
+        work = [(g, r) for g in groups for r in chunks(len(g), chunk)]
+        bar = progress.bar(request.progress, len(problems), "texel fits", "fit")
+        fits = {}
+        try:
+            for g, r in work:
+                idx = [g[j] for j in r]
+                res = fit_chunk([problems[j] for j in idx], starts=request.starts, scan=scan,
+                                seed=request.seed, lm_maxiter=request.lm_maxiter,
+                                batch=min(chunk, len(g)))
+                for k, j in enumerate(idx):
+                    fits[problems[j].key] = (problems[j], res.names, res.native[k], res.stderr[k],
+                                             res.stopped[k], res.at_bound[k])
+                if bar is not None:
+                    bar.update(len(idx))
+        finally:
             if bar is not None:
-                bar.update(len(idx))
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
     result = _assemble(stack, request, setup, fits, no_data, readings, rows_used, scan=scan,
                        chunk=chunk, seconds=time.perf_counter() - t0)
     if out_dir is not None:
