@@ -381,3 +381,25 @@ def test_datasets_of_one_geometry_get_the_single_fits_problems(synthetic, which)
     per_channel = len(ms[0].channel_names)
     assert all(p.data.wi is got[c].data.wi for c in range(per_channel)
                for p in got[c::per_channel])
+
+
+def test_the_garbage_collector_is_paused_and_restored():
+    """batch.paused_gc: the cyclic collector off inside, back to its state on leaving, also when
+    the body raises; left off when it was off."""
+    import gc
+
+    from fitlab.fitting.batch import paused_gc
+
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError):
+        with paused_gc():
+            assert not gc.isenabled()
+            raise RuntimeError("inside")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with paused_gc():
+            assert not gc.isenabled()
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
