@@ -1,6 +1,6 @@
 """The batched Levenberg–Marquardt step alone (issue 35 item 1: "Optimistix's
 LevenbergMarquardt under vmap with throw=False, or a short own one where it measures faster;
-say which and why"): fitlab's batched solver (fitlab/fitting/lm_fixed.py ``lm_queue``: lanes
+say which and why"): fitlab's batched solver (fitlab/fitting/lm.py ``lm_queue``: lanes
 refilled as runs end, fitlab.fitting.batch's ``queue`` kernel) against
 ``optimistix.least_squares`` with ``optimistix.LevenbergMarquardt`` (rtol = atol = 1e-10,
 max_steps 200, throw=False) vmapped over the 2,048 datasets, from the same starts (each dataset's best point of fitlab's 256-point scan), on the same residuals

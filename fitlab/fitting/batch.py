@@ -14,7 +14,7 @@ in chunks of ``chunk`` datasets, each chunk with a few batched calls:
 2. Levenberg–Marquardt from the scan's best point, and only where that end is suspect
    (:func:`_suspect`: not finite, at a bound, out of steps, or disagreeing with the data) from
    the model's defaults and the scan's next ``starts`` best points too; the best end is kept.
-   The solver is fitlab.fitting.lm_fixed's ``lm_queue`` (the single fit's damping and
+   The solver is fitlab.fitting.lm's ``lm_queue`` (the single fit's damping and
    stopping rule, one forward-mode pass a step, each run step for step the single fit's) on
    ``LANES`` *lanes* at once: a lane whose run meets its stopping rule or spends
    ``lm_maxiter`` steps writes its end and takes the next start (as the simulator's walk
@@ -44,7 +44,7 @@ from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XT
                                           ROW_WEIGHT, FitData, at_bound_mask, lm_end,
                                           lm_stop_reasons, names_at_bound_many, pad_to, padded_size,
                                           predict_data, residuals_z, scan_costs)
-from fitlab.fitting.lm_fixed import lm_queue
+from fitlab.fitting.lm import lm_queue
 from fitlab.fitting.losses import has_absolute_noise, is_weighted, residuals
 from fitlab.fitting.searches import SCAN_BLOCK, scan_points
 from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_unit
@@ -53,7 +53,7 @@ from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_uni
 #: the model's defaults.
 SCAN = 256
 STARTS = 4
-#: Lanes of the batched Levenberg–Marquardt call (fitlab.fitting.lm_fixed ``lm_queue``): a
+#: Lanes of the batched Levenberg–Marquardt call (fitlab.fitting.lm ``lm_queue``): a
 #: lane whose run ends takes the next start.
 LANES = 256
 #: A first run's end is suspect (more starts are run) above this reduced chi-square (a noise
@@ -237,7 +237,7 @@ def shares_scan(static, stacked: dict) -> bool:
 def _batched(static, loss, maxiter):
     """The kernels: the single fit's scan vmapped over datasets (points shared, problem per
     dataset), the shared scan (:func:`shared_scan_costs`), Levenberg–Marquardt from a chunk's
-    starts on ``LANES`` lanes refilled as runs end (fitlab.fitting.lm_fixed ``lm_queue``,
+    starts on ``LANES`` lanes refilled as runs end (fitlab.fitting.lm ``lm_queue``,
     ``maxiter`` steps a run at most), and the runs' ends (least_squares ``lm_end``), ``LANES``
     at a time."""
     residual = functools.partial(residuals_z, static, loss)

@@ -28,7 +28,7 @@ import numpy as np
 
 from fitlab._jax import jax, jnp
 from fitlab.fitting.exchange import canonical_runs
-from fitlab.fitting.lm_fixed import value_and_jacobian
+from fitlab.fitting.lm import value_and_jacobian
 from fitlab.fitting.losses import has_absolute_noise, residuals
 from fitlab.fitting.progress import line as progress_line
 from fitlab.fitting.searches import (DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROWS, START_ROWS,

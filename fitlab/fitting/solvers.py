@@ -1,7 +1,7 @@
 """The single fit's Levenberg–Marquardt solver, by name (``fitlab fit --local-solver``,
 ``fitlab.fit(..., local_solver=)``).
 
-- ``fitlab`` (the default): fitlab.fitting.lm_fixed's solver as a ``while_loop`` that ends when
+- ``fitlab`` (the default): fitlab.fitting.lm's solver as a ``while_loop`` that ends when
   the start met its stopping rule (or at the step limit): one forward-mode pass a step (the
   residuals and the Jacobian at the trial point together), the starts one after another. The batched
   fits (fitlab.fitting.batch) run the same step with a fixed budget.
@@ -35,7 +35,7 @@ class LocalSolver(NamedTuple):
 
 
 def _fitlab(residual, maxiter, xtol, gtol, tau):
-    from fitlab.fitting.lm_fixed import lm_until
+    from fitlab.fitting.lm import lm_until
 
     def run_lm(z0, problem):
         sol = lm_until(residual, z0, problem, maxiter=maxiter, xtol=xtol, gtol=gtol, tau=tau)

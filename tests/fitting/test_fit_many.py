@@ -76,7 +76,7 @@ def test_a_fit_stopped_by_its_iteration_limit_is_not_ok(synthetic):
 
 
 def test_batched_solver_refills_its_lanes_and_runs_each_start_as_the_single_fit():
-    """fitlab.fitting.lm_fixed ``lm_queue`` on nonlinear least-squares problems (y = a exp(-b x),
+    """fitlab.fitting.lm ``lm_queue`` on nonlinear least-squares problems (y = a exp(-b x),
     three datasets): seven starts on two lanes, each start's run is the single fit's
     (``lm_until``, run alone) and ends at scipy.optimize.least_squares's optimum; a run that
     spends ``maxiter`` steps reports its rule unmet; the slots past ``n`` are not run."""
@@ -84,7 +84,7 @@ def test_batched_solver_refills_its_lanes_and_runs_each_start_as_the_single_fit(
     import jax.numpy as jnp
     from scipy.optimize import least_squares
 
-    from fitlab.fitting.lm_fixed import lm_queue, lm_until
+    from fitlab.fitting.lm import lm_queue, lm_until
 
     x = np.linspace(0.0, 4.0, 40)
     rng = np.random.default_rng(0)
