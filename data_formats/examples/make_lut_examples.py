@@ -7,6 +7,8 @@
 - invalid/lut_truncated.exr: its first half only;
 - invalid/lut_nan.exr: one texel of channel G set to NaN;
 - invalid/lut_plain.exr: an OpenEXR image without fitlab.* attributes;
+- invalid/lut_axis_size_text.exr: the same with its axis's size written as the string "32"
+  (refused by the header's JSON Schema, data_formats/schemas/lut.schema.json);
 - lut_thin_layer_chromium.exr / .glsl: the thin layer's real-time table (a clear layer of
   η 1.5, τ 0.05 / 0.9 / 1.2, over rough chromium), 4 x 6 x 6, half (what `fitlab lut thin_layer
   --model 'thin_layer(rough_conductor)' --param eta=1.5 --param tau=0.05,0.9,1.2 --param
@@ -55,6 +57,10 @@ def main():
     ch["G"][0, 5] = np.nan
     _rewrite(good, inv / "lut_nan.exr", channels=ch)
     _rewrite(good, inv / "lut_plain.exr", drop_fitlab=True)
+    with OpenEXR.File(str(good), separate_channels=True) as f:
+        axes = json.loads(f.header()["fitlab.axes"])
+    axes[0]["size"] = str(axes[0]["size"])
+    _rewrite(good, inv / "lut_axis_size_text.exr", header={"fitlab.axes": json.dumps(axes)})
 
     params = {c: {"eta": 1.5, "tau": t, "n2": n, "k2": k} for c, t, n, k in
               (("R", 0.05, 3.84, 4.37), ("G", 0.9, 3.18, 4.41), ("B", 1.2, 1.99, 4.22))}

@@ -8,7 +8,8 @@ API (also what ``fitlab report`` uses to preview LUTs)::
 
 Channels are stored as HALF or FLOAT (never 8-bit), one EXR channel per table channel, ZIP
 compressed. All metadata lives in header attributes named ``fitlab.*`` (strings; structured
-values are JSON). :func:`read_exr` validates everything and raises
+values are JSON). :func:`read_exr` validates everything (the header record against its JSON
+Schema, data_formats/schemas/lut.schema.json, then what a schema cannot say) and raises
 :class:`fitlab.errors.InputFileError` naming the file and the attribute at fault.
 """
 
@@ -22,19 +23,21 @@ import numpy as np
 
 from fitlab.version import __version__
 from fitlab.errors import FitlabError, InputFileError
-from fitlab.io.validate import check_allocation, quote
+from fitlab.io.validate import check_allocation, check_schema, load_json, quote
 from fitlab.io.exr_image import write_channels
 from fitlab.io.conventions import CONVENTIONS
 from fitlab.io.files import path_for_record, read_bytes, sha256_of
-from fitlab.lut import (KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, SIZE_MAX, SIZE_MIN,
-                        TEXEL_CONVENTION, Axis, Table)
+from fitlab.lut import KINDS, MAPPINGS, PHI_D, SCHEMA, SCHEMA_VERSION, TEXEL_CONVENTION, Axis, Table
 
 #: First four bytes of every OpenEXR file.
 MAGIC = b"\x76\x2f\x31\x01"
 PREFIX = "fitlab."
-#: Attributes every fitlab LUT carries (JSON-encoded unless noted).
-REQUIRED = ("schema", "schema_version", "kind", "channels", "dtype", "axes", "quantity", "model",
-            "params", "accuracy", "texel_convention", "conventions", "version")
+#: The attributes whose strings are JSON (data_formats/lut_exr.md, "Header attributes"); the
+#: header record (:func:`header_record`) holds them parsed.
+JSON_ATTRIBUTES = ("channels", "axes", "model", "params", "accuracy", "conventions", "notes")
+#: What a message about the header record says to do.
+HEADER_HINT = ("write the table again with `fitlab lut` (data_formats/lut_exr.md lists the "
+               "attributes)")
 
 
 def header_attributes(table: Table, path=None) -> dict:
@@ -96,64 +99,57 @@ def _open(path, header_only: bool):
                              "`fitlab lut`") from None
 
 
+def header_record(path, header) -> dict:
+    """The ``fitlab.*`` attributes of an OpenEXR ``header`` as one record under their own names,
+    the JSON ones (:data:`JSON_ATTRIBUTES`) parsed: what data_formats/schemas/lut.schema.json
+    describes (not yet validated against it). Every such attribute must be a string; JSON is
+    parsed strictly and at most ``MAX_DEPTH`` deep."""
+    record = {}
+    for name, value in header.items():
+        if not name.startswith(PREFIX):
+            continue
+        if not isinstance(value, str):
+            raise InputFileError(path, f"must be a string attribute, got {type(value).__name__}",
+                                 column=name, hint=HEADER_HINT)
+        if name[len(PREFIX):] in JSON_ATTRIBUTES:
+            try:
+                value = load_json(path, value.encode("utf-8"), what=f"{name} attribute")
+            except InputFileError as exc:
+                raise InputFileError(path, str(exc).split(": ", 1)[-1], column=name,
+                                     hint=HEADER_HINT) from None
+        record[name] = value
+    return record
+
+
 def _attrs(path, header) -> dict:
-    out = {k[len(PREFIX):]: v for k, v in header.items() if k.startswith(PREFIX)}
-    if "schema" not in out:
+    """The header record (:func:`header_record`), validated against its JSON Schema, keyed by
+    the attribute names without ``fitlab.``."""
+    schema = header.get(PREFIX + "schema")
+    if schema is None:
         raise InputFileError(path, "is an OpenEXR file but not a fitlab lookup table (no "
                              "fitlab.schema attribute)", hint="see data_formats/lut_exr.md")
-    if out["schema"] != SCHEMA:
-        raise InputFileError(path, f"has schema {quote(out['schema'])}, expected {quote(SCHEMA)}",
+    if schema != SCHEMA:
+        raise InputFileError(path, f"has schema {quote(schema)}, expected {quote(SCHEMA)}",
                              column="fitlab.schema")
-    if out.get("schema_version") != str(SCHEMA_VERSION):
-        raise InputFileError(path, f"has schema_version {quote(out.get('schema_version'))}; this "
+    version = header.get(PREFIX + "schema_version")
+    if version != str(SCHEMA_VERSION):
+        raise InputFileError(path, f"has schema_version {quote(version)}; this "
                              f"fitlab reads version {SCHEMA_VERSION}", column="fitlab.schema_version",
                              hint="write the table again with this fitlab version")
-    for key in REQUIRED:
-        if key not in out:
-            raise InputFileError(path, "lacks a required attribute", column=PREFIX + key,
-                                 hint="see data_formats/lut_exr.md for the attributes")
-        if not isinstance(out[key], str):
-            raise InputFileError(path, f"must be a string attribute, got {type(out[key]).__name__}",
-                                 column=PREFIX + key)
-    return out
+    record = check_schema(header_record(path, header), "lut", path, hint=HEADER_HINT)
+    return {k[len(PREFIX):]: v for k, v in record.items()}
 
 
-def _json(path, attrs, key, kind):
-    from fitlab.io.validate import load_json
-
-    try:
-        value = load_json(path, attrs[key].encode("utf-8"), what=f"{PREFIX}{key} attribute")
-    except InputFileError as exc:
-        raise InputFileError(path, str(exc).split(": ", 1)[-1], column=PREFIX + key) from None
-    if not isinstance(value, kind):
-        raise InputFileError(path, f"must be a JSON {kind.__name__ if isinstance(kind, type) else 'value'}",
-                             column=PREFIX + key)
-    return value
-
-
-def _axes(path, attrs):
-    raw = _json(path, attrs, "axes", list)
+def _axes(path, raw) -> tuple:
+    """The axes of the header's (schema-valid) ``fitlab.axes``, each range checked."""
     axes = []
     for k, a in enumerate(raw):
-        col = f"{PREFIX}axes[{k}]"
-        if not isinstance(a, dict) or set(a) != set(Axis._fields):
-            raise InputFileError(path, f"each axis needs exactly the fields {', '.join(Axis._fields)}",
-                                 column=col)
-        if not isinstance(a["mapping"], str) or a["mapping"] not in MAPPINGS:
-            raise InputFileError(path, f"unknown mapping {quote(a['mapping'])}", column=col,
-                                 hint=f"mappings: {', '.join(MAPPINGS)}")
-        size = a["size"]
-        if isinstance(size, bool) or not isinstance(size, int) or not SIZE_MIN <= size <= SIZE_MAX:
-            raise InputFileError(path, f"size must be an integer in [{SIZE_MIN}, {SIZE_MAX}]",
-                                 column=col)
-        try:
-            lo, hi = float(a["lo"]), float(a["hi"])
-        except (TypeError, ValueError):
-            raise InputFileError(path, "lo and hi must be numbers", column=col) from None
-        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi) or (a["mapping"] == "log" and lo <= 0):
+        lo, hi = float(a["lo"]), float(a["hi"])
+        if not lo < hi or (a["mapping"] == "log" and lo <= 0):
             raise InputFileError(path, f"invalid range [{lo}, {hi}] for mapping {a['mapping']}",
-                                 column=col)
-        axes.append(Axis(str(a["name"]), lo, hi, size, a["mapping"], str(a["description"])))
+                                 column=f"{PREFIX}axes[{k}]",
+                                 hint="lo must be below hi, and above 0 for a log mapping")
+        axes.append(Axis(a["name"], lo, hi, a["size"], a["mapping"], a["description"]))
     return tuple(axes)
 
 
@@ -166,8 +162,8 @@ def read_exr(path) -> Table:
     if kind not in KINDS:
         raise InputFileError(path, f"unknown table kind {quote(kind)}", column=PREFIX + "kind",
                              hint=f"kinds: {', '.join(KINDS)}")
-    channels = _json(path, attrs, "channels", list)
-    axes = _axes(path, attrs)
+    channels = attrs["channels"]
+    axes = _axes(path, attrs["axes"])
     k = KINDS[kind]
     if len(axes) not in k.axis_counts:
         counts = " or ".join(str(c) for c in k.axis_counts)
@@ -184,9 +180,6 @@ def read_exr(path) -> Table:
                                  f"[{a.lo}, {a.hi}]", column=PREFIX + "axes",
                                  hint="see data_formats/lut_exr.md, the model table")
     dtype = attrs["dtype"]
-    if dtype not in ("half", "float"):
-        raise InputFileError(path, f"dtype must be half or float, got {quote(dtype)}",
-                             column=PREFIX + "dtype")
     if len(axes) == 1:
         shape = (1, axes[0].size)
     else:
@@ -225,12 +218,10 @@ def read_exr(path) -> Table:
             raise InputFileError(path, f"channel holds {int(np.sum(~np.isfinite(p)))} NaN or Inf "
                                  "values", column=name)
         cols.append(p.astype(np.float64))
-    model = _json(path, attrs, "model", (dict, type(None)))
-    params = _json(path, attrs, "params", dict)
-    accuracy = _json(path, attrs, "accuracy", dict)
-    notes = tuple(_json(path, attrs, "notes", list)) if "notes" in attrs else ()
+    notes = tuple(attrs.get("notes", ()))
     return Table(kind, np.stack(cols, axis=-1), tuple(channels), axes, dtype, attrs["quantity"],
-                 model, params, accuracy, attrs.get("source_fit"), notes)
+                 attrs["model"], attrs["params"], attrs["accuracy"], attrs.get("source_fit"),
+                 notes)
 
 
 def describe_exr(path) -> dict:
@@ -245,13 +236,7 @@ def describe_exr(path) -> dict:
     info = {"format": "fitlab-lut-exr", "format_description": "fitlab lookup table (OpenEXR)",
             "spec": "data_formats/lut_exr.md", "width": x1 - x0 + 1, "height": y1 - y0 + 1,
             "exr_channels": [c.name for c in header["channels"]]}
-    for key, value in attrs.items():
-        try:
-            decoded = json.loads(value) if key in ("channels", "axes", "model", "params",
-                                                   "accuracy", "conventions", "notes") else value
-        except json.JSONDecodeError:
-            decoded = value
-        info[key] = decoded
+    info.update(attrs)  # the header record, its JSON attributes parsed
     info["value_range"] = {ch: [float(table.values[..., k].min()), float(table.values[..., k].max())]
                            for k, ch in enumerate(table.channels)}
     if isinstance(info.get("axes"), list):
@@ -264,4 +249,5 @@ def is_exr(path) -> bool:
     return p.is_file() and read_bytes(p, limit=len(MAGIC)) == MAGIC
 
 
-__all__ = ["write_exr", "read_exr", "describe_exr", "header_attributes", "is_exr"]
+__all__ = ["write_exr", "read_exr", "describe_exr", "header_attributes", "header_record",
+           "is_exr", "JSON_ATTRIBUTES"]

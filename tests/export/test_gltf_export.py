@@ -13,6 +13,7 @@ import pytest
 import fitlab
 from fitlab.export.gltf_material import conversion_errors, convert, gltf_export, gltf_text
 from fitlab.export.material import ExportError, material_from_model
+from fitlab.io.validate import check_schema
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -81,6 +82,7 @@ def test_rgb_material_shares_the_geometry_and_document_is_deterministic(tmp_path
     for name in ("metallic", "roughness_factor", "ior", "specular"):
         assert len({fitted[c][name] for c in "RGB"}) == 1, name
     assert m["extras"]["fitlab"]["source_model"] == "lambertian+rough_conductor"
+    check_schema(m["extras"]["fitlab"], "gltf_material", "the RGB export")  # its JSON Schema
     assert set(doc.get("extensionsUsed", [])) == set(m.get("extensions", {}))
     assert conv["relative_rms"] < 0.1
     print(f"lambertian+rough_conductor RGB -> glTF: relative RMS {conv['relative_rms']:.3g}, "
@@ -157,6 +159,7 @@ def test_anisotropic_conductor_converts_with_khr_materials_anisotropy():
     ext = doc["materials"][0]["extensions"]["KHR_materials_anisotropy"]
     assert ext["anisotropyRotation"] == pytest.approx(np.radians(p["anisotropy_rotation"]))
     assert "TANGENT" in doc["meshes"][0]["primitives"][0]["attributes"]
+    check_schema(doc["materials"][0]["extras"]["fitlab"], "gltf_material", "the export")
     assert conv["relative_rms"] < 0.03 and not conv["warnings"]
 
 
@@ -168,6 +171,7 @@ def test_refracting_dielectric_converts_with_a_warning():
     doc, conv = gltf_export(mat)
     assert conv["gltf_model"] == "gltf_pbr_transmission"
     assert "KHR_materials_transmission" in doc["materials"][0]["extensions"]
+    check_schema(doc["materials"][0]["extras"]["fitlab"], "gltf_material", "the export")
     a = conv["albedo"]["30"]
     assert a["gltf_transmitted"][0] == pytest.approx(a["material_transmitted"][0], rel=0.1)
     assert conv["relative_rms"] > 0.25 and any("thin-walled" in w for w in conv["warnings"])

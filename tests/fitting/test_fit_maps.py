@@ -464,6 +464,9 @@ def test_gltf_handoff_fits_gltf_to_every_texel(runs, tmp_path):
     assert g["status_counts"].get("no_data") == 1 and 0 < g["conversion_rms"]["median"] < 0.3
     doc = json.loads((out / "material.gltf").read_text())
     mat = doc["materials"][0]
+    from fitlab.io.validate import check_schema
+
+    check_schema(mat["extras"]["fitlab"], "gltf_maps", out / "material.gltf")  # its record
     assert mat["pbrMetallicRoughness"]["baseColorTexture"] == {"index": 0}
     assert mat["extensions"]["KHR_materials_specular"]["specularTexture"] == {"index": 2}
     assert doc["accessors"][2]["type"] == "VEC2"  # texture coordinates of the quad

@@ -105,7 +105,7 @@ def _rewrite(src, dst, *, header=None, drop=(), channels=None):
     ("no_axes", "fitlab.axes"),
     ("bad_json", "not valid JSON"),
     ("unknown_kind", "unknown table kind"),
-    ("bad_mapping", "unknown mapping"),
+    ("bad_mapping", r"field fitlab.axes\[0\].mapping is .cubic.; expected one of linear"),
     ("channel_mismatch", "declares"),
     ("dtype_mismatch", "the header says half"),
     ("nan", "NaN or Inf"),
