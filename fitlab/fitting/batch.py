@@ -270,8 +270,7 @@ def _batched(static, loss, maxiter):
 
 def _run_starts(k, stacked, which, u0) -> dict:
     """Levenberg–Marquardt from ``u0`` ((len(which), d) in the unit box) on the datasets
-    ``which`` of the chunk's stacked
-    problems ``stacked``: the runs in calls of as many starts as the chunk has datasets (one
+    ``which`` of the chunk's stacked problems ``stacked``: the runs in calls of as many starts as the chunk has datasets (one
     compiled kernel, whatever the count: the unused slots are not run), their ends in calls of
     ``LANES``."""
     B = int(np.shape(stacked["data"].value)[0])
