@@ -283,11 +283,13 @@ def check_materialx(material: Material | None, made) -> dict:
     wi, wo = check_geometries()
     rendered, info = mx.render_goniometer(doc, wi, wo)
     out = {"renderer": info["renderer"], "pairs": int(wi.shape[0]),
-           **mx.figure(material_values(back, wi, wo), rendered), "floor": mx.CHECK_FLOOR,
+           **_figure(material_values(back, wi, wo), rendered, mx.CHECK_FLOOR),
+           "floor": mx.CHECK_FLOOR,
            "geometry": geometry_text(), "directional_albedo": info["directional_albedo"],
            "compared": mx.COMPARED, "meaning": mx.MEANING}
     if made.conversion.get("converted"):
-        out["against_fit"] = mx.figure(material_values(material, wi, wo), rendered)
+        out["against_fit"] = _figure(material_values(material, wi, wo), rendered,
+                                     mx.CHECK_FLOOR)
     return out
 
 
@@ -305,5 +307,5 @@ def run_check(format_name: str, renderer: str, material: Material, made) -> dict
     return _check_gltf_mitsuba(material, made.value, made.text)
 
 
-__all__ = ["CHECKERS", "check_geometries", "check_materialx", "gltf_material", "material_values", "renderer_for",
-           "run_check"]
+__all__ = ["CHECKERS", "check_geometries", "check_materialx", "gltf_material", "material_values",
+           "renderer_for", "run_check"]

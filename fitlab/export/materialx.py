@@ -106,19 +106,20 @@ def materialx_missing() -> str | None:
     return None
 
 
-def gl_context():
+def gl_context(install: str = INSTALL):
     """A headless OpenGL 3.3+ context of Mesa through EGL (moderngl), or ExportError saying
-    what to install."""
+    what to install (``install``). The LUT shaders' tests (tests/lut/test_lut_glsl.py) run in
+    it too."""
     try:
         import moderngl
     except ImportError as exc:
         raise ExportError(f"--check cannot run: moderngl is not installed ({exc}); "
-                          f"install {INSTALL}") from None
+                          f"install {install}") from None
     try:
         ctx = moderngl.create_standalone_context(backend="egl")
     except Exception as exc:  # noqa: BLE001 - no EGL / no Mesa driver: moderngl raises plainly
         raise ExportError(f"--check cannot run: no headless OpenGL through EGL ({exc}); "
-                          f"install {INSTALL}") from None
+                          f"install {install}") from None
     if ctx.version_code < 330:
         ctx.release()
         raise ExportError(f"--check cannot run: OpenGL {ctx.version_code} < 3.3 here")
@@ -409,15 +410,6 @@ def render_goniometer(doc, wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, 
             obj.release()
         ctx.release()
     return out[:, :3].astype(np.float64), {**generated, "renderer": renderer}
-
-
-def figure(expected: np.ndarray, rendered: np.ndarray, floor: float = CHECK_FLOOR) -> dict:
-    """Relative RMS and largest relative difference of ``rendered`` from ``expected`` (N, 3)
-    over the values above ``floor`` × their channel's largest."""
-    keep = expected > floor * expected.max(axis=0, keepdims=True)
-    rel = np.abs(rendered - expected)[keep] / expected[keep]
-    return {"relative_rms": float(np.sqrt(np.mean(rel ** 2))) if rel.size else 0.0,
-            "relative_max": float(rel.max()) if rel.size else 0.0, "values": int(rel.size)}
 
 
 #: What the check compares and what its figure means (fitlab.export.check.check_materialx).

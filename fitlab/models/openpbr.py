@@ -71,6 +71,8 @@ import math
 
 from fitlab._jax import jnp
 from fitlab.frame import dot, normalize, reflect
+# mx_fresnel_dielectric is Walter eq. 22's exact form, mx_ior_to_f0 ((η − 1)/(η + 1))²: fitlab's
+from fitlab.fresnel import fresnel_dielectric_Walter2007, schlick_f0
 from fitlab.microfacet import get_distribution
 from fitlab.models import roughness
 from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
@@ -177,23 +179,6 @@ def smith_G2(mu_i, mu_o, alpha):
     return safe_div(2.0 * mu_i * mu_o, lam_i * mu_o + lam_o * mu_i)
 
 
-def fresnel_dielectric(c, eta):
-    """Exact unpolarized dielectric Fresnel reflectance (mx_fresnel_dielectric, Lagarde's form),
-    1 under total internal reflection."""
-    g2 = eta * eta + c * c - 1.0
-    ok = g2 > 0
-    g = jnp.sqrt(jnp.where(ok, g2, 1.0))
-    a = safe_div(g - c, g + c)
-    b = safe_div((g + c) * c - 1.0, (g - c) * c + 1.0)
-    return jnp.where(ok, 0.5 * a * a * (1.0 + b * b), 1.0)
-
-
-def ior_to_f0(eta):
-    """((η − 1)/(η + 1))² (mx_ior_to_f0)."""
-    r = safe_div(eta - 1.0, eta + 1.0)
-    return r * r
-
-
 def fresnel_f82(c, F0, F82):
     """The F82-tint Fresnel with F90 = 1 and exponent 5 (Hoffman 2019; spec "Metal";
     mx_fresnel_hoffman_schlick), clamped at 0."""
@@ -287,7 +272,7 @@ def modulated_eta(params):
     ratio = params["specular_ior"] / params["coat_ior"]
     ratio = jnp.where(ratio > 1.0, ratio, 1.0 / ratio)
     eta_s = mix(params["specular_ior"], ratio, params["coat_weight"])
-    F0 = jnp.clip(params["specular_weight"] * ior_to_f0(eta_s), 0.0, 0.99999)
+    F0 = jnp.clip(params["specular_weight"] * schlick_f0(eta_s), 0.0, 0.99999)
     e = jnp.sign(eta_s - 1.0) * safe_sqrt(F0)
     return (1.0 + e) / (1.0 - e)
 
@@ -309,10 +294,10 @@ def evaluate(params, wi, wo):
     a_s = specular_alpha(params)
     D_s, G_s = ggx(a_s).D(h), smith_G2(mu_i, mu_o, a_s)
     eta = modulated_eta(params)
-    F_d = fresnel_dielectric(v_h, eta)
+    F_d = fresnel_dielectric_Walter2007(v_h, eta)
     comp_d = energy_compensation(mu_o, a_s, F_d)
     f_dielectric_spec = params["specular_color"] * _ggx_lobe(D_s, F_d, G_s, comp_d, mu_i, mu_o)
-    throughput_d = 1.0 - ggx_dir_albedo(mu_o, a_s, ior_to_f0(eta), 1.0) * comp_d
+    throughput_d = 1.0 - ggx_dir_albedo(mu_o, a_s, schlick_f0(eta), 1.0) * comp_d
 
     base_color = jnp.maximum(params["base_color"], 0.0)
     diffuse = params["base_weight"] * eon_diffuse(base_color, params["base_diffuse_roughness"],
@@ -327,14 +312,14 @@ def evaluate(params, wi, wo):
 
     # coat: darkening (spec "Coat darkening"), absorption tint, then the layer
     cw = params["coat_weight"]
-    F0_c = ior_to_f0(params["coat_ior"])
+    F0_c = schlick_f0(params["coat_ior"])
     K = 1.0 - (1.0 - F0_c) / (params["coat_ior"] * params["coat_ior"])
     E_base = mix(base_color, base_color * params["specular_weight"], params["base_metalness"])
     darkening = mix(1.0, (1.0 - K) / (1.0 - E_base * K), cw * params["coat_darkening"])
     base = base * jnp.clip(darkening, 0.0, 1.0) * jnp.clip(mix(1.0, params["coat_color"], cw),
                                                            0.0, 1.0)
     a_c = coat_alpha(params)
-    F_c = fresnel_dielectric(v_h, params["coat_ior"])
+    F_c = fresnel_dielectric_Walter2007(v_h, params["coat_ior"])
     comp_c = energy_compensation(mu_o, a_c, F_c)
     coat = cw * _ggx_lobe(ggx(a_c).D(h), F_c, smith_G2(mu_i, mu_o, a_c), comp_c, mu_i, mu_o)
     throughput_c = 1.0 - ggx_dir_albedo(mu_o, a_c, F0_c, 1.0) * comp_c * cw

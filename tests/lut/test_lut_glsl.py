@@ -24,17 +24,13 @@ VINYL_WW = Path(__file__).resolve().parents[2] / "fits" / "brown_vinyl_weidlich_
 
 @pytest.fixture(scope="module")
 def gl():
+    from fitlab.export.materialx import ExportError, gl_context
+
     try:
-        import moderngl
-    except ImportError as exc:
-        skip_or_fail(f"moderngl is not installed ({exc}); pip install -e '.[test]'")
-    try:
-        ctx = moderngl.create_standalone_context(backend="egl")
-    except Exception as exc:  # no EGL / no Mesa driver
-        skip_or_fail(f"no headless OpenGL through EGL ({exc}); install libegl1 libegl-mesa0 "
-                     "libgl1-mesa-dri libgbm1")
-    if ctx.version_code < 330:
-        skip_or_fail(f"OpenGL {ctx.version_code} < 3.3")
+        ctx = gl_context("pip install -e '.[test]' (moderngl) and Mesa's EGL (libegl1 "
+                         "libegl-mesa0 libgl1-mesa-dri libgbm1)")
+    except ExportError as exc:
+        skip_or_fail(str(exc).removeprefix("--check cannot run: "))
     yield ctx
     ctx.release()
 
