@@ -273,12 +273,13 @@ def _check_gltf_three(material: Material, text: str) -> dict:
 
 
 def check_materialx(material: Material | None, made) -> dict:
-    """The MaterialX check of an export ``made`` (its text read back and validated):
-    MaterialX's GLSL against fitlab's OpenPBR evaluation of the file's values, and (for a
-    converted ``material``) against the material exported (``against_fit``)."""
+    """The MaterialX check of an export ``made`` (its document, the written text as MaterialX
+    read and validated it: fitlab.export.materialx.materialx_export): MaterialX's GLSL against
+    fitlab's OpenPBR evaluation of the file's values, and (for a converted ``material``) against
+    the material exported (``against_fit``)."""
     from fitlab.export import materialx as mx
 
-    doc = mx.load_document(made.text, "the MaterialX export")
+    doc = made.value
     back = mx.material_of_document(doc, "the MaterialX export")
     wi, wo = check_geometries()
     rendered, info = mx.render_goniometer(doc, wi, wo)

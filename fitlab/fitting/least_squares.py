@@ -328,17 +328,17 @@ def scan_rows(static: StaticSpace, data: FitData, limit: int = SCAN_ROWS) -> Fit
 _compiled_local = set()
 
 
-def _compile_local(k, problem, n_local, d, every_row=None):
+def _compile_local(k, problem, n_local, d, all_rows=None):
     """Compile (and run once, on placeholder starts) the local stage for this shape, and with
-    ``every_row`` (a fit whose starts run on START_ROWS of its rows, ``problem``) what
+    ``all_rows`` (the problem of every row of a fit whose starts run on START_ROWS of them) what
     :func:`_refined` runs on every row: one start's local stage and the cost."""
     with jax.numpy_dtype_promotion("standard"):  # jaxopt multiplies bool masks with floats
-        for p, n in ((problem, n_local),) + (() if every_row is None else ((every_row, 1),)):
+        for p, n in ((problem, n_local),) + (() if all_rows is None else ((all_rows, 1),)):
             n_rows = p["data"].value.shape[0]
             jax.block_until_ready(k["local"](np.zeros((n, d)), np.full((n, d), 0.5),
                                              np.ones((n, n_rows)), p))
-        if every_row is not None:
-            jax.block_until_ready(k["value"](np.full(d, 0.5), every_row))
+        if all_rows is not None:
+            jax.block_until_ready(k["value"](np.full(d, 0.5), all_rows))
 
 
 def _refined(k, space, problem, loc: dict, lm_maxiter: int) -> dict:
