@@ -123,15 +123,17 @@ class Detector(NamedTuple):
 
 
 class Exits(NamedTuple):
-    """Per path: the exit direction (P, 3), the tallied flux weight (P, C) (0: not tallied), the
-    bounce order (P,) and, for hemisphere bins, the tally segment order class × n_out + bin
-    (:func:`bin_index`, computed on the device), else None."""
+    """Per path, what the host tally needs and no more: the tallied flux weight (P, C) (0: not
+    tallied); for hemisphere bins ``key``, the tally slot (block of :data:`TALLY_BLOCK` paths ×
+    order class × bin, :func:`_tally_key`, computed on the device), else ``od``, the bounce
+    order times 2 plus 1 for a downward exit; the exit direction (P, 3) only where the host
+    finds cones (wide cone tables); cones: per path, up to ConeIndex width cone indices + 1
+    (0: none), from the kernel."""
 
-    w: np.ndarray
     x: np.ndarray
-    order: np.ndarray
-    seg: np.ndarray | None = None
-    #: cones: per path, up to ConeIndex width cone indices + 1 (0: none), from the kernel
+    key: np.ndarray | None = None
+    od: np.ndarray | None = None
+    w: np.ndarray | None = None
     cones: np.ndarray | None = None
 
 
@@ -993,6 +995,16 @@ def _cone_pairs(det: Detector, w, x, cones: ConeIndex | None):
     return (np.concatenate(ps), np.concatenate(rs)) if ps else (np.zeros(0, int),) * 2
 
 
+def _tally_key(cfg: WalkConfig, path, w, order, n_out: int):
+    """In the kernel: the host tally's slot of a path's exit, (block of :data:`TALLY_BLOCK`
+    paths × order class) × n_out + hemisphere bin (:func:`bin_index`); ``path`` counts from the
+    launch's first path (launches are whole blocks)."""
+    import mitsuba as mi
+
+    block = mi.UInt32(path) // TALLY_BLOCK
+    return (block * len(ORDER_CLASSES) + _order_class(order)) * n_out + _device_bin(cfg, w)
+
+
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
                 cones: ConeIndex | None = None):
     """Float64 sums and sums of squares of the exits' weights per block of
@@ -1004,18 +1016,24 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
     nb = -(-P // TALLY_BLOCK)
     x = ex.x.astype(np.float64)  # finite: the kernel writes only finite exits
     x2 = x * x
-    order = np.minimum(ex.order, K - 1)
-    block = (np.arange(P) // TALLY_BLOCK)
     s1 = np.zeros((nb, K, n_out, C))
     s2 = np.zeros((nb, K, n_out, C))
+    side = np.zeros((nb, 2, 2, C))
     if cfg.detector == "bins":
-        seg = ex.seg if ex.seg is not None else order * n_out + bin_index(cfg, ex.w)
-        key = block * (K * n_out) + seg
+        # every tallied exit lies in one bin: the sides' sums are the bins' (reflection bins
+        # first, bin_index)
         for c in range(C):
-            s1[..., c] = np.bincount(key, x[:, c], nb * K * n_out).reshape(nb, K, n_out)
-            s2[..., c] = np.bincount(key, x2[:, c], nb * K * n_out).reshape(nb, K, n_out)
-        down = (seg % n_out) >= n_out // 2
-    elif cfg.detector == "cones":
+            s1[..., c] = np.bincount(ex.key, x[:, c], nb * K * n_out).reshape(nb, K, n_out)
+            s2[..., c] = np.bincount(ex.key, x2[:, c], nb * K * n_out).reshape(nb, K, n_out)
+        half = n_out // 2
+        for m, s in enumerate((s1, s2)):
+            side[:, m, 0] = s[:, :, :half].sum(axis=(1, 2))
+            side[:, m, 1] = s[:, :, half:].sum(axis=(1, 2))
+        return s1, s2, side
+    order = np.minimum(ex.od >> 1, K - 1)
+    down = ex.od & 1
+    block = np.arange(P) // TALLY_BLOCK
+    if cfg.detector == "cones":
         # cones may overlap: the (path, cone) pairs of the tallied paths, summed per block,
         # order class and cone by one bincount (pairs in path order: each block's sums are
         # the same however the launches are cut)
@@ -1030,10 +1048,7 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
         for c in range(C):
             s1[..., c] = np.bincount(key, x[p, c], size).reshape(nb, K, R)
             s2[..., c] = np.bincount(key, x2[p, c], size).reshape(nb, K, R)
-    if cfg.detector != "bins":
-        down = ex.w[:, 2] < 0
     key = block * 2 + down
-    side = np.zeros((nb, 2, 2, C))
     for c in range(C):
         side[:, 0, :, c] = np.bincount(key, x[:, c], nb * 2).reshape(nb, 2)
         side[:, 1, :, c] = np.bincount(key, x2[:, c], nb * 2).reshape(nb, 2)
@@ -1053,7 +1068,7 @@ LANES = 1 << 15
 def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int,
             cones: ConeIndex | None = None):
     """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
-    the point sums (n, 4, n_out, 3) or None, the capped mask (n,) and the events traced."""
+    the point sums (n, 4, n_out, 3) or None, the number of paths capped and the events traced."""
     import drjit as dr
     import mitsuba as mi
 
@@ -1064,14 +1079,18 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
     points = bool(walk.rows)
     acc = dr.zeros(mi.Float, n * len(ORDER_CLASSES) * n_out * 3) if points else None
-    ex_w = [dr.zeros(mi.Float, n) for _ in range(3)]
-    ex_x = [dr.zeros(mi.Float, n) for _ in range(3)]
-    ex_order = dr.zeros(mi.Int32, n)
+    C = stack.cfg.channels
+    # per path only what the host tally reads (Exits): C weights and one slot or order word
+    ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
     bins = stack.cfg.detector == "bins"
-    ex_seg = dr.zeros(mi.UInt32, n) if bins else None
+    ex_key = dr.zeros(mi.UInt32, n)
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
+    host_w = cones is not None and not on_device
+    ex_w = [dr.zeros(mi.Float, n) for _ in range(3)] if host_w else []
     ex_cones = [dr.zeros(mi.UInt32, n) for _ in range(cones.table.shape[1])] if on_device else []
-    capped_paths = dr.zeros(mi.Bool, n)
+    # a truncated path's point sums are dropped (below); elsewhere the count is enough
+    capped_paths = dr.zeros(mi.Bool, n) if points else None
+    st["n_capped"] = dr.zeros(mi.UInt32, lanes)
     fresh = _fresh(1, wi)
 
     def cond(s):
@@ -1082,17 +1101,22 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         ended = ~s["alive"]
         path = s["path"]
         done = ended & s["exited"] & dr.all(dr.isfinite(s["weight"])) & dr.all(dr.isfinite(s["w"]))
-        for c in range(3):
-            dr.scatter(ex_w[c], s["w"][c], path, done)
+        for c in range(C):
             dr.scatter(ex_x[c], s["weight"][c], path, done)
-        dr.scatter(ex_order, s["bounces"], path, done)
         if bins:
-            seg = _order_class(s["bounces"]) * n_out + _device_bin(stack.cfg, s["w"])
-            dr.scatter(ex_seg, seg, path, done)
+            key = _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out)
+        else:
+            key = mi.UInt32(s["bounces"]) * 2 + dr.select(s["w"].z < 0, 1, 0)
+        dr.scatter(ex_key, key, path, done)
+        for c, arr in enumerate(ex_w):
+            dr.scatter(arr, s["w"][c], path, done)
         if on_device:
             for arr, member in zip(ex_cones, cones.device_members(s["w"])):
                 dr.scatter(arr, member, path, done)
-        dr.scatter(capped_paths, True, path, ended & s["capped"])
+        capped = ended & s["capped"]
+        if points:
+            dr.scatter(capped_paths, True, path, capped)
+        s["n_capped"] = s["n_capped"] + dr.select(capped, 1, 0)
         # the lane's next path
         nxt = path + lanes_v
         start = ended & (nxt < n_v)
@@ -1107,21 +1131,21 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
 
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
-    dr.eval(ex_w, ex_x, ex_order, ex_seg, ex_cones, capped_paths, st["steps"], acc)
-    capped = np.array(capped_paths).astype(bool)
+    dr.eval(ex_w, ex_x, ex_key, ex_cones, capped_paths, st["steps"], st["n_capped"], acc)
     events = int(np.array(st["steps"]).astype(np.int64).sum())
+    n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
     # np.array(v) takes Dr.Jit's buffer as it is (its own dtype): convert in NumPy after
-    ex = Exits(np.stack([np.array(v) for v in ex_w], axis=1),
-               np.stack([np.array(v) for v in ex_x], axis=1),
-               np.array(ex_order).astype(np.int64),
-               np.array(ex_seg).astype(np.int64) if bins else None,
+    key = np.array(ex_key).astype(np.int64)
+    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1),
+               key if bins else None, None if bins else key,
+               np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
                np.stack([np.array(v) for v in ex_cones], axis=1).astype(np.int64)
                if on_device else None)
     a = None
     if points:
         a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
-        a[capped] = 0.0  # a truncated path's connections are dropped, as its exit would be
-    return ex, a, capped, events
+        a[np.array(capped_paths).astype(bool)] = 0.0  # dropped, as its exit would be
+    return ex, a, n_capped, events
 
 
 def _tea_rng_fields(path, words):
@@ -1154,13 +1178,17 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
         keep = keep & diffuse
     x = dr.select(keep, f, 0.0)
     wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
-    seg = _device_bin(cfg, wo) if cfg.detector == "bins" else None
-    members = cones.device_members(wo) if (
-        cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH) else []
-    dr.eval(wo, x, seg, members)
-    return Exits(np.stack([np.array(c) for c in wo], axis=1),
-                 np.stack([np.array(c) for c in x], axis=1), np.zeros(n, dtype=np.int64),
-                 np.array(seg).astype(np.int64) if seg is not None else None,
+    bins = cfg.detector == "bins"
+    key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out) if bins else None
+    on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
+    members = cones.device_members(wo) if on_device else []
+    dr.eval(wo, x, key, members)
+    C = cfg.channels
+    return Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
+                 np.array(key).astype(np.int64) if bins else None,
+                 None if bins else np.zeros(n, dtype=np.int64),  # order 0, upward
+                 np.stack([np.array(c) for c in wo], axis=1)
+                 if cones is not None and not on_device else None,
                  np.stack([np.array(m) for m in members], axis=1).astype(np.int64)
                  if members else None)
 
@@ -1194,9 +1222,9 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
         ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones)
         sp = (_split_first(stack, wi, n, first, words, n_out, cones) if split is not None
               else None)
-        truncated += int(capped.sum())
+        truncated += capped
         events += ev
-        t1, t2, t_side = tally_exits(cfg, det, ex._replace(x=ex.x[:, :C]), n_out, cones)
+        t1, t2, t_side = tally_exits(cfg, det, ex, n_out, cones)
         side = _fold(side, t_side)
         if points:
             nb = t1.shape[0]
@@ -1212,7 +1240,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
             # each path exits in one order class: its total's square is its order's
             s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
         if sp is not None:
-            q1, q2, q_side = tally_exits(cfg, det, sp._replace(x=sp.x[:, :C]), n_out, cones)
+            q1, q2, q_side = tally_exits(cfg, det, sp, n_out, cones)
             split[0] = _fold(split[0], q1[:, 0])
             split[1] = _fold(split[1], q2[:, 0])
             split[2] = _fold(split[2], q_side)

@@ -22,12 +22,9 @@ from fitlab.simulate import derive_effects, detectors, scene_from_dict, simulate
 from fitlab.simulate.scene import INTERFACE_DISTRIBUTIONS
 from fitlab.simulate.simulator import _walk_setup
 
-try:  # tests/ is on sys.path under pytest's default (prepend) import mode
-    from test_hard_cases import ALPHAS, _dirs, _grid, _report, _values_and_grads
-    from test_simulate_validation import _bin_average, _chi2_pvalue
-except ImportError:  # pragma: no cover - importlib mode, run from the repository root
-    from tests.test_hard_cases import ALPHAS, _dirs, _grid, _report, _values_and_grads
-    from tests.test_simulate_validation import _bin_average, _chi2_pvalue
+# the repository root is on sys.path (conftest.py); tests/ and its folders are namespace packages
+from tests.models.test_hard_cases import ALPHAS, _dirs, _grid, _report, _values_and_grads
+from tests.simulate.test_simulate_validation import _bin_average, _chi2_pvalue
 
 SCENES = Path(__file__).resolve().parents[2] / "data_formats" / "examples" / "scenes"
 FAMILIES = tuple(microfacet.VMF_MASKING.values())  # vmf_exact, vmf
