@@ -1061,12 +1061,39 @@ def _fold(total: np.ndarray, blocks: np.ndarray) -> np.ndarray:
     return np.cumsum(np.concatenate([total[None], blocks]), axis=0)[-1]
 
 
+class _Cores:
+    """Dr.Jit's LLVM worker threads poll for work about half a million times after a kernel
+    before they sleep: CPU burnt beside the host's tally that follows (measured on 2 cores:
+    20-48 ms after each launch, a third of the throughput scene's CPU). The walk gives the
+    thread pool its full size for its kernels and parks it on the calling thread for the host's
+    turn; the size it found is restored on exit."""
+
+    def __init__(self):
+        import drjit as dr
+
+        self.dr, self.n = dr, dr.thread_count()
+
+    def kernel(self):
+        self.dr.set_thread_count(self.n)
+
+    def host(self):
+        if self.n > 1:
+            self.dr.set_thread_count(1)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.kernel()
+        return False
+
+
 #: Lanes of one launch (each traces about launch / LANES paths in turn).
 LANES = 1 << 15
 
 
 def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int,
-            cones: ConeIndex | None = None):
+            cones: ConeIndex | None, cores: _Cores):
     """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
     the point sums (n, 4, n_out, 3) or None, the number of paths capped and the events traced."""
     import drjit as dr
@@ -1131,6 +1158,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
 
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
+    cores.kernel()
     dr.eval(ex_w, ex_x, ex_key, ex_cones, capped_paths, st["steps"], st["n_capped"], acc)
     events = int(np.array(st["steps"]).astype(np.int64).sum())
     n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
@@ -1145,6 +1173,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     if points:
         a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
         a[np.array(capped_paths).astype(bool)] = 0.0  # dropped, as its exit would be
+    cores.host()
     return ex, a, n_capped, events
 
 
@@ -1158,7 +1187,7 @@ def _tea_rng_fields(path, words):
 
 
 def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
-                 cones: ConeIndex | None = None) -> Exits:
+                 cones: ConeIndex | None, cores: _Cores) -> Exits:
     """Splitting at the first interface: the reflected branch of each path's first crossing of
     the top boundary (forced reflection, weight F times the sample weight), sampled with its own
     random numbers: its exits, tallied as bounce order 0 (bin or cones found on the device, as
@@ -1182,15 +1211,18 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
     key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out) if bins else None
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     members = cones.device_members(wo) if on_device else []
+    cores.kernel()
     dr.eval(wo, x, key, members)
     C = cfg.channels
-    return Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
+    ex = Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
                  np.array(key).astype(np.int64) if bins else None,
                  None if bins else np.zeros(n, dtype=np.int64),  # order 0, upward
                  np.stack([np.array(c) for c in wo], axis=1)
                  if cones is not None and not on_device else None,
                  np.stack([np.array(m) for m in members], axis=1).astype(np.int64)
                  if members else None)
+    cores.host()
+    return ex
 
 
 def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,
@@ -1217,33 +1249,35 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     split = [np.zeros((n_out, C)), np.zeros((n_out, C)), np.zeros((2, 2, C))] \
         if cfg.split_first else None
     truncated = events = 0
-    for first in range(0, n_paths, launch):
-        n = min(launch, n_paths - first)
-        ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones)
-        sp = (_split_first(stack, wi, n, first, words, n_out, cones) if split is not None
-              else None)
-        truncated += capped
-        events += ev
-        t1, t2, t_side = tally_exits(cfg, det, ex, n_out, cones)
-        side = _fold(side, t_side)
-        if points:
-            nb = t1.shape[0]
-            a = np.zeros((nb * TALLY_BLOCK,) + acc.shape[1:-1] + (C,))
-            a[:n] = acc[..., :C]
-            a = a.reshape((nb, TALLY_BLOCK) + a.shape[1:])
-            s1 = _fold(s1, a.sum(axis=1))
-            tot = a.sum(axis=2)
-            s2 = _fold(s2, np.concatenate([(a * a).sum(axis=1),
-                                           (tot * tot).sum(axis=1)[:, None]], axis=1))
-        else:
-            s1 = _fold(s1, t1)
-            # each path exits in one order class: its total's square is its order's
-            s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
-        if sp is not None:
-            q1, q2, q_side = tally_exits(cfg, det, sp, n_out, cones)
-            split[0] = _fold(split[0], q1[:, 0])
-            split[1] = _fold(split[1], q2[:, 0])
-            split[2] = _fold(split[2], q_side)
-        if on_launch is not None:
-            on_launch(n)
+    with _Cores() as cores:
+        for first in range(0, n_paths, launch):
+            n = min(launch, n_paths - first)
+            ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones,
+                                          cores)
+            sp = (_split_first(stack, wi, n, first, words, n_out, cones, cores)
+                  if split is not None else None)
+            truncated += capped
+            events += ev
+            t1, t2, t_side = tally_exits(cfg, det, ex, n_out, cones)
+            side = _fold(side, t_side)
+            if points:
+                nb = t1.shape[0]
+                a = np.zeros((nb * TALLY_BLOCK,) + acc.shape[1:-1] + (C,))
+                a[:n] = acc[..., :C]
+                a = a.reshape((nb, TALLY_BLOCK) + a.shape[1:])
+                s1 = _fold(s1, a.sum(axis=1))
+                tot = a.sum(axis=2)
+                s2 = _fold(s2, np.concatenate([(a * a).sum(axis=1),
+                                               (tot * tot).sum(axis=1)[:, None]], axis=1))
+            else:
+                s1 = _fold(s1, t1)
+                # each path exits in one order class: its total's square is its order's
+                s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
+            if sp is not None:
+                q1, q2, q_side = tally_exits(cfg, det, sp, n_out, cones)
+                split[0] = _fold(split[0], q1[:, 0])
+                split[1] = _fold(split[1], q2[:, 0])
+                split[2] = _fold(split[2], q_side)
+            if on_launch is not None:
+                on_launch(n)
     return Tallies(s1, s2, side, None if split is None else tuple(split), truncated, events)

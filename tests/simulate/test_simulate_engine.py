@@ -178,7 +178,8 @@ def _slab_scene(**over):
                                              "estimator": "point"}])
 def test_same_seed_same_bytes_whatever_the_thread_count_and_batch(detector):
     """Bins and point estimates accumulate per path and are summed in path order on the host:
-    1 or 2 Dr.Jit threads, one launch or many, give identical numbers."""
+    1 or 2 Dr.Jit threads, one launch or many, give identical numbers; the walk parks Dr.Jit's
+    thread pool between its kernels (walk._Cores) and leaves it the size it found."""
     import drjit as dr
 
     scene = _slab_scene(**({"detector": detector} if detector else {}))
@@ -186,8 +187,10 @@ def test_same_seed_same_bytes_whatever_the_thread_count_and_batch(detector):
     try:
         dr.set_thread_count(1)
         a = simulate(scene, 3000, seed=3)
+        assert dr.thread_count() == 1
         dr.set_thread_count(2)
         b = simulate(scene, 3000, seed=3, batch_size=1024)
+        assert dr.thread_count() == 2
     finally:
         dr.set_thread_count(before)
     np.testing.assert_array_equal(a.value, b.value)
