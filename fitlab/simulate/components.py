@@ -158,6 +158,10 @@ class MitsubaBoundary:
     def pdf(self, wi, wo, active):
         return self.bsdf.pdf(self.ctx, _local_si(wi), wo, active)
 
+    def eval_pdf(self, wi, wo, active):
+        value, pdf = self.bsdf.eval_pdf(self.ctx, _local_si(wi), wo, active)
+        return f_from_mitsuba(value, wo), pdf
+
 
 class SmoothDielectric:
     """A flat dielectric interface, η = n_below/n_above a kernel input: reflect with probability
@@ -193,6 +197,9 @@ class SmoothDielectric:
         import mitsuba as mi
 
         return mi.Float(0.0)
+
+    def eval_pdf(self, wi, wo, active):
+        return self.eval(wi, wo, active), self.pdf(wi, wo, active)
 
 
 def _dielectric(spec: BoundarySpec, v: BoundaryValues, forceable: bool):

@@ -539,6 +539,10 @@ class _Microfacet:
     def sample_m(self, u):
         return self.family.sample_m(u.x, u.y, self.alpha, self.alpha_y)
 
+    def eval_pdf(self, wi, wo, active=True):
+        """(eval, pdf) of one direction pair (protocol.py)."""
+        return self.eval(wi, wo, active), self.pdf(wi, wo, active)
+
     def weight_41(self, wi, wo, m, c):
         """Walter eq. 41: (i·m) G1(i, m) G1(o, m) / (|i·n||m·n|), wi on the upper side."""
         G = self.smith_G1(wi, c) * self.smith_G1(wo, _dot(wo, m))

@@ -29,6 +29,8 @@ Boundary (interface or substrate)::
         f_t(i, o)/η_o² = f_t(o, i)/η_i²), as fitlab's JAX models return it
     pdf(wi, wo, active) -> Float
         the density with which ``sample`` (unforced) returns wo
+    eval_pdf(wi, wo, active) -> (Spectrum, Float)
+        both of one pair at once (Mitsuba's ``eval_pdf`` shares their work)
 
 Phase function (a medium's)::
 

@@ -445,7 +445,7 @@ class _Walk:
 
     def step(self, st, acc, path):
         """One event of every live lane (st: the loop state dict); point estimates add this
-        event's connections to ``acc`` (per path: 4 orders × rows × 3)."""
+        event's connections to ``acc`` (per path: 4 orders × rows × channels)."""
         import drjit as dr
         import mitsuba as mi
 
@@ -738,8 +738,9 @@ class _Walk:
         p_v = mi.Float(0.0)
         if far_ok:
             bd = S.boundary[far]
-            f_v = dr.select(at_far, bd.eval(wi, dp, active & at_far) * dz, f_v)
-            p_v = dr.select(at_far, bd.pdf(wi, dp, active & at_far), p_v)
+            f_far, p_far = bd.eval_pdf(wi, dp, active & at_far)
+            f_v = dr.select(at_far, f_far * dz, f_v)
+            p_v = dr.select(at_far, p_far, p_v)
         if cfg.volume and cfg.region_phase[behind] is not None:
             ph = S.phase_eval(region, wi, dp, active & vol, regions={behind})
             f_v = dr.select(vol, ph * S.flake_F(region, wi, dp, active & vol), f_v)
@@ -756,19 +757,22 @@ class _Walk:
         return val, st["bounces"] + dr.select(turn, 1, 0)
 
     def _add(self, acc, path, rows, r, value, order, active):
-        """acc[path, class(order), rows.first + r, :] += value (each lane its own slots)."""
+        """acc[class(order), rows.first + r, :C, path] += value (each lane its own slots; C the
+        walk's channels; paths last, so a block of paths is contiguous for the device-side
+        sums of :func:`_point_sums`; ``self.stride`` the launch's padded path count)."""
         import drjit as dr
 
         cfg = self.cfg
+        C = cfg.channels
         ok = active
         if cfg.max_bounces >= 0:
             ok = ok & (order <= cfg.max_bounces)
         ok = ok & (dr.max(value) > 0)
-        slot = ((path * len(ORDER_CLASSES) + _order_class(order)) * self.n_rows
-                + rows.first + r) * 3
-        for c in range(3):
+        slot = ((_order_class(order) * self.n_rows + rows.first + r) * C) * self.stride + path
+        for c in range(C):
             # every path owns its slots: a plain read-modify-write, no atomics
-            dr.scatter_add(acc, value[c], slot + c, ok, mode=dr.ReduceMode.NoConflicts)
+            dr.scatter_add(acc, value[c], slot + c * self.stride, ok,
+                           mode=dr.ReduceMode.NoConflicts)
 
 
 def _tea_seeds(path, words):
@@ -1095,7 +1099,7 @@ LANES = 1 << 15
 def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int,
             cones: ConeIndex | None, cores: _Cores):
     """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
-    the point sums (n, 4, n_out, 3) or None, the number of paths capped and the events traced."""
+    the point sums (n, 4, n_out, C) or None, the number of paths capped and the events traced."""
     import drjit as dr
     import mitsuba as mi
 
@@ -1105,8 +1109,10 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     n_v, lanes_v = dr.opaque(mi.UInt32, n), dr.opaque(mi.UInt32, lanes)
     first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
     points = bool(walk.rows)
-    acc = dr.zeros(mi.Float, n * len(ORDER_CLASSES) * n_out * 3) if points else None
     C = stack.cfg.channels
+    n_pad = -(-n // TALLY_BLOCK) * TALLY_BLOCK
+    acc = dr.zeros(mi.Float, n_pad * len(ORDER_CLASSES) * n_out * C) if points else None
+    walk.stride = dr.opaque(mi.UInt32, n_pad)
     # per path only what the host tally reads (Exits): C weights and one slot or order word
     ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
     bins = stack.cfg.detector == "bins"
@@ -1116,7 +1122,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     ex_w = [dr.zeros(mi.Float, n) for _ in range(3)] if host_w else []
     ex_cones = [dr.zeros(mi.UInt32, n) for _ in range(cones.table.shape[1])] if on_device else []
     # a truncated path's point sums are dropped (below); elsewhere the count is enough
-    capped_paths = dr.zeros(mi.Bool, n) if points else None
+    capped_paths = dr.zeros(mi.Bool, n_pad) if points else None
     st["n_capped"] = dr.zeros(mi.UInt32, lanes)
     fresh = _fresh(1, wi)
 
@@ -1169,12 +1175,37 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
                np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
                np.stack([np.array(v) for v in ex_cones], axis=1).astype(np.int64)
                if on_device else None)
-    a = None
-    if points:
-        a = np.array(acc, dtype=np.float32).reshape(n, len(ORDER_CLASSES), n_out, 3)
-        a[np.array(capped_paths).astype(bool)] = 0.0  # dropped, as its exit would be
+    sums = _point_sums(acc, capped_paths, n_pad, n_out, C) if points else None
     cores.host()
-    return ex, a, n_capped, events
+    return ex, sums, n_capped, events
+
+
+def _point_sums(acc, capped, n_pad: int, n_out: int, C: int):
+    """The point estimates' per-block sums, on the device, in float64: per block of
+    :data:`TALLY_BLOCK` paths, order class, row and channel the sum of the paths' values and of
+    their squares, and per row and channel the sum of the squares of each path's all-order
+    total: (nb, K, n_out, C), (nb, K, n_out, C), (nb, 1, n_out, C). Each block is reduced by
+    one thread in path order (``dr.block_sum``, evaluated mode: no atomics), so the sums do not
+    depend on the thread count. A path cut at the event cap contributes nothing, as its exit
+    would not."""
+    import drjit as dr
+    import mitsuba as mi
+
+    K = len(ORDER_CLASSES)
+    F64 = dr.float64_array_t(mi.Float)
+    idx = dr.arange(mi.UInt32, n_pad * K * n_out * C)
+    cut = dr.gather(mi.Bool, capped, idx % n_pad)
+    v = dr.select(cut, 0.0, F64(acc))
+    per_order = n_pad * n_out * C
+    lo = dr.arange(mi.UInt32, per_order)
+    tot = dr.gather(F64, v, lo)
+    for k in range(1, K):
+        tot = tot + dr.gather(F64, v, lo + k * per_order)
+    sums = [dr.block_sum(x, TALLY_BLOCK, mode="evaluated") for x in (v, v * v, tot * tot)]
+    dr.eval(sums)
+    nb = n_pad // TALLY_BLOCK
+    out = [np.array(x).reshape(-1, n_out, C, nb).transpose(3, 0, 1, 2) for x in sums]
+    return out[0], out[1], out[2]
 
 
 def _tea_rng_fields(path, words):
@@ -1241,7 +1272,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     walk = _Walk(stack, sides, n_out if points else 0)
     cones = ConeIndex(det) if cfg.detector == "cones" else None
     if points:
-        launch = min(launch, POINT_LAUNCH_BYTES // (K * n_out * 3 * 4))
+        launch = min(launch, POINT_LAUNCH_BYTES // (K * n_out * C * 4))
     launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
     s1 = np.zeros((K, n_out, C))
     s2 = np.zeros((K + 1, n_out, C))
@@ -1252,7 +1283,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     with _Cores() as cores:
         for first in range(0, n_paths, launch):
             n = min(launch, n_paths - first)
-            ex, acc, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones,
+            ex, sums, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones,
                                           cores)
             sp = (_split_first(stack, wi, n, first, words, n_out, cones, cores)
                   if split is not None else None)
@@ -1261,14 +1292,8 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
             t1, t2, t_side = tally_exits(cfg, det, ex, n_out, cones)
             side = _fold(side, t_side)
             if points:
-                nb = t1.shape[0]
-                a = np.zeros((nb * TALLY_BLOCK,) + acc.shape[1:-1] + (C,))
-                a[:n] = acc[..., :C]
-                a = a.reshape((nb, TALLY_BLOCK) + a.shape[1:])
-                s1 = _fold(s1, a.sum(axis=1))
-                tot = a.sum(axis=2)
-                s2 = _fold(s2, np.concatenate([(a * a).sum(axis=1),
-                                               (tot * tot).sum(axis=1)[:, None]], axis=1))
+                s1 = _fold(s1, sums[0])
+                s2 = _fold(s2, np.concatenate([sums[1], sums[2]], axis=1))
             else:
                 s1 = _fold(s1, t1)
                 # each path exits in one order class: its total's square is its order's
