@@ -1111,7 +1111,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     points = bool(walk.rows)
     C = stack.cfg.channels
     n_pad = -(-n // TALLY_BLOCK) * TALLY_BLOCK
-    acc = dr.zeros(mi.Float, n_pad * len(ORDER_CLASSES) * n_out * C) if points else None
+    acc = dr.zeros(mi.Float, n_pad * point_classes(stack.cfg) * n_out * C) if points else None
     walk.stride = dr.opaque(mi.UInt32, n_pad)
     # per path only what the host tally reads (Exits): C weights and one slot or order word
     ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
@@ -1175,37 +1175,53 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
                np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
                np.stack([np.array(v) for v in ex_cones], axis=1).astype(np.int64)
                if on_device else None)
-    sums = _point_sums(acc, capped_paths, n_pad, n_out, C) if points else None
     cores.host()
+    sums = _point_sums(np.array(acc), np.array(capped_paths).astype(bool), n_out, C) \
+        if points else None
     return ex, sums, n_capped, events
 
 
-def _point_sums(acc, capped, n_pad: int, n_out: int, C: int):
-    """The point estimates' per-block sums, on the device, in float64: per block of
+def point_classes(cfg: WalkConfig) -> int:
+    """Bounce-order classes a point estimate can reach: one where nothing lies below the top
+    boundary (no turn is possible) or ``max_bounces`` is 0; at most max_bounces + 1; else all
+    four. The per-path sums keep only these."""
+    K = len(ORDER_CLASSES)
+    if cfg.n_media == 0:
+        return 1
+    return K if cfg.max_bounces < 0 else min(K, cfg.max_bounces + 1)
+
+
+def _point_sums(acc: np.ndarray, capped: np.ndarray, n_out: int, C: int):
+    """The point estimates' per-block sums in float64 from the per-path sums ``acc``
+    (Ke classes × n_out × C × padded paths, float32; Ke = :func:`point_classes`): per block of
     :data:`TALLY_BLOCK` paths, order class, row and channel the sum of the paths' values and of
     their squares, and per row and channel the sum of the squares of each path's all-order
-    total: (nb, K, n_out, C), (nb, K, n_out, C), (nb, 1, n_out, C). Each block is reduced by
-    one thread in path order (``dr.block_sum``, evaluated mode: no atomics), so the sums do not
-    depend on the thread count. A path cut at the event cap contributes nothing, as its exit
-    would not."""
-    import drjit as dr
-    import mitsuba as mi
-
+    total: (nb, K, n_out, C), (nb, K, n_out, C), (nb, 1, n_out, C), classes beyond Ke zero.
+    NumPy's float64 sums over each block, in a fixed order: the same numbers whatever the
+    thread count or the launch size. A path cut at the event cap contributes nothing, as its
+    exit would not."""
     K = len(ORDER_CLASSES)
-    F64 = dr.float64_array_t(mi.Float)
-    idx = dr.arange(mi.UInt32, n_pad * K * n_out * C)
-    cut = dr.gather(mi.Bool, capped, idx % n_pad)
-    v = dr.select(cut, 0.0, F64(acc))
-    per_order = n_pad * n_out * C
-    lo = dr.arange(mi.UInt32, per_order)
-    tot = dr.gather(F64, v, lo)
-    for k in range(1, K):
-        tot = tot + dr.gather(F64, v, lo + k * per_order)
-    sums = [dr.block_sum(x, TALLY_BLOCK, mode="evaluated") for x in (v, v * v, tot * tot)]
-    dr.eval(sums)
+    n_pad = capped.shape[0]
     nb = n_pad // TALLY_BLOCK
-    out = [np.array(x).reshape(-1, n_out, C, nb).transpose(3, 0, 1, 2) for x in sums]
-    return out[0], out[1], out[2]
+    x = acc.reshape(-1, n_out * C, n_pad)
+    Ke = x.shape[0]
+    if capped.any():
+        x[:, :, capped] = 0.0
+    s1 = np.zeros((K, n_out * C, nb))
+    s2 = np.zeros((K, n_out * C, nb))
+    tot = np.zeros((n_out * C, nb, TALLY_BLOCK)) if Ke > 1 else None
+    for k in range(Ke):
+        xk = x[k].reshape(n_out * C, nb, TALLY_BLOCK).astype(np.float64)
+        s1[k] = xk.sum(axis=-1)
+        s2[k] = np.einsum("rbt,rbt->rb", xk, xk)
+        if tot is not None:
+            tot += xk
+    s3 = s2[0] if tot is None else np.einsum("rbt,rbt->rb", tot, tot)
+
+    def arrange(v):  # (k, n_out * C, nb) -> (nb, k, n_out, C)
+        return v.reshape(v.shape[0], n_out, C, nb).transpose(3, 0, 1, 2)
+
+    return arrange(s1), arrange(s2), arrange(s3[None])
 
 
 def _tea_rng_fields(path, words):
@@ -1272,7 +1288,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     walk = _Walk(stack, sides, n_out if points else 0)
     cones = ConeIndex(det) if cfg.detector == "cones" else None
     if points:
-        launch = min(launch, POINT_LAUNCH_BYTES // (K * n_out * C * 4))
+        launch = min(launch, POINT_LAUNCH_BYTES // (point_classes(cfg) * n_out * C * 4))
     launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
     s1 = np.zeros((K, n_out, C))
     s2 = np.zeros((K + 1, n_out, C))
