@@ -124,17 +124,16 @@ class Detector(NamedTuple):
 
 class Exits(NamedTuple):
     """Per path, what the host tally needs and no more: the tallied flux weight (P, C) (0: not
-    tallied); for hemisphere bins ``key``, the tally slot (block of :data:`TALLY_BLOCK` paths ×
-    order class × bin, :func:`_tally_key`, computed on the device), else ``od``, the bounce
-    order times 2 plus 1 for a downward exit; the exit direction (P, 3) only where the host
-    finds cones (wide cone tables); cones: per path, up to ConeIndex width cone indices + 1
-    (0: none), from the kernel."""
+    tallied) and ``key``, its tally slot computed on the device (:func:`_tally_key`): for
+    hemisphere bins (block of :data:`TALLY_BLOCK` paths × order class) × bin, else (block ×
+    order class) × 2 + 1 for a downward exit; the exit direction (P, 3) only where the host
+    finds cones (wide cone tables); ``cones``: the (path, cone) pairs found in the kernel, by
+    candidate column then path."""
 
     x: np.ndarray
-    key: np.ndarray | None = None
-    od: np.ndarray | None = None
+    key: np.ndarray
     w: np.ndarray | None = None
-    cones: np.ndarray | None = None
+    cones: tuple | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -927,11 +926,12 @@ class ConeIndex:
         radius = 1.25 * radius
         ang = np.arccos(np.clip(centre.reshape(-1, 3) @ axes.T, -1.0, 1.0))  # (cells, R)
         cand = ang <= gamma[None, :] + radius.reshape(-1)[:, None] + 1e-6
-        width = max(1, int(cand.sum(1).max()))
+        counts = cand.sum(1)
+        width = max(1, int(counts.max()))
         table = np.full((cand.shape[0], width), -1, dtype=np.int64)
-        for cell in np.flatnonzero(cand.any(1)):
-            idx = np.flatnonzero(cand[cell])
-            table[cell, :len(idx)] = idx
+        cell, cone = np.nonzero(cand)  # by cell, then cone
+        start = np.cumsum(counts) - counts
+        table[cell, np.arange(cell.size) - start[cell]] = cone
         self.table, self.axes, self.cos = table, axes, np.asarray(det.cone_cos, np.float64)
 
     #: Largest candidate count tested in the kernel (wider tables are tested on the host).
@@ -1000,13 +1000,27 @@ def _cone_pairs(det: Detector, w, x, cones: ConeIndex | None):
 
 
 def _tally_key(cfg: WalkConfig, path, w, order, n_out: int):
-    """In the kernel: the host tally's slot of a path's exit, (block of :data:`TALLY_BLOCK`
-    paths × order class) × n_out + hemisphere bin (:func:`bin_index`); ``path`` counts from the
-    launch's first path (launches are whole blocks)."""
+    """In the kernel: the host tally's slot of a path's exit (:class:`Exits`); ``path`` counts
+    from the launch's first path (launches are whole blocks)."""
+    import drjit as dr
     import mitsuba as mi
 
-    block = mi.UInt32(path) // TALLY_BLOCK
-    return (block * len(ORDER_CLASSES) + _order_class(order)) * n_out + _device_bin(cfg, w)
+    slot = mi.UInt32(path) // TALLY_BLOCK * len(ORDER_CLASSES) + _order_class(order)
+    if cfg.detector == "bins":
+        return slot * n_out + _device_bin(cfg, w)
+    return slot * 2 + dr.select(w.z < 0, 1, 0)
+
+
+def _member_pairs(columns) -> tuple:
+    """(path, cone) pairs from the kernel's candidate columns (cone index + 1, 0: none), column
+    by column: the same order whatever the launch size."""
+    ps, rs = [], []
+    for col in columns:
+        col = np.array(col)
+        p = np.flatnonzero(col)
+        ps.append(p)
+        rs.append(col[p].astype(np.int64) - 1)
+    return (np.concatenate(ps), np.concatenate(rs)) if ps else (np.zeros(0, np.int64),) * 2
 
 
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
@@ -1034,28 +1048,22 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
             side[:, m, 0] = s[:, :, :half].sum(axis=(1, 2))
             side[:, m, 1] = s[:, :, half:].sum(axis=(1, 2))
         return s1, s2, side
-    order = np.minimum(ex.od >> 1, K - 1)
-    down = ex.od & 1
-    block = np.arange(P) // TALLY_BLOCK
+    # key: (block × K + order class) × 2 + side
     if cfg.detector == "cones":
         # cones may overlap: the (path, cone) pairs of the tallied paths, summed per block,
-        # order class and cone by one bincount (pairs in path order: each block's sums are
-        # the same however the launches are cut)
+        # order class and cone by one bincount (a fixed pair order: each block's sums are the
+        # same however the launches are cut)
         R = det.cone_dir.shape[0]
         size = nb * K * R
-        if ex.cones is not None:  # found in the kernel
-            p, k = np.nonzero(ex.cones)
-            r = ex.cones[p, k] - 1
-        else:
-            p, r = _cone_pairs(det, ex.w, x, cones)
-        key = (block[p] * K + order[p]) * R + r
+        p, r = ex.cones if ex.cones is not None else _cone_pairs(det, ex.w, x, cones)
+        key = (ex.key[p] >> 1) * R + r
         for c in range(C):
             s1[..., c] = np.bincount(key, x[p, c], size).reshape(nb, K, R)
             s2[..., c] = np.bincount(key, x2[p, c], size).reshape(nb, K, R)
-    key = block * 2 + down
     for c in range(C):
-        side[:, 0, :, c] = np.bincount(key, x[:, c], nb * 2).reshape(nb, 2)
-        side[:, 1, :, c] = np.bincount(key, x2[:, c], nb * 2).reshape(nb, 2)
+        for m, v in enumerate((x, x2)):
+            t = np.bincount(ex.key, v[:, c], nb * K * 2).reshape(nb, K, 2)
+            side[:, m, :, c] = t.sum(axis=1)
     return s1, s2, side
 
 
@@ -1115,7 +1123,6 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     walk.stride = dr.opaque(mi.UInt32, n_pad)
     # per path only what the host tally reads (Exits): C weights and one slot or order word
     ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
-    bins = stack.cfg.detector == "bins"
     ex_key = dr.zeros(mi.UInt32, n)
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     host_w = cones is not None and not on_device
@@ -1136,11 +1143,8 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         done = ended & s["exited"] & dr.all(dr.isfinite(s["weight"])) & dr.all(dr.isfinite(s["w"]))
         for c in range(C):
             dr.scatter(ex_x[c], s["weight"][c], path, done)
-        if bins:
-            key = _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out)
-        else:
-            key = mi.UInt32(s["bounces"]) * 2 + dr.select(s["w"].z < 0, 1, 0)
-        dr.scatter(ex_key, key, path, done)
+        dr.scatter(ex_key, _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out), path,
+                   done)
         for c, arr in enumerate(ex_w):
             dr.scatter(arr, s["w"][c], path, done)
         if on_device:
@@ -1169,12 +1173,9 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     events = int(np.array(st["steps"]).astype(np.int64).sum())
     n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
     # np.array(v) takes Dr.Jit's buffer as it is (its own dtype): convert in NumPy after
-    key = np.array(ex_key).astype(np.int64)
-    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1),
-               key if bins else None, None if bins else key,
+    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1), np.array(ex_key).astype(np.int64),
                np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
-               np.stack([np.array(v) for v in ex_cones], axis=1).astype(np.int64)
-               if on_device else None)
+               _member_pairs(ex_cones) if on_device else None)
     cores.host()
     sums = _point_sums(np.array(acc), np.array(capped_paths).astype(bool), n_out, C) \
         if points else None
@@ -1254,20 +1255,17 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
         keep = keep & diffuse
     x = dr.select(keep, f, 0.0)
     wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
-    bins = cfg.detector == "bins"
-    key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out) if bins else None
+    key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out)
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     members = cones.device_members(wo) if on_device else []
     cores.kernel()
     dr.eval(wo, x, key, members)
     C = cfg.channels
     ex = Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
-                 np.array(key).astype(np.int64) if bins else None,
-                 None if bins else np.zeros(n, dtype=np.int64),  # order 0, upward
-                 np.stack([np.array(c) for c in wo], axis=1)
-                 if cones is not None and not on_device else None,
-                 np.stack([np.array(m) for m in members], axis=1).astype(np.int64)
-                 if members else None)
+               np.array(key).astype(np.int64),
+               np.stack([np.array(c) for c in wo], axis=1)
+               if cones is not None and not on_device else None,
+               _member_pairs(members) if on_device else None)
     cores.host()
     return ex
 
