@@ -1013,14 +1013,27 @@ def _tally_key(cfg: WalkConfig, path, w, order, n_out: int):
 
 def _member_pairs(columns) -> tuple:
     """(path, cone) pairs from the kernel's candidate columns (cone index + 1, 0: none), column
-    by column: the same order whatever the launch size."""
+    by column, each in path order: the same order whatever the launch size. The paths in some
+    cone are picked on the device (``dr.compress`` keeps their order), so only they travel."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if not columns:
+        return (np.zeros(0, np.int64),) * 2
+    inside = columns[0] > 0
+    for col in columns[1:]:
+        inside = inside | (col > 0)
+    idx = dr.compress(inside)
+    picked = [dr.gather(mi.UInt32, col, idx) for col in columns]
+    dr.eval(picked)
+    idx = np.array(idx).astype(np.int64)
     ps, rs = [], []
-    for col in columns:
+    for col in picked:
         col = np.array(col)
-        p = np.flatnonzero(col)
-        ps.append(p)
-        rs.append(col[p].astype(np.int64) - 1)
-    return (np.concatenate(ps), np.concatenate(rs)) if ps else (np.zeros(0, np.int64),) * 2
+        j = np.flatnonzero(col)
+        ps.append(idx[j])
+        rs.append(col[j].astype(np.int64) - 1)
+    return np.concatenate(ps), np.concatenate(rs)
 
 
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
@@ -1056,14 +1069,17 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
         R = det.cone_dir.shape[0]
         size = nb * K * R
         p, r = ex.cones if ex.cones is not None else _cone_pairs(det, ex.w, x, cones)
-        key = (ex.key[p] >> 1) * R + r
+        key = (ex.key[p].astype(np.int64) >> 1) * R + r
         for c in range(C):
             s1[..., c] = np.bincount(key, x[p, c], size).reshape(nb, K, R)
             s2[..., c] = np.bincount(key, x2[p, c], size).reshape(nb, K, R)
-    for c in range(C):
-        for m, v in enumerate((x, x2)):
-            t = np.bincount(ex.key, v[:, c], nb * K * 2).reshape(nb, K, 2)
-            side[:, m, :, c] = t.sum(axis=1)
+    # the sides' sums per block, each block added in path order
+    down = (ex.key & 1).astype(np.float64)[:, None]
+    starts = np.arange(0, P, TALLY_BLOCK)
+    for m, v in enumerate((x, x2)):
+        v_down = v * down  # v or 0: v − v_down is exact
+        side[:, m, 0] = np.add.reduceat(v - v_down, starts, axis=0)
+        side[:, m, 1] = np.add.reduceat(v_down, starts, axis=0)
     return s1, s2, side
 
 
@@ -1089,6 +1105,8 @@ class _Cores:
         self.dr.set_thread_count(self.n)
 
     def host(self):
+        """After the kernels of a launch finished (waited for here), before the host reads."""
+        self.dr.sync_thread()
         if self.n > 1:
             self.dr.set_thread_count(1)
 
@@ -1124,6 +1142,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     # per path only what the host tally reads (Exits): C weights and one slot or order word
     ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
     ex_key = dr.zeros(mi.UInt32, n)
+    bins = stack.cfg.detector == "bins"
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     host_w = cones is not None and not on_device
     ex_w = [dr.zeros(mi.Float, n) for _ in range(3)] if host_w else []
@@ -1170,13 +1189,15 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
     cores.kernel()
     dr.eval(ex_w, ex_x, ex_key, ex_cones, capped_paths, st["steps"], st["n_capped"], acc)
+    cores.host()
     events = int(np.array(st["steps"]).astype(np.int64).sum())
     n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
     # np.array(v) takes Dr.Jit's buffer as it is (its own dtype): convert in NumPy after
-    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1), np.array(ex_key).astype(np.int64),
+    key = np.array(ex_key)
+    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1),
+               key.astype(np.int64) if bins else key,
                np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
                _member_pairs(ex_cones) if on_device else None)
-    cores.host()
     sums = _point_sums(np.array(acc), np.array(capped_paths).astype(bool), n_out, C) \
         if points else None
     return ex, sums, n_capped, events
@@ -1260,13 +1281,14 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
     members = cones.device_members(wo) if on_device else []
     cores.kernel()
     dr.eval(wo, x, key, members)
+    cores.host()
     C = cfg.channels
+    key = np.array(key)
     ex = Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
-               np.array(key).astype(np.int64),
+               key.astype(np.int64) if cfg.detector == "bins" else key,
                np.stack([np.array(c) for c in wo], axis=1)
                if cones is not None and not on_device else None,
                _member_pairs(members) if on_device else None)
-    cores.host()
     return ex
 
 
