@@ -653,15 +653,24 @@ class _Walk:
                 value = mi.Spectrum(0.0)
                 if k_ok:
                     bd = S.boundary[k]
-                    fb = bd.eval(wi, d, active & at_k) * dr.abs(d.z)
                     if v_ok:
+                        # one Mitsuba call for the pair d -> wi: q, the reverse sample's density
+                        # of -w (the crossing strategy's weight below), and f(d, wi), turned
+                        # into f(wi, d) by reciprocity (Walter eq. 21: f(i, o) / η_o² =
+                        # f(o, i) / η_i²; η² the boundary's n_below² / n_above²)
+                        f_rev, q = bd.eval_pdf(d, wi, active & at_k)
+                        eta2 = dr.square(S.eta[k])
+                        ratio = dr.select(wi.z * d.z < 0, dr.select(d.z < 0, eta2, 1.0 / eta2),
+                                          1.0)
+                        fb = f_rev * ratio * dr.abs(d.z)
                         # crossing strategy weight, for paths whose last event could have
-                        # connected: q is the reverse sample's density of -w
-                        q = bd.pdf(d, wi, active & at_k)
+                        # connected
                         p_last = st["last_pdf"]
                         w_c = dr.select(p_last > 0, p_last / dr.maximum(p_last + q, 1e-30), 1.0)
                         crossing = at_k & (region == behind)
                         fb = fb * dr.select(crossing, w_c, 1.0)
+                    else:
+                        fb = bd.eval(wi, d, active & at_k) * dr.abs(d.z)
                     value = dr.select(at_k, fb * exit_t, value)
                 if direct_vol:
                     dist = z if side == "up" else S.region_f(S.thickness, region) - z
