@@ -171,10 +171,14 @@ class Stack:
         return dr.gather(mi.Float, table, mi.UInt32(region), active)
 
     def region_c(self, table, region, active=True):
+        """Per lane, the region's value per channel; one channel's walk gathers channel 0 only
+        (the spectrum holds it three times: Dr.Jit folds the repeated arithmetic)."""
         import drjit as dr
         import mitsuba as mi
 
         idx = mi.UInt32(region) * 3
+        if self.cfg.channels == 1:
+            return mi.Spectrum(dr.gather(mi.Float, table, idx, active))
         return mi.Spectrum(dr.gather(mi.Float, table, idx, active),
                            dr.gather(mi.Float, table, idx + 1, active),
                            dr.gather(mi.Float, table, idx + 2, active))
@@ -374,8 +378,9 @@ def point_sides(cfg: WalkConfig, arr: WalkArrays, wo_all: np.ndarray, n_up: int)
 class _Rows:
     """One side's requested directions on the device (gathered by row index in the loop)."""
 
-    def __init__(self, ps: PointSide, first: int):
+    def __init__(self, ps: PointSide, first: int, channels: int):
         F = _device_floats
+        self.channels = channels
         self.n = ps.d.shape[0]
         self.first = first
         self.d = F(ps.d)
@@ -398,6 +403,8 @@ class _Rows:
         import mitsuba as mi
 
         i = mi.UInt32(idx) * 3
+        if self.channels == 1:  # channel 0, held three times (see Stack.region_c)
+            return mi.Spectrum(dr.gather(mi.Float, table, i))
         return mi.Spectrum(dr.gather(mi.Float, table, i), dr.gather(mi.Float, table, i + 1),
                            dr.gather(mi.Float, table, i + 2))
 
@@ -437,7 +444,7 @@ class _Walk:
                 ps = sides[side]
                 n = ps if isinstance(ps, int) else ps.d.shape[0]
                 if not isinstance(ps, int):
-                    self.rows[side] = _Rows(ps, first)
+                    self.rows[side] = _Rows(ps, first, self.cfg.channels)
                 first += n
 
     # ---- one event ---------------------------------------------------------------------------
@@ -516,7 +523,8 @@ class _Walk:
         if cfg.volume:
             w_v, p_v = S.phase_sample(region, wi, u1, u2, scatter)
             if cfg.flake_fresnel:
-                weight = dr.select(scatter, weight * S.flake_F(region, wi, w_v, scatter), weight)
+                flake = S.flake_F(region, wi, w_v, scatter)
+                weight = dr.select(scatter, weight * (flake.x if one else flake), weight)
             new_w = dr.select(scatter, w_v, new_w)
             vol_events = vol_events + dr.select(scatter, 1, 0)
             diffuse = diffuse | scatter
@@ -526,7 +534,7 @@ class _Walk:
         force = self._forced_branch(region, b, down)
         w_b, f_b, p_b, diff_b = S.boundary_sample(b, wi, u1, u2, force, hit, bool(self.rows))
         new_w = dr.select(hit, w_b, new_w)
-        weight = dr.select(hit, weight * f_b, weight)
+        weight = dr.select(hit, weight * (f_b.x if one else f_b), weight)
         diffuse = diffuse | (hit & diff_b)
         if self.rows:
             last_pdf = dr.select(hit, dr.select(diff_b, p_b, 0.0), last_pdf)
@@ -557,11 +565,12 @@ class _Walk:
             alive = alive & (bounces <= cfg.max_bounces)
             if cfg.end_downward_after_last_bounce:
                 alive = alive & ~((bounces == cfg.max_bounces) & ~up_new & (region >= 1))
-        alive = alive & (dr.max(weight) > 0)
+        w_max = weight if one else dr.max(weight)  # per lane (one channel: a Float)
+        alive = alive & (w_max > 0)
         events = st["events"] + dr.select(alive, 1, 0)
         u_rr = rng.next_float32()
         if cfg.russian_roulette:
-            q = dr.clip(dr.max(weight), RR_MIN_Q, 1.0)
+            q = dr.clip(w_max, RR_MIN_Q, 1.0)
             play = alive & (events > RR_START)
             survive = u_rr < q
             alive = alive & (~play | survive)
@@ -809,8 +818,10 @@ def path_rng(n: int, words, first_path: int):
     return rng
 
 
-def _fresh(n, wi):
-    """The per-path fields of n new paths at the top of the stack, travelling along -wi."""
+def _fresh(n, wi, channels):
+    """The per-path fields of n new paths at the top of the stack, travelling along -wi; the
+    flux weight is one Float in a one-channel walk (one loop variable, not three), else a
+    Spectrum."""
     import drjit as dr
     import mitsuba as mi
 
@@ -819,7 +830,7 @@ def _fresh(n, wi):
         "region": dr.zeros(mi.Int32, n), "z": dr.zeros(mi.Float, n),
         "w": mi.Vector3f(d[0] + dr.zeros(mi.Float, n), d[1] + dr.zeros(mi.Float, n),
                          d[2] + dr.zeros(mi.Float, n)),
-        "weight": dr.full(mi.Spectrum, 1.0, n), "alive": dr.full(mi.Bool, True, n),
+        "weight": dr.full(mi.Float if channels == 1 else mi.Spectrum, 1.0, n), "alive": dr.full(mi.Bool, True, n),
         "exited": dr.full(mi.Bool, False, n), "bounces": dr.zeros(mi.Int32, n),
         "vol_events": dr.zeros(mi.Int32, n), "events": dr.zeros(mi.Int32, n),
         "diffuse": dr.full(mi.Bool, False, n), "last_pdf": dr.zeros(mi.Float, n),
@@ -827,14 +838,14 @@ def _fresh(n, wi):
     }
 
 
-def _state(lanes, wi, words, first_path):
+def _state(lanes, wi, words, first_path, channels):
     """The loop state: ``lanes`` lanes, lane l tracing paths l, l + lanes, l + 2·lanes, ... of
     the launch (path regeneration: a lane whose path ends starts its next one, so SIMD packets
     stay busy until the launch's last paths drain)."""
     import drjit as dr
     import mitsuba as mi
 
-    st = _fresh(lanes, wi)
+    st = _fresh(lanes, wi, channels)
     st.update(rng=path_rng(lanes, words, first_path), path=dr.arange(mi.UInt32, lanes),
               steps=dr.zeros(mi.UInt32, lanes))
     return st
@@ -1139,7 +1150,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     import mitsuba as mi
 
     lanes = min(n, LANES)
-    st = _state(lanes, wi, words, first)
+    st = _state(lanes, wi, words, first, stack.cfg.channels)
     # kernel inputs, not constants: launches of other sizes or offsets reuse the kernel
     n_v, lanes_v = dr.opaque(mi.UInt32, n), dr.opaque(mi.UInt32, lanes)
     first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
@@ -1159,7 +1170,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     # a truncated path's point sums are dropped (below); elsewhere the count is enough
     capped_paths = dr.zeros(mi.Bool, n_pad) if points else None
     st["n_capped"] = dr.zeros(mi.UInt32, lanes)
-    fresh = _fresh(1, wi)
+    fresh = _fresh(1, wi, C)
 
     def cond(s):
         return s["alive"]
@@ -1168,9 +1179,10 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         walk.step(s, acc, s["path"])
         ended = ~s["alive"]
         path = s["path"]
-        done = ended & s["exited"] & dr.all(dr.isfinite(s["weight"])) & dr.all(dr.isfinite(s["w"]))
+        finite = dr.isfinite(s["weight"]) if C == 1 else dr.all(dr.isfinite(s["weight"]))
+        done = ended & s["exited"] & finite & dr.all(dr.isfinite(s["w"]))
         for c in range(C):
-            dr.scatter(ex_x[c], s["weight"][c], path, done)
+            dr.scatter(ex_x[c], s["weight"] if C == 1 else s["weight"][c], path, done)
         dr.scatter(ex_key, _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out), path,
                    done)
         for c, arr in enumerate(ex_w):
