@@ -1163,14 +1163,16 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     n_pad = -(-n // TALLY_BLOCK) * TALLY_BLOCK
     acc = dr.zeros(mi.Float, n_pad * point_classes(stack.cfg) * n_out * C) if points else None
     walk.stride = dr.opaque(mi.UInt32, n_pad)
-    # per path only what the host tally reads (Exits): C weights and one slot or order word
-    ex_x = [dr.zeros(mi.Float, n) for _ in range(C)]
-    ex_key = dr.zeros(mi.UInt32, n)
+    # per path only what the host tally reads (Exits): C weights and one slot or order word;
+    # every path ends once and writes its slots then (0 where nothing is tallied), so the
+    # arrays need no clearing
+    ex_x = [dr.empty(mi.Float, n) for _ in range(C)]
+    ex_key = dr.empty(mi.UInt32, n)
     bins = stack.cfg.detector == "bins"
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     host_w = cones is not None and not on_device
-    ex_w = [dr.zeros(mi.Float, n) for _ in range(3)] if host_w else []
-    ex_cones = [dr.zeros(mi.UInt32, n) for _ in range(cones.table.shape[1])] if on_device else []
+    ex_w = [dr.empty(mi.Float, n) for _ in range(3)] if host_w else []
+    ex_cones = [dr.empty(mi.UInt32, n) for _ in range(cones.table.shape[1])] if on_device else []
     # a truncated path's point sums are dropped (below); elsewhere the count is enough
     capped_paths = dr.zeros(mi.Bool, n_pad) if points else None
     st["n_capped"] = dr.zeros(mi.UInt32, lanes)
@@ -1186,14 +1188,15 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         finite = dr.isfinite(s["weight"]) if C == 1 else dr.all(dr.isfinite(s["weight"]))
         done = ended & s["exited"] & finite & dr.all(dr.isfinite(s["w"]))
         for c in range(C):
-            dr.scatter(ex_x[c], s["weight"] if C == 1 else s["weight"][c], path, done)
-        dr.scatter(ex_key, _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out), path,
-                   done)
+            x = s["weight"] if C == 1 else s["weight"][c]
+            dr.scatter(ex_x[c], dr.select(done, x, 0.0), path, ended)
+        key = _tally_key(stack.cfg, path, s["w"], s["bounces"], n_out)
+        dr.scatter(ex_key, dr.select(done, key, 0), path, ended)
         for c, arr in enumerate(ex_w):
-            dr.scatter(arr, s["w"][c], path, done)
+            dr.scatter(arr, dr.select(done, s["w"][c], 0.0), path, ended)
         if on_device:
             for arr, member in zip(ex_cones, cones.device_members(s["w"])):
-                dr.scatter(arr, member, path, done)
+                dr.scatter(arr, dr.select(done, member, 0), path, ended)
         capped = ended & s["capped"]
         if points:
             dr.scatter(capped_paths, True, path, capped)
