@@ -1307,17 +1307,18 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
     key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out)
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     members = cones.device_members(wo) if on_device else []
+    # only what the tally reads is evaluated: C weights, the key, the cone members (or the
+    # directions, where the host finds the cones)
+    x = [x[c] for c in range(cfg.channels)]
+    host_w = [wo[c] for c in range(3)] if cones is not None and not on_device else []
     cores.kernel()
-    dr.eval(wo, x, key, members)
+    dr.eval(x, key, members, host_w)
     cores.host()
-    C = cfg.channels
     key = np.array(key)
-    ex = Exits(np.stack([np.array(x[c]) for c in range(C)], axis=1),
-               key.astype(np.int64) if cfg.detector == "bins" else key,
-               np.stack([np.array(c) for c in wo], axis=1)
-               if cones is not None and not on_device else None,
-               _member_pairs(members) if on_device else None)
-    return ex
+    return Exits(np.stack([np.array(v) for v in x], axis=1),
+                 key.astype(np.int64) if cfg.detector == "bins" else key,
+                 np.stack([np.array(v) for v in host_w], axis=1) if host_w else None,
+                 _member_pairs(members) if on_device else None)
 
 
 def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,
