@@ -31,6 +31,9 @@ two ways, the walk's own crossing of k (its BTDF evaluated toward d) and a conne
 vertex through a reverse sample of k's BSDF; the two are combined with the balance heuristic
 (Veach 1997, ch. 9), as :func:`_connect` says. Stacks where a specular boundary could send
 light back toward the outside between k and the exit are refused (detectors.point_connections).
+Where a side mixes strategies, the walk only records each path's connecting events and a second
+kernel evaluates them, one lane per (path, requested direction), one strategy at a time
+(:meth:`_Walk.nee_from_records`), so that a SIMD packet's lanes run the same code.
 
 Bounce order: the number of turns from downward to upward travel below the top interface (the
 extended-NDF paper's eq. 25 terms: 0 = surface reflection, 1 = one-bounce subsurface
@@ -55,12 +58,15 @@ ORDER_CLASSES = ("order0", "order1", "order2", "rest")
 RR_START = 3
 #: Smallest survival probability of Russian roulette.
 RR_MIN_Q = 0.05
-#: Memory of the per-path point-estimate sums of one launch (bytes).
+#: Memory of the per-path point-estimate sums (and next-event records) of one launch (bytes).
 POINT_LAUNCH_BYTES = 64 << 20
 #: Paths whose contributions the host sums together before adding the sum to the totals, in
 #: path order; launches are whole multiples of it, so the float64 totals do not depend on the
 #: launch size.
 TALLY_BLOCK = 4096
+#: Connecting events kept per path for the next-event kernel of point estimates (events past
+#: them connect in the walk's kernel; 0: every event connects there).
+RECORDS_PER_PATH = 16
 
 
 class WalkConfig(NamedTuple):
@@ -120,6 +126,75 @@ class Detector(NamedTuple):
 
     cone_dir: np.ndarray
     cone_cos: np.ndarray
+
+
+class _Event(NamedTuple):
+    """One event of a path as the next-event connections read it (Dr.Jit values): the
+    direction travelled into it, the flux weight (Float in a one-channel walk, else Spectrum),
+    depth, the density of the path's last non-specular sampling, region, boundary met (when
+    ``hit``), volume scattering (``scatter``) and the bounce order so far."""
+
+    w: object
+    beta: object
+    z: object
+    last_pdf: object
+    region: object
+    b: object
+    scatter: object
+    hit: object
+    bounces: object
+
+
+class _Records:
+    """One launch's connecting events, :data:`RECORDS_PER_PATH` slots a path (slot = path × E +
+    event number), and per side and strategy each path's list of its events' numbers, in event
+    order, with their count (written when the path ends)."""
+
+    def __init__(self, walk, n_pad: int, channels: int):
+        import drjit as dr
+        import mitsuba as mi
+
+        E = self.E = RECORDS_PER_PATH
+        size = n_pad * E
+        self.channels = channels
+        self.w = [dr.empty(mi.Float, size) for _ in range(3)]
+        self.beta = [dr.empty(mi.Float, size) for _ in range(channels)]
+        self.z, self.last_pdf = dr.empty(mi.Float, size), dr.empty(mi.Float, size)
+        self.region, self.b = dr.empty(mi.Int32, size), dr.empty(mi.Int32, size)
+        self.flags, self.bounces = dr.empty(mi.UInt32, size), dr.empty(mi.Int32, size)
+        keys = [(side, s) for side in walk.rows for s in walk.strategies(side)]
+        self.lists = {key: dr.empty(mi.UInt32, size) for key in keys}
+        self.counts = {key: dr.zeros(mi.UInt32, n_pad) for key in keys}  # padding paths: 0
+
+    def arrays(self):
+        return (self.w, self.beta, self.z, self.last_pdf, self.region, self.b, self.flags,
+                self.bounces, list(self.lists.values()), list(self.counts.values()))
+
+    def write(self, slot, ev: _Event, active):
+        import drjit as dr
+
+        for c in range(3):
+            dr.scatter(self.w[c], ev.w[c], slot, active)
+        for c in range(self.channels):
+            dr.scatter(self.beta[c], ev.beta if self.channels == 1 else ev.beta[c], slot,
+                       active)
+        flags = dr.select(ev.scatter, 1, 0) | dr.select(ev.hit, 2, 0)
+        for arr, v in ((self.z, ev.z), (self.last_pdf, ev.last_pdf), (self.region, ev.region),
+                       (self.b, ev.b), (self.flags, flags), (self.bounces, ev.bounces)):
+            dr.scatter(arr, type(arr)(v), slot, active)
+
+    def read(self, slot) -> _Event:
+        import drjit as dr
+        import mitsuba as mi
+
+        g = dr.gather
+        beta = [g(mi.Float, x, slot) for x in self.beta]
+        flags = g(mi.UInt32, self.flags, slot)
+        return _Event(mi.Vector3f(*[g(mi.Float, x, slot) for x in self.w]),
+                      beta[0] if self.channels == 1 else mi.Spectrum(*beta),
+                      g(mi.Float, self.z, slot), g(mi.Float, self.last_pdf, slot),
+                      g(mi.Int32, self.region, slot), g(mi.Int32, self.b, slot),
+                      (flags & 1) != 0, (flags & 2) != 0, g(mi.Int32, self.bounces, slot))
 
 
 class Exits(NamedTuple):
@@ -450,6 +525,17 @@ class _Walk:
                 if not isinstance(ps, int):
                     self.rows[side] = _Rows(ps, first, self.cfg.channels)
                 first += n
+        # the next-event kernel pays where a side mixes strategies (see the section below)
+        self.use_records = RECORDS_PER_PATH > 0 and any(
+            len(self.strategies(side)) > 1 for side in self.rows)
+        self.records = None  # the launch's _Records while its walk is traced
+
+    def counters(self):
+        """The per-path counters of the records (loop state, reset for each new path)."""
+        if not self.use_records:
+            return ()
+        return ("n_rec",) + tuple(f"cnt_{side}_{s}" for side in self.rows
+                                  for s in self.strategies(side))
 
     # ---- one event ---------------------------------------------------------------------------
 
@@ -512,7 +598,11 @@ class _Walk:
 
         # --- next-event connections of this event to the requested directions ----------------
         if self.rows:
-            self._connect(st, acc, path, rng, weight, z, scatter, hit, b)
+            ev = _Event(w, weight, z, st["last_pdf"], region, b, scatter, hit, st["bounces"])
+            if self.records is not None:
+                self._record(st, ev, path, acc, rng)
+            else:
+                self._connect(ev, acc, path, rng, mi.Bool(True))
 
         # --- volume scattering ---------------------------------------------------------------
         wi = -w
@@ -603,11 +693,58 @@ class _Walk:
         return force
 
     # ---- next-event estimation ------------------------------------------------------------
+    #
+    # The connections of an event to the requested directions are computed in one of two
+    # places. With records (where a side mixes strategies and :data:`RECORDS_PER_PATH` > 0),
+    # the walk's kernel writes each connecting event into its path's slots, with per-path lists by side and
+    # strategy, and a second kernel (:meth:`nee_from_records`) runs one lane per (path,
+    # requested direction) over the path's events of one strategy at a time: the lanes of a
+    # SIMD packet share their path and so their strategy, where in the walk's own loop every
+    # lane executes both strategies of the MIS pair (measured on the throughput arc: 1.94-2.06x
+    # less CPU). Events past a path's slots connect in the walk's kernel (:meth:`_connect`).
 
-    def _connect(self, st, acc, path, rng, beta, z, scatter, hit, b):
+    def side_static(self, side):
+        """(k, k_ok, behind, v_ok, direct_vol) of one side (Python constants): the connecting
+        boundary k, the region behind it, whether the vertex strategy applies (k a rough
+        dielectric with a medium behind it) and whether volume events on the exit's side of k
+        connect directly."""
+        cfg = self.cfg
+        M = cfg.n_media
+        k = cfg.point_up if side == "up" else cfg.point_down
+        k_ok = 0 <= k <= M
+        behind = k + 1 if side == "up" else k
+        v_ok = (k_ok and cfg.boundaries[k].kind == "dielectric"
+                and cfg.boundaries[k].nonspecular and 1 <= behind <= M)
+        exit_side = range(1, min(k, M) + 1) if side == "up" else range(max(k + 1, 1), M + 1)
+        direct_vol = cfg.volume and any(cfg.region_phase[j] is not None for j in exit_side)
+        return k, k_ok, behind, v_ok, direct_vol
+
+    def strategies(self, side):
+        """The strategies of one side that can occur: 'k' (events at k), 'vol' (volume events
+        on the exit's side), 'vertex' (events behind k, through a reverse sample of k)."""
+        k, k_ok, behind, v_ok, direct_vol = self.side_static(side)
+        return tuple(s for s, on in (("k", k_ok), ("vol", direct_vol), ("vertex", v_ok)) if on)
+
+    def masks(self, ev, side):
+        """{strategy: Bool} of an event for one side."""
+        import mitsuba as mi
+
+        k, k_ok, behind, v_ok, direct_vol = self.side_static(side)
+        any_event = ev.scatter | ev.hit
+        out = {}
+        if k_ok:
+            out["k"] = any_event & ev.hit & (ev.b == k)
+        if direct_vol:
+            vol = ev.region <= k if side == "up" else ev.region >= k + 1
+            out["vol"] = any_event & ev.scatter & vol
+        if v_ok:
+            out["vertex"] = any_event & self._vertex_candidates(ev, side, k, behind)
+        return {s: out.get(s, mi.Bool(False)) for s in self.strategies(side)}
+
+    def _connect(self, ev, acc, path, rng, only):
         """This event's contributions to the per-path point estimates (the flux fraction per
         steradian leaving along each requested direction), by bounce-order class, added to
-        ``acc``.
+        ``acc``, for the lanes ``only``, in the walk's own kernel.
 
         Two strategies reach the connecting rough dielectric boundary k from the vertices right
         behind it (volume events in the region behind k, events at the boundary behind that
@@ -627,106 +764,93 @@ class _Walk:
         import drjit as dr
         import mitsuba as mi
 
-        S, cfg = self.S, self.cfg
-        M = cfg.n_media
-        w = st["w"]
-        region = st["region"]
-        wi = -w
-        down = w.z < 0
-        any_event = scatter | hit
         for side, rows in self.rows.items():
-            k = cfg.point_up if side == "up" else cfg.point_down
-            k_ok = 0 <= k <= M
-            if side == "up":
-                vol = scatter & (region <= k)
-            else:
-                vol = scatter & (region >= k + 1)
-            at_k = (hit & (b == k)) if k_ok else mi.Bool(False)
-            behind = k + 1 if side == "up" else k
-            v_ok = (k_ok and cfg.boundaries[k].kind == "dielectric"
-                    and cfg.boundaries[k].nonspecular and 1 <= behind <= M)
-            exit_side = range(1, min(k, M) + 1) if side == "up" else range(max(k + 1, 1), M + 1)
-            direct_vol = cfg.volume and any(cfg.region_phase[j] is not None for j in exit_side)
-            active = any_event & (at_k | vol | (self._vertex_candidates(st, scatter, hit, b,
-                                                                        side, k, behind)
-                                                if v_ok else False))
-            r = mi.UInt32(0)
+            m = self.masks(ev, side)
+            active = mi.Bool(False)
+            for v in m.values():
+                active = active | v
+            active = only & active
             n_rows = rows.n
 
-            def cond(r, *_):
-                return r < n_rows
+            def cond(r, *_, active=active):
+                return (r < n_rows) & active
 
-            def body(r, rng_state, active=active, rows=rows, side=side, k=k, vol=vol,
-                     at_k=at_k, behind=behind, v_ok=v_ok, direct_vol=direct_vol,
-                     k_ok=k_ok):
+            def body(r, rng_state, active=active, rows=rows, side=side, m=m):
                 rng_l = mi.PCG32(rng)
                 rng_l.state = rng_state
-                d = rows.vec(r)
-                exit_t = rows.spec(rows.exit_t, r)
-                value = mi.Spectrum(0.0)
-                if k_ok:
-                    bd = S.boundary[k]
-                    if v_ok:
-                        # one Mitsuba call for the pair d -> wi: q, the reverse sample's density
-                        # of -w (the crossing strategy's weight below), and f(d, wi), turned
-                        # into f(wi, d) by reciprocity (Walter eq. 21: f(i, o) / η_o² =
-                        # f(o, i) / η_i²; η² the boundary's n_below² / n_above²)
-                        f_rev, q = bd.eval_pdf(d, wi, active & at_k)
-                        eta2 = dr.square(S.eta[k])
-                        ratio = dr.select(wi.z * d.z < 0, dr.select(d.z < 0, eta2, 1.0 / eta2),
-                                          1.0)
-                        fb = f_rev * ratio * dr.abs(d.z)
-                        # crossing strategy weight, for paths whose last event could have
-                        # connected
-                        p_last = st["last_pdf"]
-                        w_c = dr.select(p_last > 0, p_last / dr.maximum(p_last + q, 1e-30), 1.0)
-                        crossing = at_k & (region == behind)
-                        fb = fb * dr.select(crossing, w_c, 1.0)
-                    else:
-                        fb = bd.eval(wi, d, active & at_k) * dr.abs(d.z)
-                    value = dr.select(at_k, fb * exit_t, value)
-                if direct_vol:
-                    dist = z if side == "up" else S.region_f(S.thickness, region) - z
-                    idx = r * rows.regions + mi.UInt32(region)
-                    od = rows.spec(rows.depth, idx) + rows.spec(rows.sigma_t, idx) * (
-                        dist / dr.maximum(dr.abs(d.z), 1e-30))
-                    pv = (S.phase_eval(region, wi, d, active & vol)
-                          * S.flake_F(region, wi, d, active & vol) * dr.exp(-od)
-                          * dr.gather(mi.Float, rows.chain, r))
-                    value = dr.select(vol, pv, value)
-                value = value * beta
-                value = dr.select(at_k | vol, value, 0.0)
-                if side == "up":
-                    turn = down & (vol | (at_k & (k >= 1)))
-                else:
-                    turn = mi.Bool(False)
-                self._add(acc, path, rows, r, value, st["bounces"] + dr.select(turn, 1, 0),
-                          active)
-                if v_ok:
-                    val_v, order_v = self._vertex_strategy(st, rng_l, beta, z, scatter, hit, b,
-                                                           side, k, behind, d, exit_t, active)
-                    self._add(acc, path, rows, r, val_v, order_v, active)
+                for strategy in m:
+                    value, order = self.contribution(strategy, ev, side, r, rng_l,
+                                                     active & m[strategy])
+                    self._add(acc, path, rows, r, value, order, active & m[strategy])
                 return r + 1, rng_l.state
 
-            r, state = dr.while_loop((r, rng.state), cond, body, labels=("r", "rng"),
-                                     label=f"rows_{side}")
+            r, state = dr.while_loop((mi.UInt32(0), rng.state), cond, body,
+                                     labels=("r", "rng"), label=f"rows_{side}")
             rng.state = state
 
-    def _vertex_candidates(self, st, scatter, hit, b, side, k, behind):
+    def contribution(self, strategy, ev, side, r, rng, active):
+        """(value, bounce order) of one event ``ev`` toward requested direction r of ``side``
+        by one strategy (see :meth:`_connect`); value 0 where ``active`` is false."""
+        if strategy == "vertex":
+            return self._vertex_strategy(ev, rng, side, r, active)
+        return self._direct(strategy, ev, side, r, active)
+
+    def _direct(self, strategy, ev, side, r, active):
+        """The crossing strategy at k ('k') or a volume event's direct connection ('vol')."""
+        import drjit as dr
+        import mitsuba as mi
+
+        S = self.S
+        rows = self.rows[side]
+        k, k_ok, behind, v_ok, direct_vol = self.side_static(side)
+        wi = -ev.w
+        down = ev.w.z < 0
+        d = rows.vec(r)
+        if strategy == "k":
+            bd = S.boundary[k]
+            if v_ok:
+                # one Mitsuba call for the pair d -> wi: q, the reverse sample's density of -w
+                # (the crossing strategy's weight below), and f(d, wi), turned into f(wi, d)
+                # by reciprocity (Walter eq. 21: f(i, o) / η_o² = f(o, i) / η_i²; η² the
+                # boundary's n_below² / n_above²)
+                f_rev, q = bd.eval_pdf(d, wi, active)
+                eta2 = dr.square(S.eta[k])
+                ratio = dr.select(wi.z * d.z < 0, dr.select(d.z < 0, eta2, 1.0 / eta2), 1.0)
+                fb = f_rev * ratio * dr.abs(d.z)
+                # crossing strategy weight, for paths whose last event could have connected
+                p_last = ev.last_pdf
+                w_c = dr.select(p_last > 0, p_last / dr.maximum(p_last + q, 1e-30), 1.0)
+                fb = fb * dr.select(ev.region == behind, w_c, 1.0)
+            else:
+                fb = bd.eval(wi, d, active) * dr.abs(d.z)
+            value = fb * rows.spec(rows.exit_t, r)
+            turn = down if side == "up" and k >= 1 else mi.Bool(False)
+        else:
+            region = ev.region
+            dist = ev.z if side == "up" else S.region_f(S.thickness, region) - ev.z
+            idx = r * rows.regions + mi.UInt32(region)
+            od = rows.spec(rows.depth, idx) + rows.spec(rows.sigma_t, idx) * (
+                dist / dr.maximum(dr.abs(d.z), 1e-30))
+            value = (S.phase_eval(region, wi, d, active) * S.flake_F(region, wi, d, active)
+                     * dr.exp(-od) * dr.gather(mi.Float, rows.chain, r))
+            turn = down if side == "up" else mi.Bool(False)
+        value = dr.select(active, value * ev.beta, 0.0)
+        return value, ev.bounces + dr.select(turn, 1, 0)
+
+    def _vertex_candidates(self, ev, side, k, behind):
         """Lanes whose event is a vertex of the vertex strategy (see :meth:`_vertex_strategy`)."""
         import mitsuba as mi
 
         cfg = self.cfg
         M = cfg.n_media
         far = behind if side == "up" else behind - 1
-        vol = (scatter & (st["region"] == behind)) if cfg.volume and \
+        vol = (ev.scatter & (ev.region == behind)) if cfg.volume and \
             cfg.region_phase[behind] is not None else mi.Bool(False)
         far_ok = 0 <= far <= M and cfg.boundaries[far].nonspecular
-        at_far = (hit & (b == far)) if far_ok else mi.Bool(False)
+        at_far = (ev.hit & (ev.b == far)) if far_ok else mi.Bool(False)
         return vol | at_far
 
-    def _vertex_strategy(self, st, rng, beta, z, scatter, hit, b, side, k, behind, d, exit_t,
-                         active):
+    def _vertex_strategy(self, ev, rng, side, r, active):
         """The vertex strategy of :meth:`_connect` for one requested direction: events in region
         ``behind`` (volume) or at the boundary on its far side, connected through the rough
         dielectric k by a reverse sample of k's BSDF. Returns (contribution, order)."""
@@ -735,10 +859,13 @@ class _Walk:
 
         S, cfg = self.S, self.cfg
         M = cfg.n_media
-        region = st["region"]
-        w = st["w"]
-        wi = -w
-        down = w.z < 0
+        rows = self.rows[side]
+        k, k_ok, behind, v_ok, direct_vol = self.side_static(side)
+        d = rows.vec(r)
+        exit_t = rows.spec(rows.exit_t, r)
+        region = ev.region
+        wi = -ev.w
+        down = ev.w.z < 0
         far = behind if side == "up" else behind - 1
         # reverse sample of k from the requested direction's side: t into region `behind`
         u1 = rng.next_float32()
@@ -751,15 +878,14 @@ class _Walk:
         eta2 = dr.square(S.eta[k])
         ratio = 1.0 / eta2 if side == "up" else eta2  # (η on d's side / η on d′'s side)²
         w_rev = dr.select(into, ratio * weight * dr.abs(d.z) / dz, 0.0)
-        vol = (scatter & (region == behind)) if cfg.volume and \
+        vol = (ev.scatter & (region == behind)) if cfg.volume and \
             cfg.region_phase[behind] is not None else mi.Bool(False)
         far_ok = 0 <= far <= M and cfg.boundaries[far].nonspecular
-        at_far = (hit & (b == far)) if far_ok else mi.Bool(False)
+        at_far = (ev.hit & (ev.b == far)) if far_ok else mi.Bool(False)
         f_v = mi.Spectrum(0.0)
         p_v = mi.Float(0.0)
         if far_ok:
-            bd = S.boundary[far]
-            f_far, p_far = bd.eval_pdf(wi, dp, active & at_far)
+            f_far, p_far = S.boundary[far].eval_pdf(wi, dp, active & at_far)
             f_v = dr.select(at_far, f_far * dz, f_v)
             p_v = dr.select(at_far, p_far, p_v)
         if cfg.volume and cfg.region_phase[behind] is not None:
@@ -768,14 +894,98 @@ class _Walk:
             p_v = dr.select(vol, ph, p_v)
         # attenuation across `behind` from the vertex to k
         thick_b = S.region_f(S.thickness, mi.UInt32(behind))
-        length = dr.select(at_far, thick_b, z if side == "up" else thick_b - z)
+        length = dr.select(at_far, thick_b, ev.z if side == "up" else thick_b - ev.z)
         sig = S.sigma_t_along(mi.UInt32(behind), dp, active)
         att = dr.exp(-sig * (length / dz))
         w_v = q / dr.maximum(q + p_v, 1e-30)
-        val = beta * f_v * att * (w_rev * w_v) * exit_t
-        val = dr.select((vol | at_far) & into & dr.all(dr.isfinite(val)), val, 0.0)
+        val = ev.beta * f_v * att * (w_rev * w_v) * exit_t
+        val = dr.select(active & (vol | at_far) & into & dr.all(dr.isfinite(val)), val, 0.0)
         turn = (down & (vol | at_far)) if side == "up" else mi.Bool(False)
-        return val, st["bounces"] + dr.select(turn, 1, 0)
+        return val, ev.bounces + dr.select(turn, 1, 0)
+
+    def _record(self, st, ev, path, acc, rng):
+        """Keep this event in its path's slots and lists (see the section's comment); an event
+        past the path's slots connects here, in the walk's kernel."""
+        import drjit as dr
+        import mitsuba as mi
+
+        E = RECORDS_PER_PATH
+        masks = {(side, s): m for side in self.rows for s, m in self.masks(ev, side).items()}
+        need = mi.Bool(False)
+        for m in masks.values():
+            need = need | m
+        e = st["n_rec"]
+        room = e < E
+        store = need & room
+        self.records.write(path * E + e, ev, store)
+        for (side, s), m in masks.items():
+            key = f"cnt_{side}_{s}"
+            sel = store & m
+            dr.scatter(self.records.lists[(side, s)], e, path * E + st[key], sel)
+            st[key] = st[key] + dr.select(sel, 1, 0)
+        st["n_rec"] = e + dr.select(store, 1, 0)
+        self._connect(ev, acc, path, rng, need & ~room)
+
+    def nee_from_records(self, rec: _Records, n_pad: int, first: int, words):
+        """The next-event kernel: one lane per (path, requested direction) of each side (a
+        SIMD packet holds consecutive directions of one path, so its lanes run one strategy
+        together), which runs over its path's events of one strategy after another, in event
+        order, and sums their contributions per bounce-order class and channel (each lane its
+        own sums: no atomics). Returns [(rows, sums)] per side, sums[k × C + c] evaluated, lane
+        = path × rows + row; the caller adds them to the walk's own per-path sums. Its reverse
+        samples come from a PCG32 stream per (path, side, direction), seeded by the path's
+        global id: the same numbers whatever the launch size or thread count."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cfg = self.cfg
+        C = cfg.channels
+        E = rec.E
+        Ke = point_classes(cfg)
+        out = []
+        first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
+        w0 = dr.opaque(mi.UInt32, (words[0] & 0xFFFFFFFF) ^ (words[0] >> 32))
+        w1 = dr.opaque(mi.UInt32, (words[1] & 0xFFFFFFFF) ^ (words[1] >> 32))
+        for si, (side, rows) in enumerate(self.rows.items()):
+            Rs = rows.n
+            lane = dr.arange(mi.UInt32, n_pad * Rs)
+            p = lane // Rs  # a SIMD packet: consecutive directions of one path
+            r = lane % Rs
+            gp = p + first_v
+            salt = r * 0x9E3779B1 + (si + 1) * 0x7F4A7C15
+            rng = mi.PCG32(dr.width(lane))
+            rng.seed(mi.sample_tea_64(gp, w0 ^ salt), mi.sample_tea_64(w1 ^ salt, gp))
+            sums = [dr.zeros(mi.Float, dr.width(lane)) for _ in range(Ke * C)]
+            for s in self.strategies(side):
+                count = dr.gather(mi.UInt32, rec.counts[(side, s)], p)
+                lst = rec.lists[(side, s)]
+
+                def cond(j, *_, count=count):
+                    return j < count
+
+                def body(j, rng_state, *sums, s=s, lst=lst, side=side, r=r, p=p):
+                    rng_l = mi.PCG32(rng)
+                    rng_l.state = rng_state
+                    e = dr.gather(mi.UInt32, lst, p * E + j)
+                    ev = rec.read(p * E + e)
+                    value, order = self.contribution(s, ev, side, r, rng_l, mi.Bool(True))
+                    ok = dr.max(value) > 0
+                    if cfg.max_bounces >= 0:
+                        ok = ok & (order <= cfg.max_bounces)
+                    cls = _order_class(order)
+                    out = list(sums)
+                    for k in range(Ke):
+                        for c in range(C):
+                            out[k * C + c] = out[k * C + c] + dr.select(ok & (cls == k),
+                                                                        value[c], 0.0)
+                    return (j + 1, rng_l.state, *out)
+
+                j, state, *sums = dr.while_loop((mi.UInt32(0), rng.state, *sums), cond, body,
+                                                label=f"nee_{side}_{s}")
+                rng.state = state
+            out.append((rows, sums))
+        dr.eval([x for _, x in out])
+        return out
 
     def _add(self, acc, path, rows, r, value, order, active):
         """acc[class(order), rows.first + r, :C, path] += value (each lane its own slots; C the
@@ -1177,6 +1387,11 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     capped_paths = dr.zeros(mi.Bool, n_pad) if points else None
     st["n_capped"] = dr.zeros(mi.UInt32, lanes)
     fresh = _fresh(1, wi, C)
+    # point estimates through the next-event kernel: the events' records and their counters
+    rec = walk.records = _Records(walk, n_pad, C) if points and walk.use_records else None
+    for key in walk.counters():
+        st[key] = dr.zeros(mi.UInt32, lanes)
+        fresh[key] = dr.zeros(mi.UInt32, 1)
 
     def cond(s):
         return s["alive"]
@@ -1200,6 +1415,9 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
         capped = ended & s["capped"]
         if points:
             dr.scatter(capped_paths, True, path, capped)
+        if rec is not None:
+            for (side, strategy), counts in rec.counts.items():
+                dr.scatter(counts, s[f"cnt_{side}_{strategy}"], path, ended)
         s["n_capped"] = s["n_capped"] + dr.select(capped, 1, 0)
         # the lane's next path
         nxt = path + lanes_v
@@ -1216,7 +1434,12 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     kw = {"mode": "evaluated", "compress": True} if LOOP_MODE == "evaluated" else {}
     (st,) = dr.while_loop((st,), cond, body, label="fitlab_walk", **kw)
     cores.kernel()
-    dr.eval(ex_w, ex_x, ex_key, ex_cones, capped_paths, st["steps"], st["n_capped"], acc)
+    dr.eval(ex_w, ex_x, ex_key, ex_cones, capped_paths, st["steps"], st["n_capped"], acc,
+            rec.arrays() if rec is not None else None)
+    nee = None
+    if rec is not None:
+        nee = walk.nee_from_records(rec, n_pad, first, words)
+        walk.records = None
     cores.host()
     events = int(np.array(st["steps"]).astype(np.int64).sum())
     n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
@@ -1226,8 +1449,15 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
                key.astype(np.int64) if bins else key,
                np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
                _member_pairs(ex_cones) if on_device else None)
-    sums = _point_sums(np.array(acc), np.array(capped_paths).astype(bool), n_out, C) \
-        if points else None
+    sums = None
+    if points:
+        a = np.array(acc).reshape(-1, n_out, C, n_pad)
+        for rows, values in nee or ():  # the next-event kernel's sums, (k, c) → (path, row)
+            for k in range(a.shape[0]):
+                for c in range(C):
+                    a[k, rows.first:rows.first + rows.n, c] += \
+                        np.array(values[k * C + c]).reshape(n_pad, rows.n).T
+        sums = _point_sums(a, np.array(capped_paths).astype(bool), n_out, C)
     return ex, sums, n_capped, events
 
 
@@ -1337,7 +1567,10 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     walk = _Walk(stack, sides, n_out if points else 0)
     cones = ConeIndex(det) if cfg.detector == "cones" else None
     if points:
-        launch = min(launch, POINT_LAUNCH_BYTES // (point_classes(cfg) * n_out * C * 4))
+        per_path = point_classes(cfg) * n_out * C * 4
+        if walk.use_records:  # the records: 10 + C words a slot, and the lists
+            per_path += RECORDS_PER_PATH * 4 * (10 + C + len(walk.counters()))
+        launch = min(launch, POINT_LAUNCH_BYTES // per_path)
     launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
     s1 = np.zeros((K, n_out, C))
     s2 = np.zeros((K + 1, n_out, C))

@@ -112,6 +112,39 @@ def test_point_values_agree_with_fine_cones_on_an_hg_slab(top):
         0.2 * np.median((cs / c)[keep]) * np.sqrt(n_cones)
 
 
+def test_next_event_kernel_agrees_with_the_walks_own_connections(monkeypatch):
+    """Point estimates through the next-event kernel (records of each path's connecting events,
+    walk.RECORDS_PER_PATH slots), with most events past the slots (one slot: they connect in the
+    walk's kernel), and all in the walk's kernel (0): the same values within their errors, by
+    bounce order too, on a slab whose sides mix strategies."""
+    import fitlab.simulate.walk as walk
+
+    stack = [{"type": "interface", "distribution": "ggx", "alpha": 0.3},
+             {"type": "medium", "index": 1.5, "thickness": 0.8, "sigma_a": 0.1,
+              "sigma_s": 1.0, "phase": "hg", "g": 0.3},
+             {"type": "interface", "distribution": "ggx", "alpha": 0.4}]
+    sc = _scene(stack, _point([-50.0, -10.0, 20.0, 60.0, 130.0, 160.0]), below={"index": 1.2},
+                illumination={"theta_i": [25.0]})
+    calls = []
+    kernel = walk._Walk.nee_from_records
+    monkeypatch.setattr(walk._Walk, "nee_from_records",
+                        lambda self, *a: calls.append(1) or kernel(self, *a))
+    runs = {}
+    for slots in (walk.RECORDS_PER_PATH, 1, 0):
+        monkeypatch.setattr(walk, "RECORDS_PER_PATH", slots)
+        runs[slots] = simulate(sc, 6_000, seed=11)
+        assert bool(calls) == (slots > 0)  # the next-event kernel ran, or did not
+        calls.clear()
+    ref = runs[0]
+    assert np.all(ref.value > 0)
+    for slots, res in runs.items():
+        z = (res.value - ref.value) / np.hypot(res.sigma, ref.sigma)
+        assert np.all(np.abs(z) < 4.5), (slots, z)
+        zo = (res.by_order - ref.by_order) / np.maximum(
+            np.hypot(res.sigma_by_order, ref.sigma_by_order), 1e-30)
+        assert np.all(np.abs(zo) < 4.5), (slots, zo)
+
+
 def test_bounce_orders_sum_and_max_bounces_keeps_the_low_orders():
     stack = [{"type": "interface", "distribution": "ggx", "alpha": 0.3},
              {"type": "medium", "index": 1.5, "thickness": 1.0, "sigma_a": 0.2}]
