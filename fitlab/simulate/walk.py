@@ -1527,11 +1527,11 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
     wi_v = mi.Vector3f(*[dr.opaque(mi.Float, float(c)) for c in wi])
     u1 = rng.next_float32()
     u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
-    wo, f, _, diffuse = stack.boundary_sample(mi.Int32(0), wi_v, u1, u2,
-                                              mi.UInt32(FORCE_REFLECT), mi.Bool(True), False)
+    top = stack.boundary[0]  # called directly: every lane meets the top (no dispatch)
+    wo, f, _ = top.sample(wi_v, u1, u2, mi.UInt32(FORCE_REFLECT), mi.Bool(True), False)
     keep = (wo.z > 0) & dr.all(dr.isfinite(f)) & dr.all(dr.isfinite(wo))
-    if not cfg.delta:
-        keep = keep & diffuse
+    if not cfg.delta and not top.nonspecular:
+        keep = mi.Bool(False)
     x = dr.select(keep, f, 0.0)
     wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
     key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out)
