@@ -198,17 +198,22 @@ class _Records:
 
 
 class Exits(NamedTuple):
-    """Per path, what the host tally needs and no more: the tallied flux weight (P, C) (0: not
-    tallied) and ``key``, its tally slot computed on the device (:func:`_tally_key`): for
-    hemisphere bins (block of :data:`TALLY_BLOCK` paths × order class) × bin, else (block ×
-    order class) × 2 + 1 for a downward exit; the exit direction (P, 3) only where the host
-    finds cones (wide cone tables); ``cones``: the (path, cone) pairs found in the kernel, by
-    candidate column then path."""
+    """Per path, what the host tally needs and no more. Hemisphere bins: the tallied flux
+    weight (P, C) (0: not tallied) and ``key``, its tally slot computed on the device
+    (:func:`_tally_key`: (block of :data:`TALLY_BLOCK` paths × order class) × bin). Other
+    detectors: ``side``, the sums per block, moment and exit side, taken on the device
+    (:func:`_device_sides`), and for cones found in the kernel the (path, cone) pairs
+    (``cones``, by candidate column then path) with their paths' weights (``pair_x``) and keys
+    (``pair_key``: (block × order class) × 2 + 1 for a downward exit); where the host finds
+    the cones (wide cone tables), the weights, keys and exit directions of every path."""
 
-    x: np.ndarray
-    key: np.ndarray
+    x: np.ndarray | None
+    key: np.ndarray | None
     w: np.ndarray | None = None
     cones: tuple | None = None
+    side: np.ndarray | None = None
+    pair_x: np.ndarray | None = None
+    pair_key: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -1245,29 +1250,58 @@ def _tally_key(cfg: WalkConfig, path, w, order, n_out: int):
     return slot * 2 + dr.select(w.z < 0, 1, 0)
 
 
-def _member_pairs(columns) -> tuple:
+def _member_pairs(columns, x, key) -> tuple:
     """(path, cone) pairs from the kernel's candidate columns (cone index + 1, 0: none), column
-    by column, each in path order: the same order whatever the launch size. The paths in some
-    cone are picked on the device (``dr.compress`` keeps their order), so only they travel."""
+    by column, each in path order (the same order whatever the launch size), with each pair's
+    path weights (m, C) float64 and tally key. The paths in some cone are picked on the device
+    (``dr.compress`` keeps their order), so only they travel."""
     import drjit as dr
     import mitsuba as mi
 
-    if not columns:
-        return (np.zeros(0, np.int64),) * 2
     inside = columns[0] > 0
     for col in columns[1:]:
         inside = inside | (col > 0)
     idx = dr.compress(inside)
     picked = [dr.gather(mi.UInt32, col, idx) for col in columns]
-    dr.eval(picked)
+    xs = [dr.gather(mi.Float, v, idx) for v in x]
+    ks = dr.gather(mi.UInt32, key, idx)
+    dr.eval(picked, xs, ks)
     idx = np.array(idx).astype(np.int64)
-    ps, rs = [], []
+    xs = np.stack([np.array(v) for v in xs], axis=1).astype(np.float64)
+    ks = np.array(ks).astype(np.int64)
+    js, rs = [], []
     for col in picked:
         col = np.array(col)
         j = np.flatnonzero(col)
-        ps.append(idx[j])
+        js.append(j)
         rs.append(col[j].astype(np.int64) - 1)
-    return np.concatenate(ps), np.concatenate(rs)
+    j = np.concatenate(js)
+    return idx[j], np.concatenate(rs), xs[j], ks[j]
+
+
+def _device_sides(x, key, n: int):
+    """The exits' sums per block of :data:`TALLY_BLOCK` paths, moment (x, x²) and exit side
+    (key's lowest bit: downward), (nb, 2, 2, C) float64, from the kernel's per-path weights
+    ``x`` (C arrays) and keys, on the device: each block reduced in path order by one thread
+    (``dr.block_sum``, evaluated: no atomics)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    F64 = dr.float64_array_t(mi.Float)
+    nb = -(-n // TALLY_BLOCK)
+    idx = dr.arange(mi.UInt32, nb * TALLY_BLOCK)
+    valid = idx < n
+    down = (dr.gather(mi.UInt32, key, idx, valid) & 1) != 0
+    parts = []
+    for v in x:
+        v = F64(dr.gather(mi.Float, v, idx, valid))
+        v_down = dr.select(down, v, 0.0)
+        v_up = v - v_down  # exact: v or 0
+        parts += [v_up, v_down, v_up * v_up, v_down * v_down]
+    sums = [dr.block_sum(v, TALLY_BLOCK, mode="evaluated") for v in parts]
+    dr.eval(sums)
+    out = np.stack([np.array(v) for v in sums], axis=1)  # (nb, C × 4)
+    return out.reshape(nb, len(x), 2, 2).transpose(0, 2, 3, 1)  # (nb, moment, side, C)
 
 
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
@@ -1275,16 +1309,16 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
     """Float64 sums and sums of squares of the exits' weights per block of
     :data:`TALLY_BLOCK` paths, order class and bin or cone, (nb, 4, n_out, C) each, and per exit
     side (nb, 2 moments, 2 sides, C), each block summed in path order."""
-    C = ex.x.shape[1]
+    C = cfg.channels
     K = len(ORDER_CLASSES)
-    P = len(ex.x)
-    nb = -(-P // TALLY_BLOCK)
-    x = ex.x.astype(np.float64)  # finite: the kernel writes only finite exits
-    x2 = x * x
-    s1 = np.zeros((nb, K, n_out, C))
-    s2 = np.zeros((nb, K, n_out, C))
-    side = np.zeros((nb, 2, 2, C))
     if cfg.detector == "bins":
+        P = len(ex.x)
+        nb = -(-P // TALLY_BLOCK)
+        x = ex.x.astype(np.float64)  # finite: the kernel writes only finite exits
+        x2 = x * x
+        s1 = np.zeros((nb, K, n_out, C))
+        s2 = np.zeros((nb, K, n_out, C))
+        side = np.zeros((nb, 2, 2, C))
         # every tallied exit lies in one bin: the sides' sums are the bins' (reflection bins
         # first, bin_index)
         for c in range(C):
@@ -1295,25 +1329,35 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
             side[:, m, 0] = s[:, :, :half].sum(axis=(1, 2))
             side[:, m, 1] = s[:, :, half:].sum(axis=(1, 2))
         return s1, s2, side
-    # key: (block × K + order class) × 2 + side
+    if ex.side is not None:
+        side = ex.side
+    else:  # the host's own sums (cones found on the host): key's lowest bit, downward
+        x = ex.x.astype(np.float64)
+        down = (ex.key & 1).astype(np.float64)[:, None]
+        starts = np.arange(0, len(x), TALLY_BLOCK)
+        side = np.zeros((len(starts), 2, 2, C))
+        for m, v in enumerate((x, x * x)):
+            v_down = v * down  # v or 0: v − v_down is exact
+            side[:, m, 0] = np.add.reduceat(v - v_down, starts, axis=0)
+            side[:, m, 1] = np.add.reduceat(v_down, starts, axis=0)
+    nb = side.shape[0]
+    s1 = np.zeros((nb, K, n_out, C))
+    s2 = np.zeros((nb, K, n_out, C))
     if cfg.detector == "cones":
         # cones may overlap: the (path, cone) pairs of the tallied paths, summed per block,
         # order class and cone by one bincount (a fixed pair order: each block's sums are the
-        # same however the launches are cut)
+        # same however the launches are cut); key: (block × K + order class) × 2 + side
         R = det.cone_dir.shape[0]
         size = nb * K * R
-        p, r = ex.cones if ex.cones is not None else _cone_pairs(det, ex.w, x, cones)
-        key = (ex.key[p].astype(np.int64) >> 1) * R + r
+        if ex.pair_x is not None:
+            (p, r), xp, kp = ex.cones, ex.pair_x, ex.pair_key
+        else:
+            p, r = _cone_pairs(det, ex.w, ex.x, cones)
+            xp, kp = ex.x[p].astype(np.float64), ex.key[p].astype(np.int64)
+        key = (kp >> 1) * R + r
         for c in range(C):
-            s1[..., c] = np.bincount(key, x[p, c], size).reshape(nb, K, R)
-            s2[..., c] = np.bincount(key, x2[p, c], size).reshape(nb, K, R)
-    # the sides' sums per block, each block added in path order
-    down = (ex.key & 1).astype(np.float64)[:, None]
-    starts = np.arange(0, P, TALLY_BLOCK)
-    for m, v in enumerate((x, x2)):
-        v_down = v * down  # v or 0: v − v_down is exact
-        side[:, m, 0] = np.add.reduceat(v - v_down, starts, axis=0)
-        side[:, m, 1] = np.add.reduceat(v_down, starts, axis=0)
+            s1[..., c] = np.bincount(key, xp[:, c], size).reshape(nb, K, R)
+            s2[..., c] = np.bincount(key, xp[:, c] * xp[:, c], size).reshape(nb, K, R)
     return s1, s2, side
 
 
@@ -1378,7 +1422,6 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     # arrays need no clearing
     ex_x = [dr.empty(mi.Float, n) for _ in range(C)]
     ex_key = dr.empty(mi.UInt32, n)
-    bins = stack.cfg.detector == "bins"
     on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
     host_w = cones is not None and not on_device
     ex_w = [dr.empty(mi.Float, n) for _ in range(3)] if host_w else []
@@ -1443,12 +1486,7 @@ def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int
     cores.host()
     events = int(np.array(st["steps"]).astype(np.int64).sum())
     n_capped = int(np.array(st["n_capped"]).astype(np.int64).sum())
-    # np.array(v) takes Dr.Jit's buffer as it is (its own dtype): convert in NumPy after
-    key = np.array(ex_key)
-    ex = Exits(np.stack([np.array(v) for v in ex_x], axis=1),
-               key.astype(np.int64) if bins else key,
-               np.stack([np.array(v) for v in ex_w], axis=1) if host_w else None,
-               _member_pairs(ex_cones) if on_device else None)
+    ex = _exits(stack.cfg, ex_x, ex_key, n, ex_w, ex_cones)
     sums = None
     if points:
         a = np.array(acc).reshape(-1, n_out, C, n_pad)
@@ -1544,11 +1582,26 @@ def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
     cores.kernel()
     dr.eval(x, key, members, host_w)
     cores.host()
-    key = np.array(key)
-    return Exits(np.stack([np.array(v) for v in x], axis=1),
-                 key.astype(np.int64) if cfg.detector == "bins" else key,
-                 np.stack([np.array(v) for v in host_w], axis=1) if host_w else None,
-                 _member_pairs(members) if on_device else None)
+    return _exits(cfg, x, key, n, host_w, members)
+
+
+def _exits(cfg: WalkConfig, x, key, n: int, w=(), members=()) -> Exits:
+    """The host's :class:`Exits` from the kernel's evaluated per-path arrays: C weights, keys,
+    the exit directions where the host finds the cones (``w``), the cone member columns where
+    the kernel did (``members``). np.array(v) takes Dr.Jit's buffer as it is (its own dtype):
+    conversions happen in NumPy after."""
+    def host(arrays):
+        return np.stack([np.array(v) for v in arrays], axis=1)
+
+    if cfg.detector == "bins":
+        return Exits(host(x), np.array(key).astype(np.int64))
+    if w:
+        return Exits(host(x), np.array(key), host(w))
+    side = _device_sides(x, key, n)
+    if members:
+        p, r, xp, kp = _member_pairs(members, x, key)
+        return Exits(None, None, cones=(p, r), side=side, pair_x=xp, pair_key=kp)
+    return Exits(None, None, side=side)
 
 
 def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: int = 0,

@@ -175,11 +175,13 @@ def _slab_scene(**over):
 
 
 @pytest.mark.parametrize("detector", [None, {"type": "inplane", "theta_o": [-40, 10, 150],
-                                             "estimator": "point"}])
+                                             "estimator": "point"},
+                                      {"type": "inplane", "theta_o": [-40, 10, 150],
+                                       "acceptance_sr": 0.05}])
 def test_same_seed_same_bytes_whatever_the_thread_count_and_batch(detector):
-    """Bins and point estimates accumulate per path and are summed in path order on the host:
-    1 or 2 Dr.Jit threads, one launch or many, give identical numbers; the walk parks Dr.Jit's
-    thread pool between its kernels (walk._Cores) and leaves it the size it found."""
+    """Bins, point estimates and cones accumulate per path and are summed per block in path
+    order: 1 or 2 Dr.Jit threads, one launch or many, give identical numbers; the walk parks
+    Dr.Jit's thread pool between its kernels (walk._Cores) and leaves it the size it found."""
     import drjit as dr
 
     scene = _slab_scene(**({"detector": detector} if detector else {}))
