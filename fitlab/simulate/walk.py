@@ -3,10 +3,12 @@
 Every path is one lane of a symbolic ``dr.while_loop`` (one scattering event per iteration)
 that runs on Dr.Jit's LLVM backend (all CPU cores) or its CUDA backend (engine.py), calling the
 stack's boundaries and phase functions (components.py: Mitsuba 3's own plugins where Mitsuba
-has them). The loop writes each path's exit — direction, flux weight per channel, bounce order
-— or, for point estimates, its running sums of next-event connections, into per-path slots;
-the host sums them in float64 in path order (:func:`tally_exits`), so the same seed gives the
-same bytes whatever the thread count (no unordered floating-point atomics).
+has them). The loop writes each path's exit — its flux weight per channel and its tally key
+(bin or cone, bounce order, side) — or, for point estimates, its running sums of next-event
+connections, into per-path slots; these are summed in float64 per block of paths in path order
+(:func:`tally_exits`: on the host, or on the device with one thread per block), so the same
+seed gives the same bytes whatever the thread count (no unordered floating-point atomics).
+Between its kernels the walk parks Dr.Jit's thread pool (:class:`_Cores`).
 
 Geometry (scene.py): regions 0..M+1 (0 = outside, M+1 = below), boundary b between regions b
 and b+1. A path has a region, a depth ``z`` below the region's top, a propagation direction
