@@ -211,3 +211,30 @@ def test_gltf_validator_errors_fail_the_check(monkeypatch):
         check._validate_gltf("{}")
     monkeypatch.setattr(threejs, "validator_missing", lambda: "Node.js is not installed")
     assert check._validate_gltf("{}") == {"skipped": "Node.js is not installed"}
+
+
+def test_a_page_still_pending_gets_one_longer_run(monkeypatch, tmp_path):
+    """Chromium dumps a three.js page when its virtual time runs out: a page still "pending"
+    (a loaded machine) is run once more with the larger budget; a second "pending" is an
+    error that says so."""
+    from fitlab.export import threejs
+
+    page = tmp_path / "page.html"
+    page.write_text("<pre id=\"result\">pending</pre>")
+    monkeypatch.setattr(threejs, "node_modules", lambda: tmp_path)
+    monkeypatch.setattr(threejs, "browser", lambda: "chromium")
+    budgets = []
+
+    def dump(chrome, url, tmp, budget, timeout, answers):
+        budgets.append(budget)
+        return answers[len(budgets) - 1], None
+
+    answers = ["pending", '{"ok": true, "three": "r170"}']
+    monkeypatch.setattr(threejs, "_dump", lambda *a: dump(*a, answers))
+    assert threejs.run_page(page, {}, {})["three"] == "r170"
+    assert budgets == list(threejs.VIRTUAL_TIME_MS)
+    budgets.clear()
+    answers[1] = "pending"
+    with pytest.raises(threejs.RenderError, match="pending"):
+        threejs.run_page(page, {}, {})
+    assert budgets == list(threejs.VIRTUAL_TIME_MS)
