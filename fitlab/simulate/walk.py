@@ -207,7 +207,7 @@ class Exits(NamedTuple):
     (:func:`_device_sides`), and for cones found in the kernel the (path, cone) pairs
     (``cones``, by candidate column then path) with their paths' weights (``pair_x``) and keys
     (``pair_key``: (block × order class) × 2 + 1 for a downward exit); where the host finds
-    the cones (wide cone tables), the weights, keys and exit directions of every path."""
+    the cones (wide cone tables), also the weights, keys and exit directions of every path."""
 
     x: np.ndarray | None
     key: np.ndarray | None
@@ -257,17 +257,8 @@ class Stack:
         return dr.gather(mi.Float, table, mi.UInt32(region), active)
 
     def region_c(self, table, region, active=True):
-        """Per lane, the region's value per channel; one channel's walk gathers channel 0 only
-        (the spectrum holds it three times: Dr.Jit folds the repeated arithmetic)."""
-        import drjit as dr
-        import mitsuba as mi
-
-        idx = mi.UInt32(region) * 3
-        if self.cfg.channels == 1:
-            return mi.Spectrum(dr.gather(mi.Float, table, idx, active))
-        return mi.Spectrum(dr.gather(mi.Float, table, idx, active),
-                           dr.gather(mi.Float, table, idx + 1, active),
-                           dr.gather(mi.Float, table, idx + 2, active))
+        """Per lane, the region's value per channel (:func:`_gather_channels`)."""
+        return _gather_channels(table, region, self.cfg.channels, active)
 
     def projected_area(self, region, w, active):
         """σ(w) of the SGGX medium of each lane's region (SpongeCake eq. 3/7), else 1."""
@@ -485,14 +476,20 @@ class _Rows:
                            dr.gather(mi.Float, self.d, i + 2))
 
     def spec(self, table, idx):
-        import drjit as dr
-        import mitsuba as mi
+        return _gather_channels(table, idx, self.channels)
 
-        i = mi.UInt32(idx) * 3
-        if self.channels == 1:  # channel 0, held three times (see Stack.region_c)
-            return mi.Spectrum(dr.gather(mi.Float, table, i))
-        return mi.Spectrum(dr.gather(mi.Float, table, i), dr.gather(mi.Float, table, i + 1),
-                           dr.gather(mi.Float, table, i + 2))
+
+def _gather_channels(table, idx, channels: int, active=True):
+    """Row ``idx`` of a (rows, 3) per-channel table on the device, as a Spectrum; a
+    one-channel walk gathers channel 0 only (the spectrum holds it three times: Dr.Jit folds
+    the repeated arithmetic)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    i = mi.UInt32(idx) * 3
+    if channels == 1:
+        return mi.Spectrum(dr.gather(mi.Float, table, i, active))
+    return mi.Spectrum(*[dr.gather(mi.Float, table, i + c, active) for c in range(3)])
 
 
 def _device_floats(a):
@@ -703,8 +700,8 @@ class _Walk:
     #
     # The connections of an event to the requested directions are computed in one of two
     # places. With records (where a side mixes strategies and :data:`RECORDS_PER_PATH` > 0),
-    # the walk's kernel writes each connecting event into its path's slots, with per-path lists by side and
-    # strategy, and a second kernel (:meth:`nee_from_records`) runs one lane per (path,
+    # the walk's kernel writes each connecting event into its path's slots, with per-path lists
+    # by side and strategy, and a second kernel (:meth:`nee_from_records`) runs one lane per (path,
     # requested direction) over the path's events of one strategy at a time: the lanes of a
     # SIMD packet share their path and so their strategy, where in the walk's own loop every
     # lane executes both strategies of the MIS pair (measured on the throughput arc: 1.94-2.06x
@@ -951,17 +948,13 @@ class _Walk:
         Ke = point_classes(cfg)
         out = []
         first_v = dr.opaque(mi.UInt32, first & 0xFFFFFFFF)
-        w0 = dr.opaque(mi.UInt32, (words[0] & 0xFFFFFFFF) ^ (words[0] >> 32))
-        w1 = dr.opaque(mi.UInt32, (words[1] & 0xFFFFFFFF) ^ (words[1] >> 32))
         for si, (side, rows) in enumerate(self.rows.items()):
             Rs = rows.n
             lane = dr.arange(mi.UInt32, n_pad * Rs)
             p = lane // Rs  # a SIMD packet: consecutive directions of one path
             r = lane % Rs
-            gp = p + first_v
-            salt = r * 0x9E3779B1 + (si + 1) * 0x7F4A7C15
             rng = mi.PCG32(dr.width(lane))
-            rng.seed(mi.sample_tea_64(gp, w0 ^ salt), mi.sample_tea_64(w1 ^ salt, gp))
+            rng.seed(*_tea_seeds(p + first_v, words, r * 0x9E3779B1 + (si + 1) * 0x7F4A7C15))
             sums = [dr.zeros(mi.Float, dr.width(lane)) for _ in range(Ke * C)]
             for s in self.strategies(side):
                 count = dr.gather(mi.UInt32, rec.counts[(side, s)], p)
@@ -976,9 +969,7 @@ class _Walk:
                     e = dr.gather(mi.UInt32, lst, p * E + j)
                     ev = rec.read(p * E + e)
                     value, order = self.contribution(s, ev, side, r, rng_l, mi.Bool(True))
-                    ok = dr.max(value) > 0
-                    if cfg.max_bounces >= 0:
-                        ok = ok & (order <= cfg.max_bounces)
+                    ok = self._kept(value, order, mi.Bool(True))
                     cls = _order_class(order)
                     out = list(sums)
                     for k in range(Ke):
@@ -994,18 +985,23 @@ class _Walk:
         dr.eval([x for _, x in out])
         return out
 
+    def _kept(self, value, order, active):
+        """Whether a contribution counts: non-zero, of an order within ``max_bounces``."""
+        import drjit as dr
+
+        ok = active & (dr.max(value) > 0)
+        if self.cfg.max_bounces >= 0:
+            ok = ok & (order <= self.cfg.max_bounces)
+        return ok
+
     def _add(self, acc, path, rows, r, value, order, active):
         """acc[class(order), rows.first + r, :C, path] += value (each lane its own slots; C the
         walk's channels; paths last, so a block of paths is contiguous for the device-side
         sums of :func:`_point_sums`; ``self.stride`` the launch's padded path count)."""
         import drjit as dr
 
-        cfg = self.cfg
-        C = cfg.channels
-        ok = active
-        if cfg.max_bounces >= 0:
-            ok = ok & (order <= cfg.max_bounces)
-        ok = ok & (dr.max(value) > 0)
+        C = self.cfg.channels
+        ok = self._kept(value, order, active)
         slot = ((_order_class(order) * self.n_rows + rows.first + r) * C) * self.stride + path
         for c in range(C):
             # every path owns its slots: a plain read-modify-write, no atomics
@@ -1013,17 +1009,18 @@ class _Walk:
                            mode=dr.ReduceMode.NoConflicts)
 
 
-def _tea_seeds(path, words):
+def _tea_seeds(path, words, salt=0):
     """PCG32 initial state and stream of global path ids ``path`` (UInt32): TEA hashes
     (``mi.sample_tea_64``) of the id and the seed words, as Mitsuba's ``independent`` sampler
-    seeds its lanes (consecutive unhashed seeds give correlated first draws)."""
+    seeds its lanes (consecutive unhashed seeds give correlated first draws); ``salt`` (UInt32)
+    gives a path further streams of its own."""
     import mitsuba as mi
 
     import drjit as dr
 
     # kernel inputs, not constants: another seed, incidence or launch reuses the kernel
-    w0 = dr.opaque(mi.UInt32, (words[0] & 0xFFFFFFFF) ^ (words[0] >> 32))
-    w1 = dr.opaque(mi.UInt32, (words[1] & 0xFFFFFFFF) ^ (words[1] >> 32))
+    w0 = dr.opaque(mi.UInt32, (words[0] & 0xFFFFFFFF) ^ (words[0] >> 32)) ^ salt
+    w1 = dr.opaque(mi.UInt32, (words[1] & 0xFFFFFFFF) ^ (words[1] >> 32)) ^ salt
     return mi.sample_tea_64(path, w0), mi.sample_tea_64(w1, path)
 
 
@@ -1051,7 +1048,8 @@ def _fresh(n, wi, channels):
         "region": dr.zeros(mi.Int32, n), "z": dr.zeros(mi.Float, n),
         "w": mi.Vector3f(d[0] + dr.zeros(mi.Float, n), d[1] + dr.zeros(mi.Float, n),
                          d[2] + dr.zeros(mi.Float, n)),
-        "weight": dr.full(mi.Float if channels == 1 else mi.Spectrum, 1.0, n), "alive": dr.full(mi.Bool, True, n),
+        "weight": dr.full(mi.Float if channels == 1 else mi.Spectrum, 1.0, n),
+        "alive": dr.full(mi.Bool, True, n),
         "exited": dr.full(mi.Bool, False, n), "bounces": dr.zeros(mi.Int32, n),
         "vol_events": dr.zeros(mi.Int32, n), "events": dr.zeros(mi.Int32, n),
         "diffuse": dr.full(mi.Bool, False, n), "last_pdf": dr.zeros(mi.Float, n),
@@ -1331,17 +1329,7 @@ def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
             side[:, m, 0] = s[:, :, :half].sum(axis=(1, 2))
             side[:, m, 1] = s[:, :, half:].sum(axis=(1, 2))
         return s1, s2, side
-    if ex.side is not None:
-        side = ex.side
-    else:  # the host's own sums (cones found on the host): key's lowest bit, downward
-        x = ex.x.astype(np.float64)
-        down = (ex.key & 1).astype(np.float64)[:, None]
-        starts = np.arange(0, len(x), TALLY_BLOCK)
-        side = np.zeros((len(starts), 2, 2, C))
-        for m, v in enumerate((x, x * x)):
-            v_down = v * down  # v or 0: v − v_down is exact
-            side[:, m, 0] = np.add.reduceat(v - v_down, starts, axis=0)
-            side[:, m, 1] = np.add.reduceat(v_down, starts, axis=0)
+    side = ex.side
     nb = side.shape[0]
     s1 = np.zeros((nb, K, n_out, C))
     s2 = np.zeros((nb, K, n_out, C))
@@ -1405,7 +1393,8 @@ LANES = 1 << 15
 def _launch(stack: Stack, walk: _Walk, wi, n: int, first: int, words, n_out: int,
             cones: ConeIndex | None, cores: _Cores):
     """Trace paths first .. first + n − 1 on at most :data:`LANES` lanes; returns their Exits,
-    the point sums (n, 4, n_out, C) or None, the number of paths capped and the events traced."""
+    the point estimates' block sums (:func:`_point_sums`) or None, the number of paths capped
+    and the events traced."""
     import drjit as dr
     import mitsuba as mi
 
@@ -1597,9 +1586,9 @@ def _exits(cfg: WalkConfig, x, key, n: int, w=(), members=()) -> Exits:
 
     if cfg.detector == "bins":
         return Exits(host(x), np.array(key).astype(np.int64))
-    if w:
-        return Exits(host(x), np.array(key), host(w))
     side = _device_sides(x, key, n)
+    if w:
+        return Exits(host(x), np.array(key), host(w), side=side)
     if members:
         p, r, xp, kp = _member_pairs(members, x, key)
         return Exits(None, None, cones=(p, r), side=side, pair_x=xp, pair_key=kp)
@@ -1623,8 +1612,8 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
     cones = ConeIndex(det) if cfg.detector == "cones" else None
     if points:
         per_path = point_classes(cfg) * n_out * C * 4
-        if walk.use_records:  # the records: 10 + C words a slot, and the lists
-            per_path += RECORDS_PER_PATH * 4 * (10 + C + len(walk.counters()))
+        if walk.use_records:  # a record's 9 + C words a slot, and a list word a strategy
+            per_path += RECORDS_PER_PATH * 4 * (9 + C + len(walk.counters()) - 1)
         launch = min(launch, POINT_LAUNCH_BYTES // per_path)
     launch = max(TALLY_BLOCK, launch // TALLY_BLOCK * TALLY_BLOCK)
     s1 = np.zeros((K, n_out, C))

@@ -288,3 +288,19 @@ def test_forced_branches_weigh_as_mitsubas_one_lobe_contexts(mi):
         assert ok.sum() > n // 2
         np.testing.assert_allclose(w[ok], w_ref[ok], rtol=2e-4, atol=1e-6)
         np.testing.assert_allclose(np.array(wo).T[ok], np.array(bs.wo).T[ok], atol=2e-5)
+
+
+def test_cones_found_on_the_host_tally_as_the_kernels(monkeypatch):
+    """Cone tables wider than ConeIndex.DEVICE_WIDTH are tested on the host from the exit
+    directions: the same tallies as the kernel's own cone members (the sums' order aside)."""
+    from fitlab.simulate import walk
+
+    scene = _slab_scene(detector={"type": "inplane", "theta_o": [-40, -20, 10, 150],
+                                  "acceptance_sr": 0.05})
+    kernel = simulate(scene, 20_000, seed=5)
+    monkeypatch.setattr(walk.ConeIndex, "DEVICE_WIDTH", 0)
+    host = simulate(scene, 20_000, seed=5)
+    assert kernel.value.sum() > 0
+    np.testing.assert_allclose(host.value, kernel.value, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(host.sigma, kernel.sigma, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(host.energy, kernel.energy)
