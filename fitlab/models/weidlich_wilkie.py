@@ -6,23 +6,32 @@
 ``weidlich_wilkie(BASE,layers=K)`` stacks K-1 interfaces over the base. Layer i (1 = top) has a
 Torrance–Sparrow / Walter microfacet BRDF (Walter eq. 20, GGX or Beckmann) with complex index
 (n_i, k_i) relative to vacuum (n_0 = 1 outside) and the optical depth τ_i = σ_i d_i of eq. 3.
-The recursion (eq. 2), evaluated from the top with L, V the directions above layer i:
+The recursion (eq. 2), evaluated from the top with L, V the directions above layer i, with the
+two changes that make it conserve energy (below):
 
-    f^(i)(L, V) = f_ri(L, V) + T_i · f^(i+1)(L', V') · a_i · t_i [· (n_{i-1}/n_i)²]
+    f^(i)(L, V) = f_ri(L, V) + T_i(L) T_i(V) (n_{i-1}/n_i)² · f^(i+1)(L', V') · a_i · t_i
 
 * f_ri: microfacet reflection of interface i with Fresnel of the relative index
   (n_i + i k_i)/n_{i-1} (Elek's shader uses the absolute (n_i, κ_i); relative is what the
   interface sees and reduces to it for the top layer);
-* T_i = T_{i→i+1} = T_{i+1→i} = 1 - F_i(L·H) (Algorithm 1 lines 23-24);
+* T_i(L) T_i(V), T_i(w) = 1 - F_i(N·w): the light crosses the interface down along L and back up
+  along V, each crossing transmitting 1 - F at the macro normal (fitlab's change 1; Algorithm 1
+  lines 23-24 use one T_12 = T_21 = 1 - F_i(L·H) at the half vector of L and V, which at grazing
+  L lets nearly all of the light through to the layer below while f_ri already reflects nearly
+  all of it: 1.34-1.38 times the incident energy at 89.9° over a white Lambertian base);
+* (n_{i-1}/n_i)²: the solid-angle compression of the crossing down and back up, as in the coated
+  model's derivation (fitlab's change 2; eq. 2 as printed omits it, and the lower lobe, widened
+  by refraction, is then integrated over the outside hemisphere up to η² too bright: 2.05 times
+  the incident energy for a smooth coat over a near-perfect mirror; tests/models/test_layered.py);
 * L', V': Snell refraction through the macro normal with n_i/n_{i-1} (lines 7-8); a ray that
   cannot enter (or leave) the layer contributes nothing below;
 * a_i = exp(-τ_i (1/N·L' + 1/N·V')), eq. 3;
-* t_i = (1 - G_i) + T_i G_i, eq. 4, G_i the Smith shadowing G1(L)G1(V) of layer i;
-* [·(n_{i-1}/n_i)²]: option ``radiance_scaling``. ``eta2`` (default) multiplies each crossing
-  by the solid-angle compression of the smooth-interface derivation (the same factor as the
-  coated model); ``none`` is eq. 2 exactly as printed, which is not energy conserving (the
-  lower lobe, widened by refraction, is integrated over the outside hemisphere without the
-  1/η² of the solid angle: up to η² too bright; measured in tests/models/test_layered.py).
+* t_i = (1 - G_i) + T_i G_i, eq. 4, G_i the Smith shadowing G1(L)G1(V) of layer i and T_i =
+  1 - F_i(L·H) as in Algorithm 1.
+
+With both changes the stack's directional albedo is at most f_r1's plus T_1(L) times the
+albedo of the layer below (∫ T(V) f' cos θV dωV / η² = ∫ T f' cos θV' dωV'), so at most 1 by
+induction; the registry contract's white furnace checks it to 89.9°.
 
 Option ``roughness_clamp=clamp`` applies section 3's fix m_{i+1} ≥ m_i (α of every layer, and
 of a rough-conductor base, at least the largest α above it; Algorithm 1 line 21).
@@ -60,9 +69,6 @@ OPTIONS = (
            "Fresnel of the interfaces (complex index): exact, schlick (F0 from n, k; also "
            "Elek appendix B's shader formula) or lazanyi (Lazányi–Szirmay-Kalos 2005: "
            "Schlick minus a·μ(1-μ)^6, a fitted to the exact F at μ = 1/7, Hoffman 2019)"),
-    Option("radiance_scaling", ("eta2", "none"), "eta2",
-           "eta2: lower-layer term times (n_{i-1}/n_i)^2 per interface (solid-angle compression, "
-           "energy conserving); none: eq. 2 as printed (up to eta^2 too bright)"),
     Option("roughness_clamp", ("none", "clamp"), "none",
            "clamp: alpha of each lower layer at least the alpha above it (Elek section 3, "
            "m2 >= m1)"),
@@ -152,7 +158,8 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         return {o.name: opts[o.name] for o in base.options if o.name in opts}
 
     def interface_terms(layer, L, V, opts):
-        """f_ri (Walter eq. 20), T_i = 1 - F_i(L·H) and t_i (eq. 4) of one interface."""
+        """f_ri (Walter eq. 20), the crossings' T_i(L) T_i(V) (change 1 of the module docstring)
+        and t_i (eq. 4, with Algorithm 1's T_i = 1 - F_i(L·H)) of one interface."""
         alpha, n_rel, k_rel, _, _ = layer
         dist = microfacet.get_distribution(opts["distribution"])(alpha)
         lp = {"alpha": alpha, "n": n_rel, "k": k_rel}
@@ -163,7 +170,9 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
         T = 1.0 - F
         G = dist.smith_G1(L, H) * dist.smith_G1(V, H)
         t = (1.0 - G) + T * G  # eq. 4
-        return f, T, t
+        fresnel = CONDUCTOR_FRESNEL_METHODS[opts["fresnel"]]
+        crossings = (1.0 - fresnel(L[..., 2], n_rel, k_rel)) * (1.0 - fresnel(V[..., 2], n_rel, k_rel))
+        return f, crossings, t
 
     def eval(params, wi, wo, **opts):
         opts = {**DEFAULT_OPTIONS, **opts}
@@ -178,8 +187,8 @@ def make_weidlich_wilkie(base: Model, layers: int = 2) -> Model:
             Lp, ok_l = refract_down(L, eta)
             Vp, ok_v = refract_down(V, eta)
             a = beer_lambert(tau, Lp[..., 2], Vp[..., 2])  # eq. 3
-            scale = 1.0 / (eta * eta) if opts["radiance_scaling"] == "eta2" else 1.0
-            carry = jnp.where(ok_l & ok_v, carry * T * a * t * scale, 0.0)  # eq. 2
+            # eq. 2 with the crossings' transmittances and the solid-angle compression
+            carry = jnp.where(ok_l & ok_v, carry * T * a * t / (eta * eta), 0.0)
             L, V = Lp, Vp
         f_base = base.eval(pb, L, V, **base_options(opts))
         return total + carry * f_base

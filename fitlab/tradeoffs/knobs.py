@@ -313,9 +313,8 @@ def simulator_samples(ctx: Context) -> list[Variant]:
 
 #: Options of layered models that choose how the stack's physics is approximated: every value
 #: is measured against the simulator (the coat's inter-reflections, the thin layer's bounces
-#: and masking, Weidlich–Wilkie's roughness clamp and radiance scaling).
-LAYERED_OPTIONS = ("interreflection", "bounces", "masking", "roughness_clamp",
-                   "radiance_scaling")
+#: and masking, Weidlich–Wilkie's roughness clamp).
+LAYERED_OPTIONS = ("interreflection", "bounces", "masking", "roughness_clamp")
 #: Keyword arguments of layered model names that switch an approximation of the same stack on
 #: or off: a material without the keyword is also measured with each value given (when that
 #: model takes the same parameters), one with it also without (SpongeCake's multiple-scattering
