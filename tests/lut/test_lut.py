@@ -329,23 +329,27 @@ def test_the_3d_table_of_a_layered_fit_is_more_accurate_than_the_2d_slice():
     """Brown vinyl, Weidlich–Wilkie over Lambert (fits/): the 2D table is the model at
     φd = 90° only; the φd axis removes that error (measured at the same random pairs)."""
     v = _vinyl()
-    t2 = lut.bake(lut.make_spec("model", size=(64, 64), **v), "float", check_points=512)
-    t3 = lut.bake(lut.make_spec("model", size=(64, 64, 8), **v), "float", check_points=512)
+    # 96 x 96: the fit of 18d4d64's Weidlich–Wilkie (measured 2D RMS 0.039, max 0.157; 3D RMS
+    # 0.0036, max 0.028) needs it, its 3D table at 64 x 64 x 8 is 5.5% max off (target 5%);
+    # the bounds are about 0.63 (2D) and 0.6-0.7 (ratios) of the measured figures
+    t2 = lut.bake(lut.make_spec("model", size=(96, 96), **v), "float", check_points=512)
+    t3 = lut.bake(lut.make_spec("model", size=(96, 96, 8), **v), "float", check_points=512)
     p2, p3 = t2.accuracy["parameterization"], t3.accuracy["parameterization"]
-    print(f"\nbrown vinyl WW: 2D 64x64 RMS {p2['rms_rel']:.3g} max {p2['max_rel']:.3g}; "
-          f"3D 64x64x8 RMS {p3['rms_rel']:.3g} max {p3['max_rel']:.3g}")
-    assert p2["rms_rel"] > 0.04 and p2["max_rel"] > 0.15 and not p2["meets_target"]
-    assert p3["rms_rel"] < p2["rms_rel"] / 8 and p3["max_rel"] < p2["max_rel"] / 5
+    print(f"\nbrown vinyl WW: 2D 96x96 RMS {p2['rms_rel']:.3g} max {p2['max_rel']:.3g}; "
+          f"3D 96x96x8 RMS {p3['rms_rel']:.3g} max {p3['max_rel']:.3g}")
+    assert p2["rms_rel"] > 0.024 and p2["max_rel"] > 0.098 and not p2["meets_target"]
+    assert p3["rms_rel"] < p2["rms_rel"] / 7 and p3["max_rel"] < p2["max_rel"] / 3
     assert p3["meets_target"]
 
 
 def test_auto_adds_phi_d_for_the_layered_fit_and_states_both_errors():
     v = _vinyl()
-    t = lut.bake_auto("model", size=(48, 48, 8), dtype="half", check_points=512, **v)
+    # 96 x 96 (48 x 48 before 18d4d64's Weidlich–Wilkie fit: its 3D table there is 7.2% max off)
+    t = lut.bake_auto("model", size=(96, 96, 8), dtype="half", check_points=512, **v)
     a = t.accuracy["auto"]
-    assert len(t.axes) == 3 and a["chosen"] == "48x48x8" and a["check"] == "parameterization"
+    assert len(t.axes) == 3 and a["chosen"] == "96x96x8" and a["check"] == "parameterization"
     (c2, c3) = a["candidates"]
-    assert c2["size"] == "48x48" and not c2["meets_target"] and c3["meets_target"]
+    assert c2["size"] == "96x96" and not c2["meets_target"] and c3["meets_target"]
     assert c3["rms_rel"] == t.accuracy["parameterization"]["rms_rel"] < c2["rms_rel"]
     assert a["target"] == lut.PHI_D_TARGET and "misses the target" in a["reason"]
     assert a["meets_target"] is True

@@ -211,7 +211,9 @@ def test_cli_lut_model_default_meets_the_target_with_phi_d(tmp_path, capsys):
     """The default (--phi-d auto) on a fit whose f depends on φd: the 2D table misses the
     target, the table with the φd axis meets it and is written (and says so)."""
     out = tmp_path / "vinyl.exr"
-    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "64x64x8",
+    # 96 x 96 x 8 (64 x 64 x 8 before 18d4d64's Weidlich–Wilkie fit: its 3D table there is 5.3%
+    # max off, the target 5%); measured 2D RMS 0.042, 3D RMS 0.0046
+    assert main(["lut", "model", "--from-fit", str(VINYL_WW), "--size", "96x96x8",
                  "--check-points", "256", "--hlsl", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "axes chosen by measurement: the 2-axis table misses the target" in err
@@ -229,9 +231,9 @@ def test_cli_lut_model_default_meets_the_target_with_phi_d(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["axes"]["axis2"]["name"] == "phi_d" and info["axes"]["axis2"]["hi"] == 90.0
     auto = info["accuracy"]["auto"]
-    assert [c["size"] for c in auto["candidates"]] == ["64x64", "64x64x8"]
+    assert [c["size"] for c in auto["candidates"]] == ["96x96", "96x96x8"]
     assert auto["meets_target"] is True and not auto["candidates"][0]["meets_target"]
-    assert auto["candidates"][0]["rms_rel"] > 0.04 > auto["candidates"][1]["rms_rel"]
+    assert auto["candidates"][0]["rms_rel"] > 0.026 > auto["candidates"][1]["rms_rel"]
     assert any("chosen by measurement" in n for n in info["notes"])
 
 
