@@ -12,9 +12,12 @@ differentiable single-scattering model. fitlab does the same for one layer of SG
   sigmoids, W1 ≤ 10 and W2, W2T ≤ 1 as smoothly capped exponentials, and γ' = 1 (only W1·γ'
   is determined: the per-material fit holds the same, fitlab.learn.lobe);
 * **loss**: per stack, the mean absolute difference between the simulated multiple-scattering
-  part (simulation minus the model's exact single scattering) and ``spongecake(K,multiple=only)``
-  at the network's output, divided by the stack's mean |part| (so dim stacks count as much as
-  bright ones); Adam (optax), minibatches of 32 stacks.
+  part (simulation minus the model's exact single scattering) and §5's approximation at the
+  network's output (:func:`fitlab.models.spongecake_multiple.approximation`, the
+  ``multiple=only`` model before its energy budget: the budget binds only where a lobe would
+  return more light than arrives, and tabulating it per stack and step would cost some 10⁵
+  samples each), divided by the stack's mean |part| (so dim stacks count as much as bright
+  ones); Adam (optax), minibatches of 32 stacks.
 
 The dataset is made by the simulator, one file per stack (``stack_00042.npz``, written
 atomically; the stack's parameters and seed follow from its index, so a rerun makes only what is
@@ -31,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fitlab.models.spongecake_multiple import approximation
 from fitlab.models.spongecake_network import (DEPTH, LAYERS, LOG_TAU, WIDTH, input_names,
                                               lobe_from_outputs, mlp_apply, n_inputs, n_outputs,
                                               network_inputs, output_names)
@@ -195,13 +199,14 @@ def held_out(index) -> np.ndarray:
     return np.asarray(index) % 10 == 9
 
 
-def _only_models(layers: int):
-    """{kinds: ``spongecake(KINDS,multiple=only)``} for every combination of flake kinds."""
+def _stacks(layers: int):
+    """{kinds: the plain stack ``spongecake(KINDS,delta=false)``, whose single scattering at
+    the modified parameters is the lobe} for every combination of flake kinds."""
     import itertools
 
     from fitlab.models import get_model
 
-    return {kinds: get_model(f"spongecake({','.join(kinds)},multiple=only)")
+    return {kinds: get_model(f"spongecake({','.join(kinds)},delta=false)")
             for kinds in itertools.product(KINDS, repeat=layers)}
 
 
@@ -228,9 +233,9 @@ def predict(weights, data, idx):
     wi, wo = jnp.asarray(data["wi"][idx]), jnp.asarray(data["wo"][idx])
     fiber = d["kind_is_fiber"] > 0.5
     f = 0.0
-    for kinds, model in _only_models(layers).items():
+    for kinds, stack in _stacks(layers).items():
         mask = jnp.all(fiber == jnp.asarray([k == "fiber" for k in kinds]), axis=-1)
-        f = f + jnp.where(mask[:, None], model.eval(params, wi, wo), 0.0)
+        f = f + jnp.where(mask[:, None], approximation(stack, params, wi, wo, True), 0.0)
     return f
 
 

@@ -217,18 +217,44 @@ def _outside(d, up):
     return jnp.where(up, above, below)
 
 
-def single_scattering(layers, params, wi, wo):
-    """Σ over the layers of eq. 10 with G of eq. 12 (same side) or 14 (opposite sides), each
-    attenuated outside its layer (§4.3); the stable forms of the module docstring."""
+def single_scattering_terms(layers, params, wi, wo, only=None):
+    """Each layer's term of eq. 10 with G of eq. 12 (same side) or 14 (opposite sides),
+    attenuated outside its layer (§4.3), (L, ...); the stable forms of the module docstring.
+    ``only``: the index of the one layer wanted (its term alone, (...))."""
     di, do = depths(layers, params, wi), depths(layers, params, wo)
     up_i, up_o = wi[..., 2] > 0, wo[..., 2] > 0
-    tau = jnp.stack([params[L.name("tau")] * jnp.ones_like(wi[..., 2]) for L in layers])
+    att = jnp.exp(-(_outside(di, up_i) + _outside(do, up_o)))
+    pick = range(len(layers)) if only is None else (only,)
+    tau = jnp.stack([params[layers[j].name("tau")] * jnp.ones_like(wi[..., 2]) for j in pick])
+    di, do, att = (x[jnp.asarray(pick)] for x in (di, do, att))
     G = tau * jnp.where(up_i == up_o, phi(di + do),
                         jnp.exp(-jnp.minimum(di, do)) * phi(jnp.abs(di - do)))
-    att = jnp.exp(-(_outside(di, up_i) + _outside(do, up_o)))
-    fp = jnp.stack([reduced_phase(L, params, wi, wo) for L in layers])
+    fp = jnp.stack([reduced_phase(layers[j], params, wi, wo) for j in pick])
     mu = (jnp.maximum(jnp.abs(wi[..., 2]), MU_MIN) * jnp.maximum(jnp.abs(wo[..., 2]), MU_MIN))
-    return jnp.sum(fp * G * att, axis=0) / mu
+    terms = fp * G * att / mu
+    return terms if only is None else terms[0]
+
+
+def single_scattering(layers, params, wi, wo):
+    """Σ over the layers of :func:`single_scattering_terms`."""
+    return jnp.sum(single_scattering_terms(layers, params, wi, wo), axis=0)
+
+
+def single_scattering_albedo_weights(layers, params, wi, u, upward_only=False):
+    """Per point u, Σ over the layers of layer i's term at ωo drawn from its own phase function
+    (u[..., :2]) times |cos θo| over that phase function's pdf: an estimator of the stack's
+    single-scattering albedo ∫ f_ss |cos θo| dωo whose weights are smooth and bounded (F σ(ωi)
+    G att/|cos θi| for flakes), cheaper than the model's mixture. ``upward_only``: count only
+    ωo above the surface (the layers over a substrate)."""
+    total = 0.0
+    for j, L in enumerate(layers):
+        wo = sample_phase(L, params, wi, u)
+        term = single_scattering_terms(layers, params, wi, wo, only=j)
+        w = safe_div(term * jnp.abs(wo[..., 2]), phase_pdf(L, params, wi, wo))
+        if upward_only:
+            w = jnp.where(wo[..., 2] > 0, w, 0.0)
+        total = total + w
+    return total
 
 
 def first_scattering(layers, params, wi):
@@ -549,12 +575,29 @@ def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
         m = stack_mass(p, wi)
         return m if substrate is None else m + delta_transmittance(layers, p, wi)
 
+    def stack_albedo(p, wi, u):
+        return single_scattering_albedo_weights(layers, p, wi, u,
+                                                upward_only=substrate is not None)
+
+    def base_albedo(p, wi, u, opts):
+        """The layers' single scattering, and the substrate's sample weights seen through the
+        layers both ways (§4.4)."""
+        w = stack_albedo(p, wi, u)
+        if substrate is None:
+            return w
+        names = set(o.name for o in substrate.options)
+        wo, w_s, _ = substrate.sample({k: p[k] for k in substrate.parameter_names}, wi, u,
+                                      **{k: v for k, v in opts.items() if k in names})
+        seen = lambda d: jnp.where(d[..., 2] > 0, delta_transmittance(layers, p, d), 1.0)  # noqa: E731
+        return w + w_s * seen(wi) * seen(wo)
+
     name = canonical_name(kinds, substrate.name if substrate is not None else None,
                           None if multiple == "only" else delta, multiple)
     return ms.with_multiple(None if multiple == "only" else base, stack, multiple, name,
                             transmits=substrate is None, above_only=substrate is not None,
                             extra=extra, stack_mass=stack_mass, base_mass=base_mass,
-                            capabilities=base.capabilities)
+                            capabilities=base.capabilities, stack_albedo=stack_albedo,
+                            base_albedo=base_albedo)
 
 
 def simulator_stack(kinds, channel_params) -> list[dict]:

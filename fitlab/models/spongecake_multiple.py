@@ -24,6 +24,25 @@ f_ss is linear in each layer's albedo (the attenuation does not depend on γ), s
 albedos γ' are determined only as products W1·γ'ᵢ; a fit holds one of them (the lobe fit holds
 ``albedo1_ms`` = 1).
 
+**Energy (fitlab's addition; §5 leaves it open).** The paper fits W1, W2 and the modified
+parameters per stack, or maps them with its network, and bounds nothing: W1 ≥ 0 is free, and
+the lobe, a second single-scattering lobe, grows toward grazing as the exact one does, so
+``ss + lobe`` can reflect more light than arrives (1.05 at θi = 85°, 1.38 at 89.9° with the
+registry's example parameters). fitlab scales the approximation by a reciprocal factor
+
+    c(ωi, ωo) = min(s(ωi), s(ωo)),   s(ω) = clip((B(ω) − E_base(ω)) / E_lobe(ω), 0, 1),
+
+where E_lobe is the approximation's directional albedo (W1 E_ss(p') + W2 [+ W2T]), E_base that
+of the exact model it is added to (single scattering and the substrate seen through the layers;
+0 for ``multiple=only``) and B the light the stack can return at all: the light that survives
+its first scattering, Σ layers (e^{−depth above} (1 − e^{−d})) γ (:func:`first_scattering`), plus
+what reaches a substrate unscattered; 1 for ``multiple=only``. So the albedo of the whole model
+is at most B(ωi) ≤ 1, and c = 1 (the paper's lobe unchanged) wherever the lobe fits within the
+stack's budget. E_base and E_lobe are tabulated per parameter set by quasi-Monte Carlo of the
+models' own samplers over a grid of directions (:mod:`fitlab.models.directional_albedo`), and
+s is read as the least of its four nodes around ω (the budget of a thin fibre layer changes
+within a few degrees of azimuth near grazing).
+
 Sampling: the paper samples single scattering alone (§4.5, "for simplicity"); fitlab samples
 the mixture of the exact lobe (§4.5), the modified lobe (the same sampler at p') and cosine
 lobes on each side with probabilities from their first-scattering masses and the weights W,
@@ -32,8 +51,9 @@ each with at least :data:`_P_FLOOR`, so the pdf is positive wherever f is.
 
 from __future__ import annotations
 
-from fitlab._jax import jnp
+from fitlab._jax import jax, jnp
 from fitlab.frame import flip_z
+from fitlab.models import directional_albedo as da
 from fitlab.models.base import Capabilities, Model, Parameter, choose_branch, sample_result
 from fitlab.models.diffuse import sample_cosine_hemisphere
 from fitlab.numerics import safe_div
@@ -71,9 +91,21 @@ def lobe_params(params, names):
     return {n: params[n + SUFFIX] if n + SUFFIX in params else params[n] for n in names}
 
 
+def approximation(stack: Model, params, wi, wo, transmits: bool, above_only: bool = False):
+    """§5's approximation before fitlab's energy budget: W1 f_ss(p') + W2/π on the same side
+    + W2T/π on the other (where the stack transmits); ``above_only``: only for ωi and ωo above
+    the surface (a substrate below)."""
+    on = ((wi[..., 2] > 0) & (wo[..., 2] > 0) if above_only
+          else jnp.ones(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]), bool))
+    same = wi[..., 2] * wo[..., 2] > 0
+    lamb = jnp.where(same, params["W2"], params["W2T"] if transmits else 0.0) / jnp.pi
+    f_ms = stack.eval(lobe_params(params, stack.parameter_names), wi, wo)
+    return jnp.where(on, params["W1"] * f_ms + lamb, 0.0)
+
+
 def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transmits: bool,
                   above_only: bool, extra: tuple[Parameter, ...], stack_mass, base_mass,
-                  capabilities: Capabilities) -> Model:
+                  capabilities: Capabilities, stack_albedo, base_albedo) -> Model:
     """The model of ``mode`` ("lobe": base + approximation; "only": the approximation alone).
     ``stack``: the plain layers (no substrate, no delta) whose single scattering is the lobe;
     ``stack_mass(params, wi)`` / ``base_mass(params, wi)``: the sampling masses of the stack's
@@ -84,23 +116,52 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
     for "lobe")."""
     stack_names = stack.parameter_names
     has_T = transmits
+    params = (base.parameters if base is not None else ()) + extra
+    names = tuple(p.name for p in params)
 
     def on(wi, wo):
         if above_only:
             return (wi[..., 2] > 0) & (wo[..., 2] > 0)
         return jnp.ones(wi.shape[:-1], bool)
 
-    def lambert(params, wi, wo):
-        same = wi[..., 2] * wo[..., 2] > 0
-        f = jnp.where(same, params["W2"], params["W2T"] if has_T else 0.0) / jnp.pi
-        return jnp.where(on(wi, wo), f, 0.0)
+    nodes = da.grid(capabilities.isotropic, both_sides=not above_only)
 
-    def approx(params, wi, wo):
-        f_ms = stack.eval(lobe_params(params, stack_names), wi, wo)
-        return jnp.where(on(wi, wo), params["W1"] * f_ms, 0.0) + lambert(params, wi, wo)
+    def albedos(params, opts, dtype):
+        """E_base and E_lobe of the module docstring at the grid's nodes, per parameter set:
+        (..., 2 × nodes)."""
+        def make(p):
+            e_ss = da.tabulate(lambda q, w, u: stack_albedo(lobe_params(q, stack_names), w, u),
+                               p, nodes, dtype)
+            lamb = jnp.asarray(p["W2"] + (p["W2T"] if has_T else 0.0), dtype)[..., None]
+            e_lobe = jnp.asarray(p["W1"], dtype)[..., None] * e_ss + lamb
+            e_base = (jnp.zeros_like(e_lobe) if base is None else
+                      da.tabulate(lambda q, w, u: base_albedo(q, w, u, opts), p, nodes, dtype))
+            return jnp.concatenate([e_base, e_lobe], axis=-1)
+
+        return da.per_parameter_set(make, {k: params[k] for k in names})
+
+    def headroom(params, tables, w):
+        """s(ω) = clip((B(ω) − E_base(ω)) / E_lobe(ω), 0, 1) at directions w, with B exact and
+        both albedos read as upper envelopes of their tables around ω (so s errs low between
+        the nodes, never high)."""
+        G = nodes.size
+        e_base = da.lookup_max(tables[..., :G], nodes, w)
+        e_lobe = da.lookup_max(tables[..., G:], nodes, w)
+        budget = 1.0 if base is None else base_mass(params, w)
+        return jnp.clip(safe_div(budget - e_base, e_lobe, 1.0), 0.0, 1.0)
+
+    def scale(params, wi, wo, opts):
+        """c(ωi, ωo) = min(s(ωi), s(ωo)): reciprocal, and ≤ s(ωi) for every ωo. The tables
+        are held constant under differentiation (see the module docstring)."""
+        tables = jax.lax.stop_gradient(albedos(params, opts, wi.dtype))
+        return jnp.minimum(headroom(params, tables, wi), headroom(params, tables, wo))
+
+    def approx(params, wi, wo, opts):
+        return (approximation(stack, params, wi, wo, has_T, above_only)
+                * scale(params, wi, wo, opts))
 
     def eval(params, wi, wo, **opts):
-        f = approx(params, wi, wo)
+        f = approx(params, wi, wo, opts)
         return f if base is None else f + base.eval(params, wi, wo, **opts)
 
     def masses(params, wi):
@@ -160,7 +221,6 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
             ok = jnp.where(pick == 0, p_b > 0, ok)
         return sample_result(wo, eval(params, wi, wo, **opts), pdf(params, wi, wo, **opts), ok)
 
-    params = (base.parameters if base is not None else ()) + extra
     return Model(
         name=name,
         summary=(("SpongeCake with its multiple-scattering lobe (§5): "
@@ -173,7 +233,7 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         eval=eval,
         sample=sample,
         pdf=pdf,
-        capabilities=capabilities._replace(energy_conserving=False),
+        capabilities=capabilities,
         reference=((base.reference if base is not None else stack.reference)
                    + "; multiple scattering: §5, a single-scattering lobe with modified "
                    "parameters weighted W1 and a Lambertian lobe W2 (+ W2T, transmission)"),

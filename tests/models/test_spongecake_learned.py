@@ -18,6 +18,7 @@ from fitlab.errors import InputFileError
 from fitlab.learn import network as sl
 from fitlab.models import get_model
 from fitlab.models import spongecake_network as net
+from fitlab.models.spongecake_multiple import approximation
 
 
 @pytest.mark.parametrize("layers", net.LAYERS)
@@ -117,8 +118,9 @@ def test_two_layer_stacks_read_per_layer_and_do_not_mix(tmp_path):
 
 @pytest.mark.parametrize("layers", net.LAYERS)
 def test_predict_evaluates_each_stack_with_its_own_kinds(layers):
-    """A network whose output is a constant (zero weights, a known bias) gives each stack the
-    lobe of ``spongecake(ITS KINDS,multiple=only)`` at the constant's parameters."""
+    """A network whose output is a constant (zero weights, a known bias) gives each stack §5's
+    approximation of its own kinds (``spongecake(ITS KINDS,multiple=only)`` before the energy
+    budget) at the constant's parameters."""
     rng = np.random.default_rng(7)
     n_in, n_out = net.n_inputs(layers), net.n_outputs(layers)
     bias = rng.normal(0, 1, n_out)
@@ -133,12 +135,12 @@ def test_predict_evaluates_each_stack_with_its_own_kinds(layers):
     lobe = {k: float(v) for k, v in net.lobe_from_outputs(jnp.asarray(bias), layers).items()}
     for s_ in range(8):
         kinds = tuple("fiber" if x > 0.5 else "surface" for x in data["kind_is_fiber"][s_])
-        m = get_model(f"spongecake({','.join(kinds)},multiple=only)")
+        stack = get_model(f"spongecake({','.join(kinds)},delta=false)")
         p = dict(lobe)
         for i in range(layers):
             p[f"theta_p{i + 1}"], p[f"phi_p{i + 1}"] = data["theta_p"][s_, i], data["phi_p"][s_, i]
-        want = m.eval({k: jnp.asarray(v) for k, v in p.items()}, jnp.asarray(data["wi"][s_]),
-                      jnp.asarray(data["wo"][s_]))
+        want = approximation(stack, {k: jnp.asarray(v) for k, v in p.items()},
+                             jnp.asarray(data["wi"][s_]), jnp.asarray(data["wo"][s_]), True)
         np.testing.assert_allclose(f[s_], np.asarray(want), rtol=1e-10, atol=1e-14)
 
 
@@ -149,7 +151,7 @@ def _synthetic(n=60, rows=96, seed=0, layers=1):
     out = {k: [] for k in sl.LAYER_KEYS + ("phi_p", "wi", "wo", "value", "sigma")}
     for i in range(n):
         kinds, p = sl.stack_parameters(i, seed, layers)
-        only = get_model(f"spongecake({','.join(kinds)},multiple=only)")
+        stack = get_model(f"spongecake({','.join(kinds)},delta=false)")
         mu = rng.uniform(0.05, 1, (2, rows))
         ph = rng.uniform(0, 2 * np.pi, (2, rows))
         sgn = np.where(rng.uniform(size=rows) < 0.5, 1.0, -1.0)
@@ -162,8 +164,8 @@ def _synthetic(n=60, rows=96, seed=0, layers=1):
                           f"alpha{j}_ms": 0.3 + 0.5 * p[f"alpha{j}"],
                           f"albedo{j}_ms": 1.0 if j == 1 else 0.5 * p[f"albedo{j}"],
                           f"f0_{j}_ms": p[f"f0_{j}"], f"tau{j}_ms": 2 * p[f"tau{j}"]})
-        v = np.asarray(only.eval({k: jnp.asarray(x) for k, x in truth.items()},
-                                 jnp.asarray(wi), jnp.asarray(wo)))
+        v = np.asarray(approximation(stack, {k: jnp.asarray(x) for k, x in truth.items()},
+                                     jnp.asarray(wi), jnp.asarray(wo), True))
         per = lambda key: [p[f"{key}{j}"] for j in range(1, layers + 1)]  # noqa: E731
         for k, x in (("kind_is_fiber", [float(k == "fiber") for k in kinds]),
                      ("alpha", per("alpha")), ("albedo", per("albedo")), ("tau", per("tau")),
