@@ -31,13 +31,12 @@ import numpy as np
 
 from fitlab._jax import jnp
 
-#: quasi-random points per node: the albedo of a SpongeCake stack to about 0.005 at grazing
-N_POINTS = 256
+#: quasi-random points per node: the albedo of a SpongeCake stack to about 0.006 at grazing
+N_POINTS = 128
 #: polar angles of the nodes on each side (degrees from the normal)
-THETA_NODES_DEG = (0.0, 20.0, 40.0, 55.0, 65.0, 72.0, 78.0, 82.0, 85.0, 87.0, 88.5, 89.5,
-                   89.95)
+THETA_NODES_DEG = (0.0, 30.0, 50.0, 65.0, 75.0, 81.0, 85.0, 87.5, 89.0, 89.7, 89.95)
 #: azimuths of the nodes (evenly spaced over 360°) for a model that is not isotropic
-PHI_NODES = 24
+PHI_NODES = 16
 #: per-element tables up to this many parameter sets; beyond it, distinct sets only
 MAX_ELEMENTS = 64
 MAX_DISTINCT = 8
@@ -112,16 +111,33 @@ def _cell(g: Grid, w):
     return (side, i, i + 1, j0, j1), (t, s)
 
 
-def _corners(table, g: Grid, w):
-    """The table's values at the four nodes of w's cell: ((θ0 φ0, θ0 φ1), (θ1 φ0, θ1 φ1))."""
+class Tables(NamedTuple):
+    """Tables of a batch of parameter sets: ``values`` (P..., G), one per element of the
+    parameters' broadcast shape P, with ``rows`` None; or (K, G), one per distinct set, with
+    ``rows`` (P...) the set of each element."""
+    values: object
+    rows: object = None
+
+
+def _corners(tables, g: Grid, w):
+    """The tables' values at the four nodes of w's cell: ((θ0 φ0, θ0 φ1), (θ1 φ0, θ1 φ1))."""
+    if not isinstance(tables, Tables):
+        tables = Tables(tables)
     (side, i0, i1, j0, j1), frac = _cell(g, w)
     T, F = len(g.theta), len(g.phi)
-    table = jnp.broadcast_to(table, jnp.broadcast_shapes(table.shape[:-1], w.shape[:-1])
-                             + table.shape[-1:])
+    if tables.rows is None:
+        table = jnp.broadcast_to(tables.values, jnp.broadcast_shapes(
+            tables.values.shape[:-1], w.shape[:-1]) + tables.values.shape[-1:])
 
-    def at(ii, jj):
-        idx = (side * T + ii) * F + jj
-        return jnp.take_along_axis(table, idx[..., None], axis=-1)[..., 0]
+        def at(ii, jj):
+            idx = (side * T + ii) * F + jj
+            return jnp.take_along_axis(table, idx[..., None], axis=-1)[..., 0]
+    else:  # a gather per row from the small (K, G) table, none materialized per row
+        rows = jnp.broadcast_to(tables.rows, jnp.broadcast_shapes(tables.rows.shape,
+                                                                   w.shape[:-1]))
+
+        def at(ii, jj):
+            return tables.values[rows, (side * T + ii) * F + jj]
 
     return ((at(i0, j0), at(i0, j1)), (at(i1, j0), at(i1, j1))), frac
 
@@ -160,7 +176,7 @@ def lookup_max(table, g: Grid, w):
     return out
 
 
-def per_parameter_set(make_table, params: dict):
+def per_parameter_set(make_table, params: dict) -> Tables:
     """``make_table(params)`` (P..., G) for the parameters' broadcast shape P: once per element
     when P has at most :data:`MAX_ELEMENTS` elements; otherwise (parameters given per row) once
     when every row holds the same set, else once per distinct set, at most
@@ -171,21 +187,30 @@ def per_parameter_set(make_table, params: dict):
     shape = jnp.broadcast_shapes(*(jnp.shape(params[k]) for k in names))
     n = int(np.prod(shape, dtype=np.int64))
     if n <= MAX_ELEMENTS:
-        return make_table(params)
+        return Tables(make_table(params))
     x = jnp.stack([jnp.broadcast_to(jnp.asarray(params[k]), shape).reshape(-1) for k in names],
                   axis=-1)
 
     def one(x):
         table = make_table({k: x[0, c] for c, k in enumerate(names)})
-        return jnp.broadcast_to(table, (n,) + table.shape[-1:])
+        return (jnp.broadcast_to(table, (MAX_DISTINCT,) + table.shape[-1:]),
+                jnp.zeros(n, jnp.int32))
 
     def distinct(x):
         sets, inverse = jnp.unique(x, axis=0, size=MAX_DISTINCT, fill_value=x[0],
                                    return_inverse=True)
-        inverse = inverse.reshape(-1)
-        table = make_table({k: sets[:, c] for c, k in enumerate(names)})[inverse]
+        inverse = inverse.reshape(-1).astype(jnp.int32)
+        table = make_table({k: sets[:, c] for c, k in enumerate(names)})
         found = jnp.all(sets[inverse] == x, axis=-1)
-        return jnp.where(found[:, None], table, jnp.nan)
+        # a row whose set is not among the first MAX_DISTINCT points at a row of NaN
+        table = jnp.concatenate([table, jnp.full((1,) + table.shape[-1:], jnp.nan,
+                                                 table.dtype)])
+        return table[:MAX_DISTINCT + 1], jnp.where(found, inverse, MAX_DISTINCT)
 
-    table = jax.lax.cond(jnp.all(x == x[0]), one, distinct, x)
-    return table.reshape(shape + table.shape[-1:])
+    def one_padded(x):
+        table, rows = one(x)
+        return jnp.concatenate([table, jnp.full((1,) + table.shape[-1:], jnp.nan,
+                                                table.dtype)]), rows
+
+    values, rows = jax.lax.cond(jnp.all(x == x[0]), one_padded, distinct, x)
+    return Tables(values, rows.reshape(shape))
