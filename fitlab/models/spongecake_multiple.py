@@ -152,12 +152,20 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         e_lobe = da.lookup_max(tables._replace(values=tables.values[..., G:]), nodes, w)
         return jnp.clip(safe_div(1.0 - e_base, e_lobe, 1.0), 0.0, 1.0)
 
-    def scale(params, wi, wo, opts):
-        """c(ωi, ωo) = min(s(ωi), s(ωo)): reciprocal, and ≤ s(ωi) for every ωo. The tables
-        are held constant under differentiation (see the module docstring)."""
+    def scale_of(params, wi, wo, opts_items):
+        opts = dict(opts_items)
         tables = albedos(params, opts, wi.dtype)
         tables = tables._replace(values=jax.lax.stop_gradient(tables.values))
         return jnp.minimum(headroom(tables, wi), headroom(tables, wo))
+
+    # one compiled function: called outside jit (a test, a script), the tables' hundreds of
+    # operations would otherwise each compile on their own
+    scale_jit = jax.jit(scale_of, static_argnums=3)
+
+    def scale(params, wi, wo, opts):
+        """c(ωi, ωo) = min(s(ωi), s(ωo)): reciprocal, and ≤ s(ωi) for every ωo. The tables
+        are held constant under differentiation (see the module docstring)."""
+        return scale_jit({k: params[k] for k in names}, wi, wo, tuple(sorted(opts.items())))
 
     def approx(params, wi, wo, opts):
         return (approximation(stack, params, wi, wo, has_T, above_only)

@@ -39,7 +39,8 @@ def _j(d):
 
 def test_lobe_is_single_scattering_plus_modified_lobe_plus_lambertian():
     """f(multiple=lobe) = f_ss(p) + W1 f_ss(p') + W2/π (same side) + W2T/π (other side), and
-    f(multiple=only) is the same without f_ss(p): the §5 sum, term by term."""
+    f(multiple=only) is the same without f_ss(p): the §5 sum, term by term (a lobe within the
+    energy that arrives, which the energy budget leaves as it is)."""
     wi, wo = _pairs()
     single = get_model("spongecake(surface_z)")
     lobe = get_model("spongecake(surface_z,multiple=lobe)")
@@ -54,7 +55,7 @@ def test_lobe_is_single_scattering_plus_modified_lobe_plus_lambertian():
     np.testing.assert_allclose(np.asarray(lobe.eval(_j({**STACK, **LOBE}), wi, wo)),
                                f_ss + expect_only, rtol=1e-12)
     assert lobe.capabilities.delta and not only.capabilities.delta
-    assert not lobe.capabilities.energy_conserving
+    assert lobe.capabilities.energy_conserving and only.capabilities.energy_conserving
 
 
 def test_a_substrate_keeps_the_lobes_above_the_stack():
