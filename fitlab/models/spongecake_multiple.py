@@ -158,14 +158,16 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         tables = tables._replace(values=jax.lax.stop_gradient(tables.values))
         return jnp.minimum(headroom(tables, wi), headroom(tables, wo))
 
-    # one compiled function: called outside jit (a test, a script), the tables' hundreds of
-    # operations would otherwise each compile on their own
-    scale_jit = jax.jit(scale_of, static_argnums=3)
+    compiled = []  # made at the first call: listing the registry must not import JAX
 
     def scale(params, wi, wo, opts):
         """c(ωi, ωo) = min(s(ωi), s(ωo)): reciprocal, and ≤ s(ωi) for every ωo. The tables
-        are held constant under differentiation (see the module docstring)."""
-        return scale_jit({k: params[k] for k in names}, wi, wo, tuple(sorted(opts.items())))
+        are held constant under differentiation (see the module docstring). One compiled
+        function: called outside jit (a test, a script), the tables' hundreds of operations
+        would otherwise each compile on their own."""
+        if not compiled:
+            compiled.append(jax.jit(scale_of, static_argnums=3))
+        return compiled[0]({k: params[k] for k in names}, wi, wo, tuple(sorted(opts.items())))
 
     def approx(params, wi, wo, opts):
         return (approximation(stack, params, wi, wo, has_T, above_only)
