@@ -24,7 +24,7 @@ def _dir(theta, phi=0.0):
     return np.array([np.sin(t) * np.cos(f), np.sin(t) * np.sin(f), np.cos(t)])
 
 
-def _mc_albedo(model, params, w, n=200_000, seed=0):
+def _mc_albedo(model, params, w, n=100_000, seed=0):
     """Mean sample weight of the model's own sampler and its standard error."""
     rng = np.random.default_rng(seed)
     wt = np.asarray(jax.jit(model.sample)({k: jnp.float64(v) for k, v in params.items()},
@@ -33,19 +33,19 @@ def _mc_albedo(model, params, w, n=200_000, seed=0):
 
 
 def test_tabulated_albedo_agrees_with_monte_carlo_of_the_sampler():
-    """The per-layer Sobol estimator at the grid's nodes against 2e5 samples of the model's
+    """The per-layer Sobol estimator at the grid's nodes against 1e5 samples of the model's
     mixture sampler: within 0.01 from normal incidence to 89.95°, both sides."""
     model = get_model("spongecake(fiber,surface)")
     layers = (sc.Layer("fiber", 1), sc.Layer("surface", 2))
     p = {q.name: q.default for q in model.parameters}
     g = da.grid(isotropic=False, both_sides=True)
-    table = np.asarray(da.tabulate(
-        lambda q, w, u: sc.single_scattering_albedo_weights(layers, q, w, u),
-        {k: jnp.float64(v) for k, v in p.items()}, g, jnp.float64))
+    table = np.asarray(jax.jit(lambda q: da.tabulate(
+        lambda q_, w, u: sc.single_scattering_albedo_weights(layers, q_, w, u), q, g,
+        jnp.float64))({k: jnp.float64(v) for k, v in p.items()}))
     dirs = da.directions(g)
     T, F = len(g.theta), len(g.phi)
     for side in (0, 1):
-        for i in (0, 4, T - 3, T - 1):
+        for i in (0, T - 3, T - 1):
             k = (side * T + i) * F + 3
             mc, se = _mc_albedo(model, p, dirs[k])
             assert abs(table[k] - mc) < 0.01 + 4 * se, (dirs[k], table[k], mc, se)
@@ -102,6 +102,11 @@ def _lobe_params(w1):
 
 def _raw(p, wi, wo):
     """The model before the budget: exact single scattering plus §5's approximation."""
+    return _raw_jit(p, wi, wo)
+
+
+@jax.jit
+def _raw_jit(p, wi, wo):
     base = get_model("spongecake(surface)")
     stack = get_model("spongecake(surface,delta=false)")
     return (base.eval({k: p[k] for k in base.parameter_names}, wi, wo)
@@ -122,8 +127,8 @@ def test_budget_leaves_a_lobe_that_fits_unchanged():
     p = _lobe_params(0.2)
     wi, wo = _pairs()
     m = get_model(LOBE)
-    np.testing.assert_allclose(np.asarray(m.eval(p, wi, wo)), np.asarray(_raw(p, wi, wo)),
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(np.asarray(jax.jit(m.eval)(p, wi, wo)),
+                               np.asarray(_raw(p, wi, wo)), rtol=1e-12, atol=0)
 
 
 def test_budget_caps_an_oversized_lobe_reciprocally():
@@ -132,14 +137,15 @@ def test_budget_caps_an_oversized_lobe_reciprocally():
     p = _lobe_params(10.0)
     m = get_model(LOBE)
     w = _dir(30.0, 10.0)
-    d = np.random.default_rng(4).normal(size=(200_000, 3))
+    d = np.random.default_rng(4).normal(size=(50_000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)  # uniform on the sphere: E = 4π mean(f |cos|)
     raw_albedo = 4 * np.pi * float(np.mean(np.asarray(
         _raw(p, jnp.asarray(np.repeat(w[None], len(d), 0)), jnp.asarray(d))) * np.abs(d[:, 2])))
     assert raw_albedo > 1.5, raw_albedo
-    mean, se = _mc_albedo(m, {k: float(v) for k, v in p.items()}, w, n=100_000)
+    mean, se = _mc_albedo(m, {k: float(v) for k, v in p.items()}, w, n=60_000)
     assert mean <= 1.01 and se < 0.003, (mean, se)
     wi, wo = _pairs()
-    f_io, f_oi = np.asarray(m.eval(p, wi, wo)), np.asarray(m.eval(p, wo, wi))
+    ev = jax.jit(m.eval)
+    f_io, f_oi = np.asarray(ev(p, wi, wo)), np.asarray(ev(p, wo, wi))
     np.testing.assert_allclose(f_io, f_oi, rtol=1e-10, atol=1e-30)
     assert np.all(f_io <= np.asarray(_raw(p, wi, wo)) * (1 + 1e-12))
