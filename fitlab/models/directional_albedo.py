@@ -191,9 +191,13 @@ def per_parameter_set(make_table, params: dict) -> Tables:
     x = jnp.stack([jnp.broadcast_to(jnp.asarray(params[k]), shape).reshape(-1) for k in names],
                   axis=-1)
 
+    def nan_row(table):
+        """A row of NaN after the tables: where a row whose set is not among them points."""
+        return jnp.concatenate([table, jnp.full((1,) + table.shape[-1:], jnp.nan, table.dtype)])
+
     def one(x):
         table = make_table({k: x[0, c] for c, k in enumerate(names)})
-        return (jnp.broadcast_to(table, (MAX_DISTINCT,) + table.shape[-1:]),
+        return (nan_row(jnp.broadcast_to(table, (MAX_DISTINCT,) + table.shape[-1:])),
                 jnp.zeros(n, jnp.int32))
 
     def distinct(x):
@@ -202,15 +206,7 @@ def per_parameter_set(make_table, params: dict) -> Tables:
         inverse = inverse.reshape(-1).astype(jnp.int32)
         table = make_table({k: sets[:, c] for c, k in enumerate(names)})
         found = jnp.all(sets[inverse] == x, axis=-1)
-        # a row whose set is not among the first MAX_DISTINCT points at a row of NaN
-        table = jnp.concatenate([table, jnp.full((1,) + table.shape[-1:], jnp.nan,
-                                                 table.dtype)])
-        return table[:MAX_DISTINCT + 1], jnp.where(found, inverse, MAX_DISTINCT)
+        return nan_row(table), jnp.where(found, inverse, MAX_DISTINCT)
 
-    def one_padded(x):
-        table, rows = one(x)
-        return jnp.concatenate([table, jnp.full((1,) + table.shape[-1:], jnp.nan,
-                                                table.dtype)]), rows
-
-    values, rows = jax.lax.cond(jnp.all(x == x[0]), one_padded, distinct, x)
+    values, rows = jax.lax.cond(jnp.all(x == x[0]), one, distinct, x)
     return Tables(values, rows.reshape(shape))

@@ -271,6 +271,11 @@ def delta_transmittance(layers, params, wi):
     return jnp.exp(-jnp.sum(depths(layers, params, wi), axis=0))
 
 
+def seen_through(layers, params, w):
+    """Transmittance of the whole stack along w for a direction above it, 1 below (§4.4)."""
+    return jnp.where(w[..., 2] > 0, delta_transmittance(layers, params, w), 1.0)
+
+
 def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
                     delta: bool | None = None) -> Model:
     """The SpongeCake model of layers ``kinds`` (top first) over ``substrate`` (None: none)."""
@@ -306,16 +311,12 @@ def make_spongecake(kinds: tuple[str, ...], substrate: Model | None = None,
             return jnp.ones(wi.shape[:-1], bool)
         return (wi[..., 2] > 0) & (wo[..., 2] > 0)
 
-    def seen_through(params, w):
-        """Transmittance of the whole stack along w for a direction above it, 1 below."""
-        return jnp.where(w[..., 2] > 0, delta_transmittance(layers, params, w), 1.0)
-
     def eval(params, wi, wo, **opts):
         f = jnp.where(layers_on(wi, wo), single_scattering(layers, params, wi, wo), 0.0)
         if substrate is not None:
             p_s, o_s = split(params, opts)
             f = f + (substrate.eval(p_s, wi, wo, **o_s)
-                     * seen_through(params, wi) * seen_through(params, wo))
+                     * seen_through(layers, params, wi) * seen_through(layers, params, wo))
         return f
 
     def choice(params, wi):
@@ -588,8 +589,7 @@ def _with_multiple(kinds, substrate, base, delta, multiple) -> Model:
         names = set(o.name for o in substrate.options)
         wo, w_s, _ = substrate.sample({k: p[k] for k in substrate.parameter_names}, wi, u,
                                       **{k: v for k, v in opts.items() if k in names})
-        seen = lambda d: jnp.where(d[..., 2] > 0, delta_transmittance(layers, p, d), 1.0)  # noqa: E731
-        return w + w_s * seen(wi) * seen(wo)
+        return w + w_s * seen_through(layers, p, wi) * seen_through(layers, p, wo)
 
     name = canonical_name(kinds, substrate.name if substrate is not None else None,
                           None if multiple == "only" else delta, multiple)

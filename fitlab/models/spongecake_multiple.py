@@ -94,12 +94,19 @@ def lobe_params(params, names):
     return {n: params[n + SUFFIX] if n + SUFFIX in params else params[n] for n in names}
 
 
+def applies(wi, wo, above_only: bool):
+    """Where the approximation scatters: everywhere, or (``above_only``: a substrate below)
+    for ωi and ωo both above the surface."""
+    if above_only:
+        return (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    return jnp.ones(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]), bool)
+
+
 def approximation(stack: Model, params, wi, wo, transmits: bool, above_only: bool = False):
     """§5's approximation before fitlab's energy budget: W1 f_ss(p') + W2/π on the same side
     + W2T/π on the other (where the stack transmits); ``above_only``: only for ωi and ωo above
     the surface (a substrate below)."""
-    on = ((wi[..., 2] > 0) & (wo[..., 2] > 0) if above_only
-          else jnp.ones(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]), bool))
+    on = applies(wi, wo, above_only)
     same = wi[..., 2] * wo[..., 2] > 0
     lamb = jnp.where(same, params["W2"], params["W2T"] if transmits else 0.0) / jnp.pi
     f_ms = stack.eval(lobe_params(params, stack.parameter_names), wi, wo)
@@ -121,11 +128,6 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
     has_T = transmits
     params = (base.parameters if base is not None else ()) + extra
     names = tuple(p.name for p in params)
-
-    def on(wi, wo):
-        if above_only:
-            return (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.ones(wi.shape[:-1], bool)
 
     nodes = da.grid(capabilities.isotropic, both_sides=not above_only)
 
@@ -205,9 +207,9 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
     def branch_pdfs(params, wi, wo, **opts):
         same = wi[..., 2] * wo[..., 2] > 0
         cos_o = jnp.abs(wo[..., 2]) / jnp.pi
-        pd = [jnp.where(on(wi, wo), stack.pdf(lobe_params(params, stack_names), wi, wo), 0.0),
-              jnp.where(same & on(wi, wo), cos_o, 0.0),
-              jnp.where(~same & on(wi, wo), cos_o, 0.0)]
+        pd = [jnp.where(applies(wi, wo, above_only), stack.pdf(lobe_params(params, stack_names), wi, wo), 0.0),
+              jnp.where(same & applies(wi, wo, above_only), cos_o, 0.0),
+              jnp.where(~same & applies(wi, wo, above_only), cos_o, 0.0)]
         if base is not None:
             pd.insert(0, base.pdf(params, wi, wo, **opts))
         return jnp.stack(pd)
