@@ -142,14 +142,6 @@ def _corners(tables, g: Grid, w):
     return ((at(i0, j0), at(i0, j1)), (at(i1, j0), at(i1, j1))), frac
 
 
-def lookup(table, g: Grid, w):
-    """``table`` (..., g.size) interpolated at directions w (..., 3): linear in θ between the
-    nodes, periodic-linear in φ; the side of w picks the half of a two-sided table (a one-sided
-    table answers with its only side)."""
-    ((a, b), (c, d)), (t, s) = _corners(table, g, w)
-    return (1 - t) * ((1 - s) * a + s * b) + t * ((1 - s) * c + s * d)
-
-
 def _neighbourhood(table, g: Grid, w):
     """``table``'s values at the nodes around each direction w: the cell's four and, for an
     azimuthal grid, those of the cells one azimuth step either side."""

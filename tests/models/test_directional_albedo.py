@@ -77,17 +77,29 @@ def test_per_row_parameters_give_each_row_its_own_sets_table():
                                                       for x in many[ok]]))
 
 
-def test_lookup_reads_nodes_exactly_and_the_envelope_bounds_the_interpolation():
+def test_the_envelope_bounds_the_interpolation_and_reads_a_constant_exactly():
+    """lookup_max at any direction is at least the bilinear interpolation of its cell (computed
+    here from the nodes), and a constant table reads back as that constant."""
     g = da.grid(isotropic=False, both_sides=True)
     rng = np.random.default_rng(3)
-    table = jnp.asarray(rng.random(g.size))
-    nodes = da.directions(g)
-    off_pole = np.abs(nodes[:, 2]) < 1.0 - 1e-12  # the poles' azimuths are one direction
-    np.testing.assert_allclose(np.asarray(da.lookup(table, g, jnp.asarray(nodes)))[off_pole],
-                               np.asarray(table)[off_pole], atol=1e-12)
+    table = rng.random(g.size)
     w = rng.normal(size=(500, 3))
-    w = jnp.asarray(w / np.linalg.norm(w, axis=1, keepdims=True))
-    assert np.all(np.asarray(da.lookup_max(table, g, w)) >= np.asarray(da.lookup(table, g, w)))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    T, F = len(g.theta), len(g.phi)
+    th = np.arccos(np.abs(w[:, 2]))
+    i = np.clip(np.searchsorted(g.theta, th, side="right") - 1, 0, T - 2)
+    t = (th - g.theta[i]) / (g.theta[i + 1] - g.theta[i])
+    ph = np.mod(np.arctan2(w[:, 1], w[:, 0]), 2 * np.pi) * F / (2 * np.pi)
+    j0 = np.floor(ph).astype(int) % F
+    s_ = ph - np.floor(ph)
+    side = (w[:, 2] < 0).astype(int)
+    at = lambda ii, jj: table[(side * T + ii) * F + jj]  # noqa: E731
+    bilinear = ((1 - t) * ((1 - s_) * at(i, j0) + s_ * at(i, (j0 + 1) % F))
+                + t * ((1 - s_) * at(i + 1, j0) + s_ * at(i + 1, (j0 + 1) % F)))
+    env = np.asarray(da.lookup_max(jnp.asarray(table), g, jnp.asarray(w)))
+    assert np.all(env >= bilinear - 1e-12)
+    np.testing.assert_allclose(np.asarray(da.lookup_max(jnp.full(g.size, 0.7), g,
+                                                        jnp.asarray(w))), 0.7, rtol=0)
 
 
 LOBE = "spongecake(surface,multiple=lobe)"
