@@ -17,7 +17,6 @@ gradients of the main configurations are checked separately.
 
 from __future__ import annotations
 
-import functools
 import itertools
 
 import jax
@@ -140,13 +139,17 @@ def test_index_matched_interface_eta_exactly_one(dtype):
     delta itself, so they are not required there)."""
     model = get_model("rough_dielectric")
     names, P, A, _ = _grid({"alpha": ALPHAS, "eta": (1.0,)})
-    pv, ang = _columns(P, dtype), _columns(A, dtype)
-    params = dict(zip(names, pv))
-    wi, wo = _dirs(ang[0], ang[1]), _dirs(ang[2], ang[3])
-    for dist in DISTS:
-        for which in ("eval", "pdf"):
-            val = np.asarray(getattr(model, which)(params, wi, wo, distribution=dist))
-            assert np.all(np.isfinite(val) & (val >= 0)), (dist, which)
+
+    @jax.jit
+    def every_case(pv, ang):  # one compiled call for every distribution, eval and pdf
+        params = dict(zip(names, pv))
+        wi, wo = _dirs(ang[0], ang[1]), _dirs(ang[2], ang[3])
+        return {(dist, which): getattr(model, which)(params, wi, wo, distribution=dist)
+                for dist in DISTS for which in ("eval", "pdf")}
+
+    for (dist, which), val in every_case(_columns(P, dtype), _columns(A, dtype)).items():
+        val = np.asarray(val)
+        assert val.dtype == dtype and np.all(np.isfinite(val) & (val >= 0)), (dist, which)
 
 
 #: uniforms at and near the ends of [0, 1)
@@ -291,11 +294,12 @@ def test_works_under_jit_grad_and_vmap(model):
 @pytest.mark.parametrize("dtype_name", ["float32", "float64"])
 def test_output_dtype_follows_directions(model, dtype_name):
     """float32 directions give float32 eval, pdf and sample outputs (parameters are cast to the
-    directions' dtype); float64 gives float64."""
+    directions' dtype); float64 gives float64. Six rows, as test_works_under_jit_grad_and_vmap
+    has: the float64 calls reuse its compiled kernels (fitlab.api's, per shape and dtype)."""
     dt = np.dtype(dtype_name)
     rng = np.random.default_rng(47)
-    wi, wo = _random_dirs(rng, (5,), 1.0).astype(dt), _random_dirs(rng, (5,)).astype(dt)
-    u = rng.uniform(size=(5, 3)).astype(dt)
+    wi, wo = _random_dirs(rng, (6,), 1.0).astype(dt), _random_dirs(rng, (6,)).astype(dt)
+    u = rng.uniform(size=(6, 3)).astype(dt)
     p = DEFAULTS[model]
     assert np.asarray(eval_bsdf(model, p, wi, wo)).dtype == dt
     assert np.asarray(pdf_bsdf(model, p, wi, wo)).dtype == dt
@@ -363,11 +367,6 @@ _angle_theta = st.one_of(
 _angle_phi = st.floats(0.0, 2 * np.pi)
 
 
-@functools.lru_cache(maxsize=None)
-def _jit(model, which, opts):
-    return jax.jit(functools.partial(getattr(get_model(model), which), **dict(opts)))
-
-
 def _cases(alpha, eta, n, k, albedo, sigma):
     for d in DISTS:
         yield "rough_dielectric", (("distribution", d),), {"alpha": alpha, "eta": eta}
@@ -376,6 +375,18 @@ def _cases(alpha, eta, n, k, albedo, sigma):
         yield "rough_conductor", (("distribution", "ggx"), ("fresnel", f)), {"alpha": alpha, "n": n, "k": k}
     yield "lambertian", (), {"albedo": albedo}
     yield "oren_nayar", (), {"albedo": albedo, "sigma": sigma}
+
+
+@jax.jit
+def _every_case(values, pair_i, pair_o):
+    """f and pdf of every case of :func:`_cases` at the pairs: one compiled call per example
+    (a compilation per model, function and options before)."""
+    out = []
+    for model, opts, params in _cases(*values):
+        m = get_model(model)
+        out.append((m.eval(params, pair_i, pair_o, **dict(opts)),
+                    m.pdf(params, pair_i, pair_o, **dict(opts))))
+    return out
 
 
 @settings(derandomize=True, database=None, max_examples=60, deadline=None)
@@ -394,10 +405,10 @@ def test_property_finite_nonnegative_reciprocal(ti, pi, to, po, log_alpha, eta, 
     wo = np.array([np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)])
     pair_i = jnp.asarray(np.stack([wi, wo]))
     pair_o = jnp.asarray(np.stack([wo, wi]))
-    for model, opts, params in _cases(10.0**log_alpha, eta, n, k, albedo, sigma):
-        p = {key: jnp.asarray(v, dtype=jnp.float64) for key, v in params.items()}
-        f = np.asarray(_jit(model, "eval", opts)(p, pair_i, pair_o))
-        pdf = np.asarray(_jit(model, "pdf", opts)(p, pair_i, pair_o))
+    values = (10.0**log_alpha, eta, n, k, albedo, sigma)
+    results = _every_case(tuple(jnp.asarray(v, dtype=jnp.float64) for v in values), pair_i, pair_o)
+    for (model, opts, _), (f, pdf) in zip(_cases(*values), results):
+        f, pdf = np.asarray(f), np.asarray(pdf)
         assert np.all(np.isfinite(f)) and np.all(f >= 0), (model, opts, f)
         assert np.all(np.isfinite(pdf)) and np.all(pdf >= 0), (model, opts, pdf)
         if wi[2] * wo[2] > 0:

@@ -153,6 +153,21 @@ def _eval(name, params, wi, wo):
     return np.asarray(f)
 
 
+#: f(wi, wo) and, for a reciprocal model, f(wo, wi) of each model's float64 batch
+#: (:func:`_batch`), made by test 1 while its compiled call is at hand: the reciprocity and
+#: exchange checks read them instead of running that call again, after the compiled code has
+#: been released in between (retracing a SpongeCake lobe took 5-12 s a model)
+_F64 = {}
+
+
+def _f64(name, swapped=False):
+    """f of the float64 batch, wi and wo swapped or not (:data:`_F64`; computed if absent)."""
+    if (name, swapped) not in _F64:
+        params, wi, wo = _batch(get_model(name), "float64")
+        _F64[name, swapped] = _eval(name, params, *((wo, wi) if swapped else (wi, wo)))
+    return _F64[name, swapped]
+
+
 def _sample_eval_pdf(model, params, wi, u, **options):
     """``sample``, then ``eval`` and ``pdf`` at the sampled directions: one compiled call (about
     30% less compiling and running than three)."""
@@ -258,6 +273,10 @@ def test_values_and_gradients_finite_and_nonnegative(name, dtype):
     # a one-sided model is zero for incidence from below and toward the other side
     if not model.capabilities.transmission:
         assert np.all(f[(wi[:, 2] * wo[:, 2]) < 0] == 0)
+    if dtype == "float64":  # for tests 3 and 4b (_F64)
+        _F64[name, False] = f
+        if model.capabilities.reciprocal:
+            _f64(name, swapped=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -334,8 +353,7 @@ TAIL = 1e-30
 def test_reciprocity_where_declared(name):
     model = get_model(name)
     params, wi, wo = _batch(model, "float64")
-    f_io = _eval(name, params, wi, wo)
-    f_oi = _eval(name, params, wo, wi)
+    f_io, f_oi = _f64(name), _f64(name, swapped=True)
     reflection = wi[:, 2] * wo[:, 2] > 0
     # atol: a tail that underflows (exp of -100 and below) may reach 0 on one side first
     np.testing.assert_allclose(f_io[reflection], f_oi[reflection], rtol=1e-7, atol=TAIL,
@@ -354,43 +372,84 @@ def test_reciprocity_where_declared(name):
 # ----------------------------------------------------------------------------------------------
 
 #: samples per (parameter set, θi) row in the first round: a multiple of CHUNK, so that every
-#: compiled call holds one row's parameters (a model that tabulates per parameter set, such as
-#: SpongeCake's lobe, makes one table per call)
+#: compiled call of the sampling check's function holds one row's parameters
 N_FURNACE = 4 * 8192
 #: a row whose standard error is above FURNACE_SE gets FURNACE_GROWTH times as many samples,
-#: up to N_FURNACE_MAX (the count is stated when the test fails)
+#: up to N_FURNACE_MAX (the count is stated when the test fails); only that row is sampled again
 FURNACE_SE, FURNACE_GROWTH, N_FURNACE_MAX = 0.003, 3, 3 ** 4 * N_FURNACE
 FURNACE_LIMIT = 1.01
 FURNACE_SETS = ("default", "rough", "smooth", "anisotropic")
 FURNACE_THETAS = (0.0, 60.0, 85.0, 89.0, 89.9)
 
 
+def _tabulates_per_call(model) -> bool:
+    """Whether each call of the model tabulates per parameter set: SpongeCake's
+    multiple-scattering lobe (``multiple=``, asked of the model's arguments) makes the albedo
+    tables of its energy budget (fitlab/models/directional_albedo.py) in every call."""
+    return model.argument("multiple", "none") != "none"
+
+
+@functools.lru_cache(maxsize=None)
+def _furnace_block(name, options=()):
+    """The sum and the sum of squares of ``sample``'s weights for N_FURNACE uniforms of one
+    (parameter set, θi) row, its parameters as scalars: one table per block of a model that
+    tabulates per call (:func:`_tabulates_per_call`), one compilation per model and options."""
+    model = get_model(name)
+
+    def moments(params, wi, u):
+        w = model.sample(params, jnp.broadcast_to(wi, u.shape), u, **dict(options))[1]
+        return jnp.sum(w), jnp.sum(w * w)
+
+    return jax.jit(moments)
+
+
 def _furnace(name, seed=11):
     """{(set, θi): (mean weight, its standard error, samples)} of the white furnace, albedo
     parameters at their upper bound; rows are sampled until their standard error is at most
-    FURNACE_SE (or N_FURNACE_MAX samples)."""
+    FURNACE_SE (or N_FURNACE_MAX samples).
+
+    Rows go through the sampling check's compiled call (test 2: per-row parameters in chunks of
+    CHUNK), except for a model that tabulates per call: it samples each row in blocks of
+    N_FURNACE with scalar parameters (:func:`_furnace_block`), one table per block instead of
+    one per chunk (the learned two-layer SpongeCake's furnace: 66 s -> 34 s). Either way the
+    uniforms are drawn row after row, so both give the same sample."""
     model = get_model(name)
     rng = np.random.default_rng(seed)
     base = {s: {**_values(model, s), **{p.name: p.upper for p in model.parameters_with_role("albedo")}}
             for s in FURNACE_SETS}
     stats = {(s, t): [0.0, 0.0, 0] for s in FURNACE_SETS for t in FURNACE_THETAS}
-    # the sampling check's compiled call (test 2); a model offering the visible-normal sampler
-    # is sampled with it (the albedo does not depend on the sampler, its variance does: the
-    # standard one needed 2.6 million samples a row at 89.9°)
+    # a model offering the visible-normal sampler is sampled with it (the albedo does not depend
+    # on the sampler, its variance does: the standard one needed 2.6 million samples a row at 89.9°)
     visible = any(o.name == "sampling" and "visible" in o.choices for o in model.options)
-    call = _fn(name, "sample_eval_pdf", {"sampling": "visible"} if visible else ())
-    todo, n = list(stats), N_FURNACE
-    while todo:
-        for start in range(0, len(todo), max(1, 4 * N_FURNACE // n)):  # <= 4 N_FURNACE rows a call
-            rows = todo[start:start + max(1, 4 * N_FURNACE // n)]
+    options = {"sampling": "visible"} if visible else {}
+    if _tabulates_per_call(model):
+        block = _furnace_block(name, tuple(options.items()))
+
+        def draw(rows, n):
+            for s, t in rows:
+                params = {p.name: jnp.asarray(np.float64(base[s][p.name])) for p in model.parameters}
+                wi = jnp.asarray(_dir(t, 10.0))
+                for _ in range(n // N_FURNACE):
+                    a, b = block(params, wi, jnp.asarray(rng.random((N_FURNACE, 3))))
+                    yield (s, t), float(a), float(b), N_FURNACE
+    else:
+        call = _fn(name, "sample_eval_pdf", options)  # the sampling check's compiled call
+
+        def draw(rows, n):
             params = {p.name: np.repeat([base[s][p.name] for s, _ in rows], n)
                       for p in model.parameters}
             wi = np.repeat([_dir(t, 10.0) for _, t in rows], n, axis=0)
             w = call(params, wi, rng.random((len(rows) * n, 3)))[1].reshape(len(rows), n)
             for row, wr in zip(rows, w):
-                stats[row][0] += wr.sum()
-                stats[row][1] += (wr * wr).sum()
-                stats[row][2] += n
+                yield row, wr.sum(), (wr * wr).sum(), n
+
+    todo, n = list(stats), N_FURNACE
+    while todo:
+        for start in range(0, len(todo), max(1, 4 * N_FURNACE // n)):  # <= 4 N_FURNACE rows a call
+            for row, a, b, m in draw(todo[start:start + max(1, 4 * N_FURNACE // n)], n):
+                stats[row][0] += a
+                stats[row][1] += b
+                stats[row][2] += m
         out = {r: (a / m, float(np.sqrt(max(b / m - (a / m) ** 2, 0.0) / m)), m)
                for r, (a, b, m) in stats.items()}
         todo = [r for r in todo if out[r][1] > FURNACE_SE and stats[r][2] < N_FURNACE_MAX]
@@ -398,7 +457,16 @@ def _furnace(name, seed=11):
     return out
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=_marks(n)) for n in NAMES
+def _furnace_marks(name):
+    """A whole-suite model that tabulates per call (the lobe's energy budget over a fibre or
+    surface layer, the learned lobes) samples up to 2 million weights through the lobe's budget:
+    its furnace's time is running compiled code, so it is compiled at XLA's default
+    optimization level (``optimized``: the learned two-layer model's furnace 34 -> 16-21 s)."""
+    marks = _marks(name)
+    return marks + [pytest.mark.optimized] if marks and _tabulates_per_call(get_model(name)) else marks
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_furnace_marks(n)) for n in NAMES
                                   if get_model(n).capabilities.energy_conserving])
 def test_white_furnace_albedo_at_most_one(name):
     """The mean sample weight estimates ∫ f |cos θo| dωo (the albedo); with albedo parameters
@@ -430,8 +498,11 @@ def test_exchangeable_lobes_trade_places(name):
         for x, y in zip(a, b):
             swapped[x], swapped[y] = params[y], params[x]
         assert any(np.any(params[x] != params[y]) for x, y in zip(a, b))
-        for which, fn in (("eval", functools.partial(_eval, name)), ("pdf", _fn(name, "pdf"))):
-            np.testing.assert_allclose(fn(swapped, wi, wo), fn(params, wi, wo), rtol=1e-12,
+        for which, fn, unswapped in (("eval", functools.partial(_eval, name), _f64(name)),
+                                     ("pdf", _fn(name, "pdf"), None)):
+            if unswapped is None:
+                unswapped = fn(params, wi, wo)
+            np.testing.assert_allclose(fn(swapped, wi, wo), unswapped, rtol=1e-12,
                                        atol=0, err_msg=f"{name}: {which} changes when lobes "
                                        f"{a} and {b} trade places")
 

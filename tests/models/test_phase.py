@@ -44,12 +44,20 @@ CASES = ["isotropic", "hg_0.8", "hg_-0.4", "hg_0.0", "sggx_surface", "sggx_fiber
 WI = np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
 
 
+@functools.lru_cache(maxsize=None)
+def _jitted(name, which):
+    """``phase.PHASE_FUNCTIONS[name].<which>`` compiled, its parameters traced: one compilation
+    per kind, function and shape for all of a kind's cases (op by op, every operation compiled
+    on its own)."""
+    return jax.jit(getattr(phase.PHASE_FUNCTIONS[name], which))
+
+
 @pytest.mark.parametrize("case", CASES)
 def test_phase_function_is_normalized(case):
     name, params = _params(case)
     w, dw = _sphere_grid()
-    p = np.asarray(phase.PHASE_FUNCTIONS[name].eval(params, jnp.asarray(np.broadcast_to(WI, w.shape)),
-                                                  jnp.asarray(w)))
+    p = np.asarray(_jitted(name, "eval")(params, jnp.asarray(np.broadcast_to(WI, w.shape)),
+                                         jnp.asarray(w)))
     assert np.sum(p) * dw == pytest.approx(1.0, abs=2e-3)
 
 
@@ -58,13 +66,14 @@ def test_phase_function_sampling_chi2(case):
     """Sampled directions binned in (cos θ, φ) against the bin integrals of p (Šidák-free
     single χ² test at p > 1e-3, bins with an expected count of at least 20)."""
     name, params = _params(case)
-    ev, sample = phase.PHASE_FUNCTIONS[name]
+    ev, sample = _jitted(name, "eval"), _jitted(name, "sample")
     n = 200_000
     u = jax.random.uniform(jax.random.PRNGKey(3), (n, 2), dtype=jnp.float64)
-    wo, pdf = sample(params, jnp.asarray(np.broadcast_to(WI, (n, 3))), u)
+    wi = jnp.asarray(np.broadcast_to(WI, (n, 3)))
+    wo, pdf = sample(params, wi, u)
     wo = np.asarray(wo)
     np.testing.assert_allclose(np.linalg.norm(wo, axis=1), 1.0, atol=1e-9)
-    np.testing.assert_allclose(np.asarray(pdf), np.asarray(ev(params, jnp.asarray(WI), jnp.asarray(wo))),
+    np.testing.assert_allclose(np.asarray(pdf), np.asarray(ev(params, wi, jnp.asarray(wo))),
                                rtol=1e-9)
     ti = np.clip(((1.0 - wo[:, 2]) / 2.0 * _T).astype(int), 0, _T - 1)
     pi = np.clip((np.mod(np.arctan2(wo[:, 1], wo[:, 0]), 2 * np.pi) / (2 * np.pi) * _P).astype(int), 0, _P - 1)
@@ -84,7 +93,7 @@ def test_phase_reciprocity(case):
     """HG and isotropic: p(wi, wo) = p(wo, wi); SGGX: σ(wi) p(wi, wo) = σ(wo) p(wo, wi)
     (SpongeCake eqs 1, 6)."""
     name, params = _params(case)
-    ev = phase.PHASE_FUNCTIONS[name].eval
+    ev = _jitted(name, "eval")
     rng = np.random.default_rng(1)
     a = rng.normal(size=(50, 3)); a /= np.linalg.norm(a, axis=1, keepdims=True)
     b = rng.normal(size=(50, 3)); b /= np.linalg.norm(b, axis=1, keepdims=True)
@@ -127,6 +136,11 @@ def _phase_values_and_gradients(name, params, wi, u):
 ALPHAS = (1e-4, 1e-3, 0.01, 0.1, 0.3, 1.0)
 
 
+@jax.jit  # one compilation for every α (op by op, every operation compiled on its own)
+def _vmf_density_and_samples(m, u, alpha):
+    return D_vMF(m, alpha), sample_m_vMF(u[:, 0], u[:, 1], alpha)
+
+
 @pytest.mark.parametrize("alpha", ALPHAS)
 def test_vmf_projected_area_is_one_and_sampling_matches(alpha):
     """∫ D(m) cos θm dω = 1 over the upper hemisphere (Gauss-Legendre in 1 - cos θm scaled to
@@ -137,11 +151,11 @@ def test_vmf_projected_area_is_one_and_sampling_matches(alpha):
     t = 0.5 * (x + 1) * tmax
     mu = 1 - t
     m = np.stack([np.sqrt(t * (2 - t)), 0 * t, mu], -1)
-    D = np.asarray(D_vMF(jnp.asarray(m), alpha))
+    u = np.random.default_rng(4).random((100_000, 2))
+    D, ms = _vmf_density_and_samples(jnp.asarray(m), jnp.asarray(u), jnp.asarray(alpha))
+    D, ms = np.asarray(D), np.asarray(ms)
     assert np.sum(0.5 * tmax * wts * D * mu) * 2 * np.pi == pytest.approx(1.0, rel=1e-9)
     mean_t = np.sum(0.5 * tmax * wts * D * mu * t) * 2 * np.pi
-    u = np.random.default_rng(4).random((100_000, 2))
-    ms = np.asarray(sample_m_vMF(jnp.asarray(u[:, 0]), jnp.asarray(u[:, 1]), alpha))
     ts = 1 - ms[:, 2]
     assert abs(ts.mean() - mean_t) < 5 * ts.std() / np.sqrt(ts.size)
     np.testing.assert_allclose(np.linalg.norm(ms, axis=1), 1.0, atol=1e-12)

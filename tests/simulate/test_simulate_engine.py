@@ -6,8 +6,10 @@ bytes whatever the thread count, and no code shared between the walk and the mod
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -64,12 +66,21 @@ CASES = [
 ]
 
 
+@functools.lru_cache(maxsize=None)
+def _jitted_eval(name, options):
+    from fitlab.models import get_model
+
+    return jax.jit(functools.partial(get_model(name).eval, **dict(options)))
+
+
 def _model_f(model, params, wi, wo, options, shape):
     """The JAX model's f per direction pair and channel (per-channel parameters broadcast
-    against a channel axis)."""
+    against a channel axis): one compiled call (op by op, each of the model's operations
+    compiled on its own)."""
     per_channel = any(np.ndim(v) == 1 for v in params.values())
     a, b = (wi[:, None, :], wo[:, None, :]) if per_channel else (wi, wo)
-    f = np.asarray(model.eval(params, jnp.asarray(a), jnp.asarray(b), **options))
+    f = np.asarray(_jitted_eval(model.name, tuple(sorted(options.items())))(
+        params, jnp.asarray(a), jnp.asarray(b)))
     return np.broadcast_to(f.reshape(len(wi), -1), shape)
 
 
@@ -99,7 +110,8 @@ def test_mitsuba_eval_is_fitlabs_f_and_its_weight_is_the_flux_fraction(mi, case)
     wo_s = np.array(wo_s).T.astype(float)
     w_s, p_s = np.array(w_s).T, np.array(p_s)
     ok = (p_s > 1e-2) & (w_s[:, 0] > 0)
-    f_s = _model_f(model, params, wi[ok], wo_s[ok], options, w_s[ok].shape)
+    # every row, the rows of f's call: one compiled shape (ok selects after)
+    f_s = _model_f(model, params, wi, wo_s, options, w_s.shape)[ok]
     np.testing.assert_allclose(w_s[ok], f_s * np.abs(wo_s[ok, 2:3]) / p_s[ok, None],
                                rtol=5e-3, atol=1e-6)
 
@@ -109,12 +121,10 @@ def test_mitsubas_beckmann_masking_is_the_rational_approximation(mi):
     differs from fitlab's erf masking by up to ~0.3 % (Walter eq. 27's error), fitlab's own
     Dr.Jit family by float32 rounding only."""
     import mitsuba
-    from fitlab.models import get_model
 
     wi, wo = _directions(2000, True), _directions(2000)
-    model = get_model("rough_dielectric")
-    ref = np.asarray(model.eval({"alpha": 0.15, "eta": 1.5}, jnp.asarray(wi), jnp.asarray(wo),
-                                distribution="beckmann"))
+    ref = np.asarray(_jitted_eval("rough_dielectric", (("distribution", "beckmann"),))(
+        {"alpha": 0.15, "eta": 1.5}, jnp.asarray(wi), jnp.asarray(wo)))
     bsdf = mitsuba.load_dict({"type": "roughdielectric", "distribution": "beckmann",
                               "alpha": 0.15, "int_ior": 1.5, "ext_ior": 1.0})
     from fitlab.simulate.components import _local_si, f_from_mitsuba
