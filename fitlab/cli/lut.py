@@ -48,7 +48,10 @@ def add_parser(sub):
         "fitlab lut thin_layer "
         "--model 'thin_layer(rough_conductor)' --param eta=1.5 --param tau=0.2 --param "
         "n2=0.2,1.0,1.2 --param k2=3.9,2.6,2.4 --out film.exr (the subsurface lobe's mean, "
-        "kappa and albedo over (mu, kappa1, kappa2) for a pre-filtered environment map)",
+        "kappa and albedo over (mu, kappa1, kappa2) for a pre-filtered environment map); "
+        "fitlab lut thin_layer_compensation --from-fit FIT.json --out comp.exr (fitlab's "
+        "energy compensation: D(mu) and Dbar over (mu, kappa1, kappa2); the shader adds "
+        "D(mu_i) D(mu_o) / (pi Dbar))",
     )
     p.add_argument("kind", metavar="KIND", help=f"table kind: {', '.join(lut.KINDS)}")
     p.add_argument("--from-fit", metavar="FIT.json",
@@ -89,8 +92,9 @@ def add_parser(sub):
                    help="albedo_dielectric: range of eta = n_inside/n_outside within [1.001, 5] "
                    "(default 1.05:3; incidence from inside covers 1/eta)")
     p.add_argument("--kappa-range", metavar="LO:HI",
-                   help="thin_layer: range of the kappa1 and kappa2 axes within [0.01, 1e7] "
-                   "(default 1:1e6)")
+                   help="thin_layer, thin_layer_compensation: range of the kappa1 and kappa2 "
+                   "axes within [0.01, 1e7] (default 1:1e6; thin_layer_compensation 10:1e4, "
+                   "its table's range)")
     p.add_argument("--dtype", choices=("half", "float"), default="half",
                    help="EXR channel type (default half; half refuses values above 65504)")
     p.add_argument("--check-points", type=int, metavar="N",

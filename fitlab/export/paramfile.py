@@ -281,6 +281,12 @@ def read_fit(path) -> dict:
         fitlab.api.resolve_options(model, data["model"].get("options"))
     except ValueError as exc:
         raise InputFileError(path, f"field model.options: {exc}", hint=hint) from None
+    # An option the file predates keeps the meaning the fit had (Option.absent: the thin
+    # layer's compensation is "none" in a file written before it existed).
+    given = data["model"].get("options") or {}
+    old = {o.name: o.absent for o in model.options if o.absent is not None and o.name not in given}
+    if old:
+        data["model"]["options"] = {**given, **old}
     for k, fit in enumerate(data["fits"]):
         values = {n: p["value"] for n, p in fit["parameters"].items() if n != SCALE}
         try:

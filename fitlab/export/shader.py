@@ -164,6 +164,8 @@ def _convenience(table, p, tex_arg, tex_pass, coord_args, args, lang="glsl"):
     k = table.kind
     if k == "thin_layer":
         return _thin_layer_convenience(table, p, lang)
+    if k == "thin_layer_compensation":
+        return _compensation_convenience(table, p, lang)
     if k == "D":
         a = table.axes[1]
         return [
@@ -252,6 +254,57 @@ def _thin_layer_convenience(table, p, lang):
         f"    E = vec3({', '.join(slots)});",
         "}",
     ]
+    return L
+
+
+def _compensation_convenience(table, p, lang):
+    """The thin layer's compensation lobe f_c(wi, wo) = D(mu_i) D(mu_o) / (pi Dbar), ≤ 3
+    channels."""
+    n_tex = len(texture_groups(table))
+    if lang == "hlsl":
+        decl = ", ".join(f"Texture2D tex{g}" for g in range(n_tex)) + ", SamplerState smp"
+        pass_ = [f"tex{g}, smp" for g in range(n_tex)]
+    else:
+        decl = ", ".join(f"sampler2D tex{g}" for g in range(n_tex))
+        pass_ = [f"tex{g}" for g in range(n_tex)]
+    n = len(table.channels) // 3
+
+    def slot(v, j):
+        return f"{v}{j // 4}.{'xyzw'[j % 4]}"
+
+    from fitlab.models.thin_layer_compensation import AZIMUTHAL_CONCENTRATION
+
+    L = [
+        "// fitlab's energy compensation of the thin layer (not in Guo et al. 2015): the lobe",
+        "// f_c(wi, wo) = D(mu_i) D(mu_o) / (pi Dbar) * exp(b cos dphi) / I0(b) in 1/sr (no cosine;",
+        "// reciprocal, albedo D(mu)), b = b0 sin(theta_i) sin(theta_o), dphi from the mirror azimuth,",
+        f"// of the first <= 3 channels ({', '.join(table.channels[:min(3, n)])}): f = f_paper *",
+        f"// {p}_scale(...) + {p}(...), with f_paper the thin layer without compensation.",
+        "// wi, wo unit in the local frame (normal = +z); kappa clamped to the table's range.",
+        f"vec3 {p}({decl}, vec3 wi, vec3 wo, float kappa1, float kappa2) {{",
+        "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0, 0.0, 0.0);",
+        f"    float conc = {_f(AZIMUTHAL_CONCENTRATION)};  // b0",
+        "    float bs = conc * sqrt(max((1.0 - wi.z * wi.z) * (1.0 - wo.z * wo.z), 0.0));",
+        "    float q = 0.25 * bs * bs, term = 1.0, i0 = 1.0;  // I0(b) by its series (b <= b0)",
+        "    for (int j = 1; j < 12; ++j) { term *= q / float(j * j); i0 += term; }",
+        "    float shape = exp(-conc * (wi.x * wo.x + wi.y * wo.y)) / i0;",
+    ]
+    for g in range(n_tex):
+        L.append(f"    vec4 a{g} = {p}_tex{g}({pass_[g]}, wi.z, kappa1, kappa2);")
+        L.append(f"    vec4 b{g} = {p}_tex{g}({pass_[g]}, wo.z, kappa1, kappa2);")
+    terms = [f"{slot('a', j)} * {slot('b', j)} * shape / (3.14159265358979 * "
+             f"max({slot('a', n + j)}, 1e-30))" for j in range(min(3, n))] \
+        + ["0.0"] * (3 - min(3, n))
+    L += [f"    return vec3({', '.join(terms)});", "}",
+          "// g(mu_i) g(mu_o): the scale of the paper's f where it returns more light than the stack.",
+          f"vec3 {p}_scale({decl}, vec3 wi, vec3 wo, float kappa1, float kappa2) {{",
+          "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0, 0.0, 0.0);"]
+    for g in range(n_tex):
+        L.append(f"    vec4 a{g} = {p}_tex{g}({pass_[g]}, wi.z, kappa1, kappa2);")
+        L.append(f"    vec4 b{g} = {p}_tex{g}({pass_[g]}, wo.z, kappa1, kappa2);")
+    scales = [f"{slot('a', 2 * n + j)} * {slot('b', 2 * n + j)}" for j in range(min(3, n))] \
+        + ["1.0"] * (3 - min(3, n))
+    L += [f"    return vec3({', '.join(scales)});", "}"]
     return L
 
 

@@ -548,6 +548,71 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
                 n_check=64, orders=orders, checks=(("vmf_lobe", vmf_check),))
 
 
+#: Default range of the compensation table's κ axes: the range of the shipped table's nodes.
+COMPENSATION_KAPPA_RANGE = (10.0, 1e4)
+
+
+def spec_thin_layer_compensation(model_name, params, options=None, size=(16, 16, 16),
+                                 mappings=("linear", "log", "log"),
+                                 kappa_range=COMPENSATION_KAPPA_RANGE):
+    """fitlab's energy compensation of the thin layer for shaders: over (μ = cos θ, κ1, κ2) for
+    the fit's η, τ and bottom, D_<channel> = D(μ), the compensation lobe's albedo, and
+    Dbar_<channel> = D̄ (constant along μ), so that f_c(ωi, ωo) = D(μi) D(μo) / (π D̄)
+    (fitlab/models/thin_layer_compensation.py). ``params`` {channel: parameters without the
+    roughnesses}."""
+    from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO, compensation_albedo
+
+    model = get_model(model_name)
+    rough = _thin_layer_roughness(model)
+    fn = compensation_albedo(model)
+    opts = dict(fitlab.api.resolve_options(model, options))
+    if opts.get("compensation") == "none":
+        raise ValueError("a thin_layer_compensation table is the compensation's: drop "
+                         "compensation=none")
+    lo, hi = kappa_range
+    if lo < KAPPA_LO or hi > KAPPA_HI:
+        raise ValueError(f"axes kappa1, kappa2: the range must lie within [{KAPPA_LO:g}, "
+                         f"{KAPPA_HI:g}], got [{lo:g}, {hi:g}]")
+    free = set(rough(1.0, 1.0))
+    clean = {}
+    for ch, p in params.items():
+        p = {k: float(v) for k, v in p.items() if k in model.parameter_names and k not in free}
+        fitlab.api.check_params(model, {**p, **{k: float(v) for k, v in
+                                                rough(100.0, 100.0).items()}})
+        clean[ch] = p
+    if not clean:
+        raise ValueError("a thin_layer_compensation table needs the model's parameters (eta, "
+                         "tau and the bottom's index) for at least one channel")
+    axes = (mu_axis(size[0], mappings[0]),
+            make_axis("kappa1", lo, hi, size[1], mappings[1],
+                      "vMF concentration κ1 of the top boundary (κ ≈ 2/α²)"),
+            make_axis("kappa2", lo, hi, size[2], mappings[2],
+                      "vMF concentration κ2 of the bottom boundary (κ ≈ 2/α²)"))
+    channels = tuple(f"{q}_{ch}" for q in ("D", "Dbar", "g") for ch in clean)
+
+    def evaluate(coords):
+        coords = np.asarray(coords, float)
+        mu = jnp.asarray(np.clip(coords[:, 0], MU_MIN, 1.0))
+        r = rough(jnp.asarray(coords[:, 1]), jnp.asarray(coords[:, 2]))
+        cols = [fn({**{k: jnp.asarray(v) for k, v in c.items()}, **r}, mu, **opts)
+                for c in clean.values()]
+        return np.column_stack([np.asarray(col[q]) for q in range(3) for col in cols]), None
+
+    return Spec("thin_layer_compensation", channels, axes, evaluate,
+                f"fitlab's energy compensation of {model.name} (not in Guo et al. 2015): "
+                "D_<channel> = D(μ), the albedo of the lobe that carries the light the paper's "
+                "model loses (tabulated from the simulator), Dbar_<channel> = D̄ = 2∫D(μ)μ dμ, "
+                "g_<channel> = g(μ), the scale of the paper's f where it returns more light "
+                "than the stack (f_paper · g(μi) g(μo)); "
+                "f_c(ωi, ωo) = D(μi) D(μo) / (π D̄) · exp(b cos Δφ) / I0(b) in 1/sr (b = b0 "
+                "sin θi sin θo, Δφ from the mirror azimuth; fitlab.models."
+                "thin_layer_compensation.azimuthal): f = g(μi) g(μo) f_paper + f_c",
+                {"name": model.name, "options": opts}, clean,
+                "exact evaluation of the model's compensation at the sample points (float64)",
+                ("f_c(wi, wo) = D(mu_i) D(mu_o) / (pi Dbar) * exp(b cos dphi) / I0(b): "
+                 "reciprocal, albedo D(mu) exactly",))
+
+
 # --------------------------------------------------------------------------------------------
 # What a kind needs from a model's or fit's parameters
 # --------------------------------------------------------------------------------------------
@@ -656,6 +721,12 @@ def _make_thin_layer(size, mappings, *, model, params, options, orders, kappa_ra
                            kappa_range or KAPPA_RANGE, orders)
 
 
+def _make_thin_layer_compensation(size, mappings, *, model, params, options, kappa_range=None,
+                                  **_):
+    return spec_thin_layer_compensation(model, params, options, size, mappings,
+                                        kappa_range or COMPENSATION_KAPPA_RANGE)
+
+
 def _make_model(size, mappings, *, model, params, options, **_):
     if model is None:
         raise ValueError("a model table needs a model (--model NAME --param ... or --from-fit)")
@@ -749,6 +820,11 @@ KINDS: Registry[Kind] = Registry("table kind", {k.name: k for k in (
          "(μ, κ1, κ2)", 3, (16, 16, 16), ("linear", "log", "log"),
          "a thin_layer model's eta, tau and bottom index (κ1, κ2 are the axes)",
          ("mu", "kappa1", "kappa2"), _make_thin_layer, _prepare_thin_layer),
+    Kind("thin_layer_compensation", "fitlab's energy compensation of the thin layer: the "
+         "compensation lobe's albedo D(μ), its average D̄ and the paper's scale g(μ) per channel "
+         "over (μ, κ1, κ2); f = g(μi) g(μo) f_paper + D(μi) D(μo) / (π D̄) · shape", 3, (16, 16, 16), ("linear", "log", "log"),
+         "a thin_layer model's eta, tau and bottom index (κ1, κ2 are the axes)",
+         ("mu", "kappa1", "kappa2"), _make_thin_layer_compensation, _prepare_thin_layer),
 )})
 
 

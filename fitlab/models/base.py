@@ -103,6 +103,9 @@ class Option(NamedTuple):
     choices: tuple
     default: str
     description: str
+    #: the choice a parameter file written before this option existed meant (its fits were made
+    #: without it); None: the default (an option that changed nothing old files computed)
+    absent: str | None = None
 
 
 class Term(NamedTuple):

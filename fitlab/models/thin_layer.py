@@ -57,6 +57,7 @@ import functools
 
 from fitlab._jax import jnp
 from fitlab import vmf
+from fitlab.models import thin_layer_compensation as compensation_table
 from fitlab.fresnel import (CONDUCTOR_FRESNEL_METHODS, fresnel_dielectric,
                             fresnel_dielectric_Walter2007)
 from fitlab.frame import dot, normalize, reflect
@@ -97,27 +98,36 @@ TAU = Parameter("tau", 0.0, 20.0, 0.0, "1",
 OPTIONS = (
     Option("bounces", tuple(str(k) for k in range(1, MAX_BOUNCES + 1)), "1",
            "K: subsurface orders 1..K included (the paper keeps 1: Fig. 13)"),
-    Option("component", ("all", "surface", "subsurface")
+    Option("component", ("all", "surface", "subsurface", "compensation")
            + tuple(str(k) for k in range(1, MAX_BOUNCES + 1)), "all",
-           "all: surface + orders 1..K; surface: the top boundary's reflection; subsurface: "
-           "orders 1..K; a number k: subsurface order k alone"),
+           "all: surface + orders 1..K (with the compensation); surface: the top boundary's "
+           "reflection; subsurface: orders 1..K; compensation: fitlab's compensation lobe "
+           "alone (all = g(μi) g(μo) (surface + subsurface) + compensation); a number k: "
+           "subsurface order k alone"),
     Option("masking", ("exact", "approx"), "exact",
            "exact: eq. 7's integral (quadrature; energy conserving); approx: eq. 8, which "
            "overestimates G1 at grazing angles (albedo up to 14 at 89.99° measured)"),
+    Option("compensation", ("table", "none"), "table",
+           "table: fitlab's energy compensation (a lobe carrying the light the paper's model "
+           "loses, tabulated from the simulator: fitlab/models/thin_layer_compensation.py); "
+           "none: the paper's model as published", absent="none"),
 )
 DEFAULT_OPTIONS = {o.name: o.default for o in OPTIONS}
 
 
 def _included(opts):
-    """(surface included?, the subsurface orders included)."""
+    """(surface included?, the subsurface orders included, compensation included?)."""
     c, K = opts["component"], int(opts["bounces"])
+    table = opts["compensation"] == "table"
     if c == "all":
-        return True, tuple(range(1, K + 1))
+        return True, tuple(range(1, K + 1)), table
     if c == "surface":
-        return True, ()
+        return True, (), False
     if c == "subsurface":
-        return False, tuple(range(1, K + 1))
-    return False, (int(c),)
+        return False, tuple(range(1, K + 1)), False
+    if c == "compensation":
+        return False, (), table
+    return False, (int(c),), False
 
 
 def _bottom_kind(bottom: Model) -> str:
@@ -206,8 +216,8 @@ def scene_effects(options) -> dict:
     """max_bounces = the highest subsurface order the model includes (``component=surface``:
     0). The simulator's total then holds orders 0..K; ``component=subsurface`` or ``k`` is to
     be compared with the simulated bounce orders 1..K or k (``by_order``). No delta."""
-    _, orders = _included({**DEFAULT_OPTIONS, **options})
-    return {"max_bounces": max(orders, default=0), "delta": False}
+    _, orders, with_table = _included({**DEFAULT_OPTIONS, **options})
+    return {"max_bounces": "all" if with_table else max(orders, default=0), "delta": False}
 
 
 def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
@@ -290,21 +300,73 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         f = E * vmf.D(h, km) * gm[..., 0] * gm[..., 1] / (4.0 * si.c * so.c)
         return jnp.where(up & si.ok & so.ok & sd.ok, f, 0.0)
 
-    def eval(params, wi, wo, **opts):
+    def compensation_nodes(params, k1, k2, eta, opts, orders):
+        """(D, g) at the table's incidence nodes (..., T) for these parameters
+        (thin_layer_compensation): the missing light D less the weights of the orders 2..K
+        the model adds itself, scaled by the absorption of four crossings, and the scale g of
+        the paper's f where it returns more light than the stack."""
+        ct = compensation_table
+        if kind == "conductor":
+            b = ct.rbar_conductor(params[index_name] / eta, params[extinction_name] / eta)
+        else:
+            b = jnp.log(params[index_name] / eta)
+        D, g = ct.nodes_Dg(kind, k1, k2, eta, b)
+        mu = jnp.asarray(ct.mu_nodes(), D.dtype)
+        # cos θt of the nodes, kept from 0 (and its gradient finite) past the critical angle
+        cos_t = jnp.sqrt(jnp.clip(1.0 - (1.0 - mu * mu) / (eta[..., None] ** 2), 0.0025, 1.0))
+        if len(orders) > 1:
+            wn = jnp.stack([jnp.sqrt((1.0 - mu) * (1.0 + mu)), jnp.zeros_like(mu), mu], -1)
+            pn = {k: v[..., None] for k, v in params.items()}
+            pn, wn, wm = _broadcast(pn, wn, wn * jnp.asarray([-1.0, -1.0, 1.0], wn.dtype))
+            shared = setup(pn, wn, wm, opts)
+            D = jnp.maximum(D - sum(order_weight(pn, shared, k) for k in orders[1:]), 0.0)
+        return D * jnp.exp(-2.0 * params["tau"][..., None] / cos_t), g
+
+    def compensation_albedo(params, mu, **opts):
+        """(D(μ), D̄, g(μ)) of the compensation at cos θ = ``mu``: the added lobe's albedo, the
+        normalization of f_c = D(μi) D(μo) / (π D̄) · (azimuthal shape), and the scale of the
+        paper's f, g(μi) g(μo) (what the compensation table kind bakes)."""
         opts = {**DEFAULT_OPTIONS, **opts}
-        with_surface, orders = _included(opts)
-        params, wi, wo = _broadcast(params, wi, wo)
-        shared = setup(params, wi, wo, opts)
+        lead = jnp.broadcast_shapes(jnp.shape(mu), *(jnp.shape(v) for v in params.values()))
+        params = {k: jnp.broadcast_to(jnp.asarray(v), lead) for k, v in params.items()}
+        k1, k2 = concentrations(params)
+        K = tuple(range(1, int(opts["bounces"]) + 1))
+        Dn, gn = compensation_nodes(params, k1, k2, params["eta"], opts, K)
+        mu = jnp.broadcast_to(mu, lead)
+        return (compensation_table.at_mu(Dn, mu), compensation_table.average(Dn),
+                compensation_table.at_mu(gn, mu))
+
+    def paper(params, wi, wo, opts, shared, with_surface, orders):
         total = surface(params, wi, wo, opts, shared) if with_surface else 0.0
         for k in orders:
             total = total + subsurface(params, wi, wo, shared, k)
+        return total
+
+    def eval(params, wi, wo, **opts):
+        opts = {**DEFAULT_OPTIONS, **opts}
+        with_surface, orders, with_table = _included(opts)
+        params, wi, wo = _broadcast(params, wi, wo)
+        shared = setup(params, wi, wo, opts)
+        total = paper(params, wi, wo, opts, shared, with_surface, orders)
+        if with_table:
+            k1, k2, eta, up = shared[:4]
+            K = tuple(range(1, int(opts["bounces"]) + 1))
+            Dn, gn = compensation_nodes(params, k1, k2, eta, opts, K)
+            ci, co = jnp.where(up, wi[..., 2], 1.0), jnp.where(up, wo[..., 2], 1.0)
+            e_z = jnp.asarray([0.0, 0.0, 1.0], wi.dtype)
+            f_c = compensation_table.lobe(Dn, jnp.where(up[..., None], wi, e_z),
+                                          jnp.where(up[..., None], wo, e_z))
+            g = compensation_table.at_mu(gn, ci) * compensation_table.at_mu(gn, co)
+            total = (f_c if opts["component"] == "compensation" else g * total + f_c)
+            total = jnp.where(up, total, 0.0)
         return jnp.zeros(wi.shape[:-1], wi.dtype) + total
 
     def lobes(params, wi, opts):
         """Per included lobe: (κ over the half vector, estimated weight) from wi alone (the
-        weights on the specular path: F for the surface, E_k for order k)."""
+        weights on the specular path: F for the surface, E_k for order k; the compensation's
+        cosine lobe, κ None, its albedo D(μi))."""
         opts = {**DEFAULT_OPTIONS, **opts}
-        with_surface, orders = _included(opts)
+        with_surface, orders, with_table = _included(opts)
         params, wi, _ = _broadcast(params, wi, wi)
         wm = wi * jnp.asarray([-1.0, -1.0, 1.0], wi.dtype)  # the mirror direction
         shared = setup(params, wi, wm, opts)
@@ -315,34 +377,50 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         for k in orders:
             out.append((_kappa_of_nu(_lobe_nu(si, eta, k1, k2, k)),
                         order_weight(params, shared, k)))
+        if with_table:
+            K = tuple(range(1, int(opts["bounces"]) + 1))
+            Dn, _ = compensation_nodes(params, k1, k2, eta, opts, K)
+            out.append((None, compensation_table.at_mu(Dn, si.c)))
         total = sum(w for _, w in out)
         n = len(out)
         probs = [(1.0 - n * _P_FLOOR) * safe_div(w, total, 1.0 / n) + _P_FLOOR for _, w in out]
         return [(kappa, p) for (kappa, _), p in zip(out, probs)]
 
     def pdf(params, wi, wo, **opts):
-        """Σ_lobes P_j D(h; κ_j) cos θh / (4 |wo·h|): the mixture ``sample`` draws from."""
+        """Σ_lobes P_j D(h; κ_j) cos θh / (4 |wo·h|) (+ P_c cos θo / π for the compensation's
+        cosine lobe): the mixture ``sample`` draws from."""
         ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
         h = _half_vector(wi, wo, ok)
         jac = safe_div(1.0, 4.0 * jnp.abs(dot(wo, h)))
         total = 0.0
         for kappa, p in lobes(params, wi, opts):
-            total = total + p * vmf.pdf_m(h, kappa) * jac
+            if kappa is None:
+                total = total + p * jnp.maximum(wo[..., 2], 0.0) / jnp.pi
+            else:
+                total = total + p * vmf.pdf_m(h, kappa) * jac
         return jnp.where(ok, total, 0.0)
 
     def sample(params, wi, u, **opts):
         """Pick a lobe by its estimated weight (u[2]), sample its NDF or ENDF once (section 5.4)
-        and reflect wi about the sampled normal; weight = f|cos θo| / pdf of the mixture."""
+        and reflect wi about the sampled normal (the compensation: a cosine-distributed
+        direction); weight = f|cos θo| / pdf of the mixture."""
         ls = lobes(params, wi, opts)
         cum = jnp.zeros_like(wi[..., 2])
         m = jnp.zeros_like(wi)
+        cosine = jnp.zeros(wi.shape[:-1], bool)
         for j, (kappa, p) in enumerate(ls):
             lo = cum
             cum = cum + p
             chosen = (u[..., 2] >= lo) & ((u[..., 2] < cum) | (j == len(ls) - 1))
+            if kappa is None:
+                cosine = chosen
+                continue
             mj = vmf.sample_m(u[..., 0], u[..., 1], kappa)
             m = jnp.where(chosen[..., None], mj, m)
-        wo = reflect(wi, m)
+        r, phi = jnp.sqrt(u[..., 0]), 2.0 * jnp.pi * u[..., 1]
+        wc = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi),
+                        jnp.sqrt(jnp.maximum(1.0 - u[..., 0], 0.0))], -1)
+        wo = jnp.where(cosine[..., None], wc, reflect(wi, m))
         p = pdf(params, wi, wo, **opts)
         f = eval(params, wi, wo, **opts)
         return sample_result(wo, f, p, (wi[..., 2] > 0) & (wo[..., 2] > 0))
@@ -377,7 +455,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
                 "effects": scene_effects(options)}
 
     r_note = "" if roughness == "kappa" else ", widths α with κ = 2/α²"
-    return Model(
+    model = Model(
         name=canonical_name(bottom.name, roughness),
         summary=(f"extended-NDF thin layer (Guo et al. 2015): rough vMF top over a rough "
                  f"{kind} bottom, surface + subsurface orders by joint spherical warping{r_note}"),
@@ -390,8 +468,25 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         scene_of=scene_of,
         reference=("Guo, Qian, Pan 2015: eqs 5-6 (vMF NDF), 7-8 (masking), 9 (Fresnel), 12-13 "
                    "(warping), 18, 21 (joint warping), 19 (ENDF), 25-26 (components, NDF tree), "
-                   "27 (absorption), section 5.4 (sampling); Walter 2007 eq. 20 (surface)"),
+                   "27 (absorption), section 5.4 (sampling); Walter 2007 eq. 20 (surface); "
+                   "fitlab's energy compensation (Kulla & Conty 2017's form)"),
     )
+    _COMPENSATION_ALBEDO[model.name] = compensation_albedo
+    return model
+
+
+#: model name -> its compensation_albedo(params, mu, **options) (filled as models are built)
+_COMPENSATION_ALBEDO: dict = {}
+
+
+def compensation_albedo(model: Model):
+    """``fn(params, mu, **options) -> (D(μ), D̄)`` of a thin_layer model's compensation lobe
+    (ValueError for any other model)."""
+    try:
+        return _COMPENSATION_ALBEDO[model.name]
+    except KeyError:
+        raise ValueError(f"{model.name} has no thin-layer energy compensation (a thin_layer(...) "
+                         f"model has)") from None
 
 
 def canonical_name(bottom_name: str, roughness: str = "kappa") -> str:

@@ -464,8 +464,10 @@ def test_every_kind_makes_its_own_spec_through_the_registry():
 
     params = {"fresnel": {"Y": {"eta": 1.5}},
               "model": {"Y": {"alpha": 0.3, "n": 1.2, "k": 3.0}},
-              "thin_layer": {"Y": {"eta": 1.5, "tau": 0.1, "n2": 1.2, "k2": 3.0}}}
-    models = {"thin_layer": "thin_layer(rough_conductor)"}
+              "thin_layer": {"Y": {"eta": 1.5, "tau": 0.1, "n2": 1.2, "k2": 3.0}},
+              "thin_layer_compensation": {"Y": {"eta": 1.5, "tau": 0.1, "n2": 1.2, "k2": 3.0}}}
+    models = {"thin_layer": "thin_layer(rough_conductor)",
+              "thin_layer_compensation": "thin_layer(rough_conductor)"}
     for name, kind in lut.KINDS.items():
         model = models.get(name, "rough_conductor")
         assert kind.name == name and len(kind.axis_names) == kind.n_axes

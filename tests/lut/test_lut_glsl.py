@@ -136,6 +136,11 @@ TABLES = {
     "model_phi_d": lambda: lut.make_spec("model", size=(64, 32, 8), **_vinyl()),
     # the thin layer's real-time form: five channels in two textures, log κ axes
     "thin_layer": lambda: _thin_layer_spec(),
+    # fitlab's compensation of the thin layer: six channels in two textures, log κ axes
+    "thin_layer_compensation": lambda: lut.make_spec(
+        "thin_layer_compensation", model="thin_layer(rough_conductor)", size=(6, 8, 8),
+        params={c: {"eta": 1.5, "tau": t, "n2": n, "k2": k} for c, t, n, k in
+                (("R", 0.1, 0.2, 3.9), ("G", 0.3, 1.0, 2.6), ("B", 0.0, 1.2, 2.4))}),
 }
 
 

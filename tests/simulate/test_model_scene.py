@@ -235,7 +235,8 @@ def test_weidlich_wilkie_absorbing_interface_has_no_scene():
 
 
 def test_thin_layer_maps_vmf_boundaries_and_absolute_bottom_indices():
-    s = _scene("thin_layer(rough_conductor)", {"masking": "approx", "bounces": "3"},
+    s = _scene("thin_layer(rough_conductor)", {"masking": "approx", "bounces": "3",
+                                               "compensation": "none"},
                kappa1=500.0, eta=1.4, tau=0.3, kappa2=80.0, n2=3.18, k2=4.41)
     assert s["stack"] == [
         {"type": "interface", "distribution": "vmf", "kappa": 500.0, "masking": "approx"},
@@ -243,6 +244,9 @@ def test_thin_layer_maps_vmf_boundaries_and_absolute_bottom_indices():
     assert s["substrate"] == {"type": "conductor", "n": 3.18, "k": 4.41, "distribution": "vmf",
                               "kappa": 80.0, "masking": "approx"}
     assert s["effects"] == {"max_bounces": 3, "delta": False}
+    # the compensation (the default) stands for every order the stack scatters
+    assert _scene("thin_layer(rough_conductor)", {"bounces": "3"})["effects"][
+        "max_bounces"] == "all"
     assert _scene("thin_layer(rough_conductor)", {"component": "surface"})["effects"][
         "max_bounces"] == 0
     d = _scene("thin_layer(rough_dielectric,roughness=alpha)", alpha1=0.05, eta=1.3, alpha2=0.2,
