@@ -220,15 +220,19 @@ def _convenience(table, p, tex_arg, tex_pass, coord_args, args, lang="glsl"):
     return [f"vec4 {p}({tex_arg}, {coord_args}) {{ return {p}_tex0({tex_pass}, {call}); }}"]
 
 
-def _thin_layer_convenience(table, p, lang):
-    """The lobe for a pre-filtered environment lookup: mean direction, κ̂ and E (≤ 3 channels)."""
+def _texture_arguments(table, lang):
+    """(number of textures, their parameter declaration, the argument each reader passes)."""
     n_tex = len(texture_groups(table))
     if lang == "hlsl":
         decl = ", ".join(f"Texture2D tex{g}" for g in range(n_tex)) + ", SamplerState smp"
-        pass_ = [f"tex{g}, smp" for g in range(n_tex)]
-    else:
-        decl = ", ".join(f"sampler2D tex{g}" for g in range(n_tex))
-        pass_ = [f"tex{g}" for g in range(n_tex)]
+        return n_tex, decl, [f"tex{g}, smp" for g in range(n_tex)]
+    return n_tex, ", ".join(f"sampler2D tex{g}" for g in range(n_tex)), \
+        [f"tex{g}" for g in range(n_tex)]
+
+
+def _thin_layer_convenience(table, p, lang):
+    """The lobe for a pre-filtered environment lookup: mean direction, κ̂ and E (≤ 3 channels)."""
+    n_tex, decl, pass_ = _texture_arguments(table, lang)
     n_E = min(3, len(table.channels) - 2)
     slots = [f"v{(2 + j) // 4}.{'xyzw'[(2 + j) % 4]}" for j in range(n_E)] + ["0.0"] * (3 - n_E)
     L = [
@@ -260,13 +264,7 @@ def _thin_layer_convenience(table, p, lang):
 def _compensation_convenience(table, p, lang):
     """The thin layer's compensation lobe f_c(wi, wo) = D(mu_i) D(mu_o) / (pi Dbar), ≤ 3
     channels."""
-    n_tex = len(texture_groups(table))
-    if lang == "hlsl":
-        decl = ", ".join(f"Texture2D tex{g}" for g in range(n_tex)) + ", SamplerState smp"
-        pass_ = [f"tex{g}, smp" for g in range(n_tex)]
-    else:
-        decl = ", ".join(f"sampler2D tex{g}" for g in range(n_tex))
-        pass_ = [f"tex{g}" for g in range(n_tex)]
+    n_tex, decl, pass_ = _texture_arguments(table, lang)
     n = len(table.channels) // 3
 
     def slot(v, j):

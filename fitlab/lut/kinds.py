@@ -427,26 +427,11 @@ def _thin_layer_roughness(model):
                      f"and kappa2 or alpha1 and alpha2); {model.name} has neither")
 
 
-def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
-                    mappings=("linear", "log", "log"), kappa_range=KAPPA_RANGE, orders=None):
-    """The real-time form of the thin layer (Guo et al. 2015 section 5.5): over (μ = cos θi,
-    κ1, κ2) for the fit's η, bottom and absorption, the subsurface lobe's mean direction
-    (sin θ toward the mirror azimuth), log10 of its concentration κ̂ (moment-matched: A3(κ̂) =
-    |mean resultant|, eq. 18) and its albedo E per channel (the remaining terms), integrated
-    over outgoing directions by :mod:`fitlab.lut.lobe`. ``params`` {channel: parameters
-    without the roughnesses}."""
-    from fitlab.lut.lobe import ORDERS, lobe_moments, vmf_lobe_error
-    from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO, exit_concentration
+def _thin_layer_inputs(model, rough, params, kappa_range, size, mappings, kind):
+    """(per-channel parameters without the roughnesses, checked; the (μ, κ1, κ2) axes) of a
+    thin-layer table kind."""
+    from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO
 
-    model = get_model(model_name)
-    rough = _thin_layer_roughness(model)
-    opts = dict(fitlab.api.resolve_options(model, options))
-    choices = {o.name: o.choices for o in model.options}
-    if "subsurface" not in choices.get("component", ()):
-        raise ValueError(f"a thin_layer table needs a model with subsurface orders; "
-                         f"{model.name} has none")
-    opts["component"] = "subsurface"
-    orders = {**ORDERS, **(orders or {})}
     lo, hi = kappa_range
     if lo < KAPPA_LO or hi > KAPPA_HI:
         raise ValueError(f"axes kappa1, kappa2: the range must lie within [{KAPPA_LO:g}, "
@@ -459,19 +444,44 @@ def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
                                                 rough(100.0, 100.0).items()}})
         clean[ch] = p
     if not clean:
-        raise ValueError("a thin_layer table needs the model's parameters (eta, tau and the "
+        raise ValueError(f"a {kind} table needs the model's parameters (eta, tau and the "
                          "bottom's index) for at least one channel")
+    axes = (mu_axis(size[0], mappings[0]),
+            make_axis("kappa1", lo, hi, size[1], mappings[1],
+                      "vMF concentration κ1 of the top boundary (κ ≈ 2/α²)"),
+            make_axis("kappa2", lo, hi, size[2], mappings[2],
+                      "vMF concentration κ2 of the bottom boundary (κ ≈ 2/α²)"))
+    return clean, axes
+
+
+def spec_thin_layer(model_name, params, options=None, size=(16, 16, 16),
+                    mappings=("linear", "log", "log"), kappa_range=KAPPA_RANGE, orders=None):
+    """The real-time form of the thin layer (Guo et al. 2015 section 5.5): over (μ = cos θi,
+    κ1, κ2) for the fit's η, bottom and absorption, the subsurface lobe's mean direction
+    (sin θ toward the mirror azimuth), log10 of its concentration κ̂ (moment-matched: A3(κ̂) =
+    |mean resultant|, eq. 18) and its albedo E per channel (the remaining terms), integrated
+    over outgoing directions by :mod:`fitlab.lut.lobe`. ``params`` {channel: parameters
+    without the roughnesses}."""
+    from fitlab.lut.lobe import ORDERS, lobe_moments, vmf_lobe_error
+    from fitlab.models.thin_layer import exit_concentration
+
+    model = get_model(model_name)
+    rough = _thin_layer_roughness(model)
+    opts = dict(fitlab.api.resolve_options(model, options))
+    choices = {o.name: o.choices for o in model.options}
+    if "subsurface" not in choices.get("component", ()):
+        raise ValueError(f"a thin_layer table needs a model with subsurface orders; "
+                         f"{model.name} has none")
+    opts["component"] = "subsurface"
+    orders = {**ORDERS, **(orders or {})}
+    clean, axes = _thin_layer_inputs(model, rough, params, kappa_range, size, mappings,
+                                     "thin_layer")
     etas = {p["eta"] for p in clean.values()}
     if len(etas) != 1:
         raise ValueError(f"a thin_layer table is made for one η (its lobe's direction and "
                          f"concentration are shared by the channels); the channels have "
                          f"{', '.join(f'{e:g}' for e in sorted(etas))}")
     eta = etas.pop()
-    axes = (mu_axis(size[0], mappings[0]),
-            make_axis("kappa1", lo, hi, size[1], mappings[1],
-                      "vMF concentration κ1 of the top boundary (κ ≈ 2/α²)"),
-            make_axis("kappa2", lo, hi, size[2], mappings[2],
-                      "vMF concentration κ2 of the bottom boundary (κ ≈ 2/α²)"))
     channels = ("sin_theta_mean", "log10_kappa") + tuple(f"E_{ch}" for ch in clean)
     const = [{k: jnp.asarray(v) for k, v in p.items()} for p in clean.values()]
 
@@ -560,7 +570,7 @@ def spec_thin_layer_compensation(model_name, params, options=None, size=(16, 16,
     Dbar_<channel> = D̄ (constant along μ), so that f_c(ωi, ωo) = D(μi) D(μo) / (π D̄)
     (fitlab/models/thin_layer_compensation.py). ``params`` {channel: parameters without the
     roughnesses}."""
-    from fitlab.models.thin_layer import KAPPA_HI, KAPPA_LO, compensation_albedo
+    from fitlab.models.thin_layer import compensation_albedo
 
     model = get_model(model_name)
     rough = _thin_layer_roughness(model)
@@ -569,25 +579,8 @@ def spec_thin_layer_compensation(model_name, params, options=None, size=(16, 16,
     if opts.get("compensation") == "none":
         raise ValueError("a thin_layer_compensation table is the compensation's: drop "
                          "compensation=none")
-    lo, hi = kappa_range
-    if lo < KAPPA_LO or hi > KAPPA_HI:
-        raise ValueError(f"axes kappa1, kappa2: the range must lie within [{KAPPA_LO:g}, "
-                         f"{KAPPA_HI:g}], got [{lo:g}, {hi:g}]")
-    free = set(rough(1.0, 1.0))
-    clean = {}
-    for ch, p in params.items():
-        p = {k: float(v) for k, v in p.items() if k in model.parameter_names and k not in free}
-        fitlab.api.check_params(model, {**p, **{k: float(v) for k, v in
-                                                rough(100.0, 100.0).items()}})
-        clean[ch] = p
-    if not clean:
-        raise ValueError("a thin_layer_compensation table needs the model's parameters (eta, "
-                         "tau and the bottom's index) for at least one channel")
-    axes = (mu_axis(size[0], mappings[0]),
-            make_axis("kappa1", lo, hi, size[1], mappings[1],
-                      "vMF concentration κ1 of the top boundary (κ ≈ 2/α²)"),
-            make_axis("kappa2", lo, hi, size[2], mappings[2],
-                      "vMF concentration κ2 of the bottom boundary (κ ≈ 2/α²)"))
+    clean, axes = _thin_layer_inputs(model, rough, params, kappa_range, size, mappings,
+                                     "thin_layer_compensation")
     channels = tuple(f"{q}_{ch}" for q in ("D", "Dbar", "g") for ch in clean)
 
     def evaluate(coords):

@@ -28,6 +28,11 @@ Components (eq. 25), each on its own with option ``component``:
   per round trip. The lobe itself is a microfacet BRDF with the ENDF:
   f_k = E_k D(h; κ_m) G1(i; κ_m) G1(o; κ_m) / (4 cos θi cos θo).
 
+fitlab's addition (option ``compensation``, default ``table``; ``none`` is the paper's model):
+the light the K orders and the mean-direction weights lose, or gain, restored from a table made
+by the simulator: f = g(μi) g(μo) f_paper + f_c (fitlab/models/thin_layer_compensation.py;
+``component=compensation`` is f_c alone).
+
 Decisions where the paper is silent (data_formats/layered_models.md states them with their
 measured errors):
 
@@ -322,18 +327,25 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
             D = jnp.maximum(D - sum(order_weight(pn, shared, k) for k in orders[1:]), 0.0)
         return D * jnp.exp(-2.0 * params["tau"][..., None] / cos_t), g
 
+    def compensation_of(params, opts):
+        """(D, g) at the incidence nodes for the parameters as given (their own shape, before
+        any broadcast against directions: a scalar set reads the table once, not per row)."""
+        lead = jnp.broadcast_shapes(*(jnp.shape(v) for v in params.values()))
+        params = {k: jnp.broadcast_to(jnp.asarray(v), lead) for k, v in params.items()}
+        k1, k2 = concentrations(params)
+        K = tuple(range(1, int(opts["bounces"]) + 1))
+        return compensation_nodes(params, k1, k2, params["eta"], opts, K)
+
     def compensation_albedo(params, mu, **opts):
         """(D(μ), D̄, g(μ)) of the compensation at cos θ = ``mu``: the added lobe's albedo, the
         normalization of f_c = D(μi) D(μo) / (π D̄) · (azimuthal shape), and the scale of the
         paper's f, g(μi) g(μo) (what the compensation table kind bakes)."""
         opts = {**DEFAULT_OPTIONS, **opts}
-        lead = jnp.broadcast_shapes(jnp.shape(mu), *(jnp.shape(v) for v in params.values()))
-        params = {k: jnp.broadcast_to(jnp.asarray(v), lead) for k, v in params.items()}
-        k1, k2 = concentrations(params)
-        K = tuple(range(1, int(opts["bounces"]) + 1))
-        Dn, gn = compensation_nodes(params, k1, k2, params["eta"], opts, K)
+        Dn, gn = compensation_of(params, opts)
+        lead = jnp.broadcast_shapes(jnp.shape(mu), Dn.shape[:-1])
         mu = jnp.broadcast_to(mu, lead)
-        return (compensation_table.at_mu(Dn, mu), compensation_table.average(Dn),
+        return (compensation_table.at_mu(Dn, mu),
+                jnp.broadcast_to(compensation_table.average(Dn), lead),
                 compensation_table.at_mu(gn, mu))
 
     def paper(params, wi, wo, opts, shared, with_surface, orders):
@@ -345,13 +357,13 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
     def eval(params, wi, wo, **opts):
         opts = {**DEFAULT_OPTIONS, **opts}
         with_surface, orders, with_table = _included(opts)
+        given = params
         params, wi, wo = _broadcast(params, wi, wo)
         shared = setup(params, wi, wo, opts)
         total = paper(params, wi, wo, opts, shared, with_surface, orders)
         if with_table:
-            k1, k2, eta, up = shared[:4]
-            K = tuple(range(1, int(opts["bounces"]) + 1))
-            Dn, gn = compensation_nodes(params, k1, k2, eta, opts, K)
+            up = shared[3]
+            Dn, gn = compensation_of(given, opts)
             ci, co = jnp.where(up, wi[..., 2], 1.0), jnp.where(up, wo[..., 2], 1.0)
             e_z = jnp.asarray([0.0, 0.0, 1.0], wi.dtype)
             f_c = compensation_table.lobe(Dn, jnp.where(up[..., None], wi, e_z),
@@ -367,6 +379,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         cosine lobe, κ None, its albedo D(μi))."""
         opts = {**DEFAULT_OPTIONS, **opts}
         with_surface, orders, with_table = _included(opts)
+        given = params
         params, wi, _ = _broadcast(params, wi, wi)
         wm = wi * jnp.asarray([-1.0, -1.0, 1.0], wi.dtype)  # the mirror direction
         shared = setup(params, wi, wm, opts)
@@ -378,9 +391,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
             out.append((_kappa_of_nu(_lobe_nu(si, eta, k1, k2, k)),
                         order_weight(params, shared, k)))
         if with_table:
-            K = tuple(range(1, int(opts["bounces"]) + 1))
-            Dn, _ = compensation_nodes(params, k1, k2, eta, opts, K)
-            out.append((None, compensation_table.at_mu(Dn, si.c)))
+            out.append((None, compensation_table.at_mu(compensation_of(given, opts)[0], si.c)))
         total = sum(w for _, w in out)
         n = len(out)
         probs = [(1.0 - n * _P_FLOOR) * safe_div(w, total, 1.0 / n) + _P_FLOOR for _, w in out]
