@@ -70,30 +70,6 @@ def simulate_node(model, params, samples, seed):
     return res.energy[:, 0, 0], res.energy_sigma[:, 0, 0]
 
 
-def model_albedo(model, plist, points=MODEL_POINTS):
-    """(len(plist), T) albedo of the paper's model (compensation=none, K = 1): the mean weight
-    of its sampler over ``points`` shifted Sobol points, every node in one compiled call."""
-    from fitlab._jax import jax, jnp
-    from fitlab.models.directional_albedo import points as sobol
-
-    u = np.asarray(sobol(points))
-    th = np.radians(np.asarray(THETA_NODES_DEG))
-    wi = np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], -1)
-    n, T = len(plist), len(th)
-    rows = {k: np.repeat(np.asarray([p[k] for p in plist]), T * points)
-            for k in plist[0]}
-    W = np.tile(np.repeat(wi, points, axis=0), (n, 1))
-    U = np.tile(u, (n * T, 1))
-
-    @jax.jit
-    def weights(p, w, v):
-        return model.sample(p, w, v, compensation="none")[1]
-
-    w = np.asarray(weights({k: jnp.asarray(v) for k, v in rows.items()}, jnp.asarray(W),
-                           jnp.asarray(U)))
-    return w.reshape(n, T, points).mean(-1)
-
-
 def exit_samples(model, plist, points=MODEL_POINTS):
     """(w, μo), each (len(plist), T, points): the paper's model's sampler (compensation=none)
     at every node's incidences: the weights f cos θo / pdf and the exit cosines."""
@@ -119,16 +95,11 @@ def exit_samples(model, plist, points=MODEL_POINTS):
 
 def _at_mu(g, mu):
     """g (n, T) at the incidence nodes, read at mu (n, T, P) as the runtime reads it
-    (piecewise linear in μ, constant below the last node)."""
-    nodes = np.cos(np.radians(np.asarray(THETA_NODES_DEG)))[::-1]
-    ga = g[:, ::-1]
-    x = np.clip(mu, nodes[0], nodes[-1])
-    i = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, len(nodes) - 2)
-    t = (x - nodes[i]) / (nodes[i + 1] - nodes[i])
-    lo = np.take_along_axis(ga[:, None, :], i.reshape(len(g), -1)[:, None, :], axis=-1)
-    hi = np.take_along_axis(ga[:, None, :], (i + 1).reshape(len(g), -1)[:, None, :], axis=-1)
-    lo, hi = lo.reshape(mu.shape), hi.reshape(mu.shape)
-    return lo + t * (hi - lo)
+    (:func:`fitlab.models.thin_layer_compensation.at_mu`)."""
+    from fitlab._jax import jnp
+    from fitlab.models.thin_layer_compensation import at_mu
+
+    return np.asarray(at_mu(jnp.asarray(g)[:, None, None, :], jnp.asarray(mu)))
 
 
 def scale_and_missing(A, w, mu, iterations=30):
@@ -151,7 +122,7 @@ def run_chunk(kind, chunk_idx, samples):
     model = get_model(BOTTOM_KINDS[kind]["model"])
     plist = [node_params(kind, i) for i in chunk_idx]
     A, S = zip(*(simulate_node(model, p, samples, seed=1 + j) for j, p in enumerate(plist)))
-    E = model_albedo(model, plist)
+    E = exit_samples(model, plist)[0].mean(-1)  # the mean weight of the model's sampler
     return np.asarray(A), np.asarray(S), E
 
 

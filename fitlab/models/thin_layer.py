@@ -305,12 +305,17 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         f = E * vmf.D(h, km) * gm[..., 0] * gm[..., 1] / (4.0 * si.c * so.c)
         return jnp.where(up & si.ok & so.ok & sd.ok, f, 0.0)
 
-    def compensation_nodes(params, k1, k2, eta, opts, orders):
-        """(D, g) at the table's incidence nodes (..., T) for these parameters
-        (thin_layer_compensation): the missing light D less the weights of the orders 2..K
-        the model adds itself, scaled by the absorption of four crossings, and the scale g of
-        the paper's f where it returns more light than the stack."""
+    def compensation_of(params, opts):
+        """(D, g) at the table's incidence nodes (..., T) for the parameters as given (their
+        own shape, before any broadcast against directions: a scalar set reads the table once,
+        not per row) (thin_layer_compensation): the missing light D less the weights of the
+        orders 2..K the model adds itself, scaled by the absorption of four crossings, and the
+        scale g of the paper's f where it returns more light than the stack."""
         ct = compensation_table
+        lead = jnp.broadcast_shapes(*(jnp.shape(v) for v in params.values()))
+        params = {k: jnp.broadcast_to(jnp.asarray(v), lead) for k, v in params.items()}
+        k1, k2 = concentrations(params)
+        eta = params["eta"]
         if kind == "conductor":
             b = ct.rbar_conductor(params[index_name] / eta, params[extinction_name] / eta)
         else:
@@ -319,22 +324,14 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         mu = jnp.asarray(ct.mu_nodes(), D.dtype)
         # cos θt of the nodes, kept from 0 (and its gradient finite) past the critical angle
         cos_t = jnp.sqrt(jnp.clip(1.0 - (1.0 - mu * mu) / (eta[..., None] ** 2), 0.0025, 1.0))
-        if len(orders) > 1:
+        K = int(opts["bounces"])
+        if K > 1:
             wn = jnp.stack([jnp.sqrt((1.0 - mu) * (1.0 + mu)), jnp.zeros_like(mu), mu], -1)
             pn = {k: v[..., None] for k, v in params.items()}
             pn, wn, wm = _broadcast(pn, wn, wn * jnp.asarray([-1.0, -1.0, 1.0], wn.dtype))
             shared = setup(pn, wn, wm, opts)
-            D = jnp.maximum(D - sum(order_weight(pn, shared, k) for k in orders[1:]), 0.0)
+            D = jnp.maximum(D - sum(order_weight(pn, shared, k) for k in range(2, K + 1)), 0.0)
         return D * jnp.exp(-2.0 * params["tau"][..., None] / cos_t), g
-
-    def compensation_of(params, opts):
-        """(D, g) at the incidence nodes for the parameters as given (their own shape, before
-        any broadcast against directions: a scalar set reads the table once, not per row)."""
-        lead = jnp.broadcast_shapes(*(jnp.shape(v) for v in params.values()))
-        params = {k: jnp.broadcast_to(jnp.asarray(v), lead) for k, v in params.items()}
-        k1, k2 = concentrations(params)
-        K = tuple(range(1, int(opts["bounces"]) + 1))
-        return compensation_nodes(params, k1, k2, params["eta"], opts, K)
 
     def compensation_albedo(params, mu, **opts):
         """(D(μ), D̄, g(μ)) of the compensation at cos θ = ``mu``: the added lobe's albedo, the
@@ -491,7 +488,7 @@ _COMPENSATION_ALBEDO: dict = {}
 
 
 def compensation_albedo(model: Model):
-    """``fn(params, mu, **options) -> (D(μ), D̄)`` of a thin_layer model's compensation lobe
+    """``fn(params, mu, **options) -> (D(μ), D̄, g(μ))`` of a thin_layer model's compensation
     (ValueError for any other model)."""
     try:
         return _COMPENSATION_ALBEDO[model.name]

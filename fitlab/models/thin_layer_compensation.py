@@ -88,12 +88,19 @@ def bottom_of_node(kind: str, j: int, eta: float) -> dict:
     node = BOTTOM_KINDS[kind]["nodes"][j]
     if kind == "dielectric":
         return {"eta2": float(eta * node)}
+    return {"n2": float(eta), "k2": float(eta * _k_rel_of_rbar(node))}
+
+
+@functools.lru_cache(maxsize=None)
+def _k_rel_of_rbar(rbar: float) -> float:
+    """k_rel of the conductor with n_rel = 1 whose R̄ is ``rbar`` (bisection: R̄ increases with
+    k there); independent of η, so found once per node."""
     lo, hi = 0.0, 1e4
-    for _ in range(200):  # bisection: R̄ increases with k at n_rel = 1
+    for _ in range(60):
         mid = 0.5 * (lo + hi)
         r = float(rbar_conductor(jnp.asarray(1.0), jnp.asarray(mid)))
-        lo, hi = (mid, hi) if r < node else (lo, mid)
-    return {"n2": float(eta), "k2": float(eta * 0.5 * (lo + hi))}
+        lo, hi = (mid, hi) if r < rbar else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 @functools.lru_cache(maxsize=None)
