@@ -328,9 +328,22 @@ def _optimization_of_marked_tests(request):
     yield
 
 
+def _continues_optimized(item, nextitem) -> bool:
+    """Whether the next test is an ``optimized`` one of the same module (no fixture of another
+    scope is made between them, so the setting may stay)."""
+    return (nextitem is not None and nextitem.module is item.module
+            and nextitem.get_closest_marker("optimized") is not None)
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_teardown(item, nextitem):
     yield
+    if FAST_COMPILE and _OPTIMIZED["now"] and not _continues_optimized(item, nextitem):
+        # Module-scoped fixtures of the next test are made before its own setting applies: an
+        # ``optimized`` test's setting must not carry over into them (a report built by a
+        # fixture at XLA's default level and again by a test without most optimizations
+        # differed in a figure's last digit).
+        _set_optimization(False)
     if _resident_bytes() > max(RELEASE_ABOVE_BYTES, _AFTER_RELEASE["bytes"] + RELEASE_GROWTH_BYTES):
         _release_compiled_code(item.module)
         _AFTER_RELEASE["bytes"] = _resident_bytes()
