@@ -8,7 +8,8 @@ three.js beside the input images),
 held-out error → a :class:`CompareResult`), :func:`export_material` (a fit for Mitsuba 3,
 glTF 2.0 or MaterialX's OpenPBR), :func:`complete_measurement` (a measurement with its missing readings filled by a
 fit, ``fitlab convert --complete``), :func:`write_report` (the HTML report of a fit or of a comparison), and
-:func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models; the model registry is
+:func:`eval_bsdf`, :func:`sample_bsdf`, :func:`pdf_bsdf` for models, :func:`atlas` (the layered
+models' validation atlas, ``fitlab atlas``); the model registry is
 :data:`fitlab.models.MODELS`. Conventions (frame, directions, units) are written down in
 ``data_formats/CONVENTIONS.md``.
 
@@ -41,6 +42,7 @@ _SOURCES = {
     "eval_bsdf": "fitlab.api", "sample_bsdf": "fitlab.api", "pdf_bsdf": "fitlab.api",
     "MODELS": "fitlab.models", "get_model": "fitlab.models", "register_model": "fitlab.models",
     "tradeoffs": "fitlab.tradeoffs", "Tradeoffs": "fitlab.tradeoffs",
+    "atlas": "fitlab.atlas.run",
     "write_report": "fitlab.report.api",  # matplotlib: only when a report is written
 }
 

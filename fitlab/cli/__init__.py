@@ -14,7 +14,7 @@ from fitlab.errors import FitlabError
 
 #: The subcommands, in the order ``fitlab --help`` lists them: fitlab.cli.<name>.
 COMMANDS = ("models", "eval", "fit", "fit-maps", "compare", "report", "info", "convert", "export", "lut", "simulate",
-            "tradeoffs", "multiple-lobe", "learn-lobe")
+            "tradeoffs", "atlas", "multiple-lobe", "learn-lobe")
 
 
 def build_parser():

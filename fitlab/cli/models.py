@@ -21,7 +21,7 @@ def add_parser(sub):
     return p
 
 
-def _model_record(model):
+def _model_record(model, atlas=None):
     return {
         "name": model.name,
         "summary": model.summary,
@@ -31,6 +31,7 @@ def _model_record(model):
         "options": [{"name": o.name, "choices": list(o.choices), "default": o.default,
                      "description": o.description} for o in model.options],
         "reference": model.reference,
+        "atlas": atlas,
     }
 
 
@@ -45,14 +46,27 @@ def _capabilities_text(c) -> str:
 
 
 
+def _atlas_line(a) -> str:
+    """The validation atlas's entry of a layered model: where it is within 5% of the simulator
+    and the page (a path in fitlab's source tree)."""
+    held = ", ".join(f"{k}={v:g}" for k, v in a["fixed"].items())
+    opts = ", ".join(f"{k}={v}" for k, v in a["options"].items())
+    return (f"  atlas: within {a['threshold']:.0%} of the simulation of its stack: "
+            f"{a['region']} (other parameters {held or 'typical'}"
+            f"{'; options ' + opts if opts else ''}); {a['page']}")
+
+
 def run(args):
+    from fitlab.atlas.region import summary
     from fitlab.models import MODELS
 
     names = [args.name] if args.name else list(MODELS)
     models = [get_model(n) for n in names]
+    atlas = {m.name: summary(m) for m in models}
     if args.json:
         print(json.dumps({"conventions": conventions_text(),
-                          "models": [_model_record(m) for m in models]}, indent=2))
+                          "models": [_model_record(m, atlas[m.name]) for m in models]},
+                         indent=2))
         return 0
     print(f"Conventions: {conventions_text()}\n")
     if not args.name:
@@ -64,7 +78,9 @@ def run(args):
               "coat lobe; weidlich_wilkie(BASE[,layers=K]) stacks K-1 microfacet interfaces "
               "over any BRDF base (lambertian, oren_nayar, rough_conductor ...); "
               "thin_layer(rough_conductor|rough_dielectric) is a transparent layer between two "
-              "rough vMF boundaries (Guo et al. 2015) (data_formats/layered_models.md).\n")
+              "rough vMF boundaries (Guo et al. 2015) (data_formats/layered_models.md). "
+              "Where each is within 5% of the simulation of its own stack: `atlas:` below, "
+              "reports/layered_atlas/README.md (`fitlab atlas`).\n")
     for m in models:
         print(f"{m.name}: {m.summary}  [{_capabilities_text(m.capabilities)}]")
         for p in m.parameters:
@@ -79,5 +95,7 @@ def run(args):
             print(f"  --preset {pr.name} --channel {'|'.join(CHANNELS)}   {values} "
                   f"({'/'.join(CHANNELS)})\n"
                   f"      {pr.description}")
+        if atlas[m.name]:
+            print(_atlas_line(atlas[m.name]))
         print(f"  source: {m.reference}\n")
     return 0

@@ -89,13 +89,14 @@ def relative_se(result) -> tuple[float, np.ndarray]:
     return (float(np.sqrt(np.mean(rel ** 2))) if rel.size else float("inf")), keep
 
 
-def samples_for(pilot_se: float, pilot: int = PILOT_SAMPLES, target: float = TARGET_SE) -> int:
+def samples_for(pilot_se: float, pilot: int = PILOT_SAMPLES, target: float = TARGET_SE,
+                most: int = MAX_SAMPLES) -> int:
     """Paths per incidence that bring the pilot's RMS relative standard error to ``target``
-    (the error falls as 1/√N), within [MIN_SAMPLES, MAX_SAMPLES]."""
+    (the error falls as 1/√N), within [MIN_SAMPLES, ``most``]."""
     if not np.isfinite(pilot_se):
-        return MAX_SAMPLES
+        return most
     need = int(np.ceil(pilot * (pilot_se / target) ** 2))
-    return int(min(max(need, MIN_SAMPLES), MAX_SAMPLES))
+    return int(min(max(need, MIN_SAMPLES), most))
 
 
 def budget_s(fit_seconds: float, min_budget_s: float = MIN_BUDGET_S) -> float:

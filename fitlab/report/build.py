@@ -224,6 +224,9 @@ def _error_tables(inp, ch, preds):
     check = check_text(ch.fit.get("model_check"))
     if check:
         head.append(check)
+    from fitlab.report.atlas import fit_note
+
+    atlas = fit_note(inp.model, ch.params, inp.options)  # None: a model the atlas does not map
     ap = ch.fit.get("aperture")
     if ap:
         err = ap.get("quadrature_error", {})
@@ -236,7 +239,7 @@ def _error_tables(inp, ch, preds):
             f"{err.get('reference_order')} it moves the parameters by {_fmt(shift, 2)} standard "
             f"errors and the rows by {_fmt(err.get('max_row_error'), 2)} noise at most. The "
             "scans' model curves are f itself, not averaged.")
-    body = paragraph(" ".join(head))
+    body = paragraph(" ".join(head)) + (note_html(atlas) if atlas else "")
     body += table_html(["θi (°)", "φi (°)", "role", "rows", "fitted", "RMS rel. error",
                         "max |rel. error|"], rows, numeric=(0, 1, 3, 4, 5, 6))
     # Walter-style protocol: fit on a subset, predict the rest.

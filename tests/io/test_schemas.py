@@ -19,7 +19,8 @@ INVALID = ROOT / "data_formats" / "examples" / "invalid"
 
 #: The format a record names (its "schema" or, for tradeoffs, "format") -> fitlab's schema name.
 FORMATS = {"fitlab-fit": "fit", "fitlab-compare": "compare", "fitlab-tradeoffs": "tradeoffs",
-           "fitlab-maps": "maps", "fitlab-completion": "completion"}
+           "fitlab-maps": "maps", "fitlab-completion": "completion",
+           "fitlab-layered-atlas": "layered_atlas"}
 #: The glTF exports' extras.fitlab record: its "spec" -> fitlab's schema name.
 GLTF_SPECS = {"data_formats/gltf_material.md": "gltf_material",
               "data_formats/stack.md": "gltf_maps"}
@@ -139,6 +140,12 @@ def _read_lut(p):
     return read_exr(p)
 
 
+def _load_atlas(p):
+    from fitlab.atlas.region import load
+
+    return load(p)
+
+
 def _check_gltf(p):
     name, rec = _gltf_record(p)
     return V.check_schema(rec, name, p)
@@ -160,6 +167,9 @@ INVALID_EXAMPLES = {
         True),
     "gltf_maps_ior_text.gltf": (_check_gltf, "field fixed.ior is a string; expected a finite "
                                 "number", True),
+    "layered_atlas_within_text.json": (_load_atlas, "field entries[0].within[0][1] is a "
+                                       "string; expected true or false", True),
+    "layered_atlas_short_grid.json": (_load_atlas, "field entries[0].within is not 2 x 2", False),
     # the LUT header: the schema's refusals and those of the code before and after it (None:
     # the file has no header to check)
     "lut_axis_size_text.exr": (_read_lut, "field fitlab.axes[0].size is a string; expected a "

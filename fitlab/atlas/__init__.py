@@ -1,0 +1,32 @@
+"""The layered-model validation atlas (``fitlab atlas``): each layered model family against the
+Monte Carlo simulation of its own stack over a grid of its parameters, the region where it is
+within 5% named, maps and a page in ``reports/layered_atlas/``, the numbers as package data
+(``fitlab/models/data/layered_atlas.json``, data_formats/layered_atlas.md).
+
+- :mod:`fitlab.atlas.grids`: the grids, one entry per model (data);
+- :mod:`fitlab.atlas.compute`: the simulation and the model over the simulator's bins, the
+  measures;
+- :mod:`fitlab.atlas.region`: verdicts, the region in words, the record and
+  :func:`~fitlab.atlas.region.within_region` (read by ``fitlab models`` and the fit report);
+- :mod:`fitlab.atlas.run`: :func:`atlas`, everything in one call (``fitlab.atlas(...)``).
+
+Names are imported at their first use (PEP 562): ``fitlab models`` reads the region module
+without the simulator, JAX or matplotlib.
+"""
+
+import importlib as _importlib
+
+_SOURCES = {"atlas": "run", "AtlasResult": "run", "GRIDS": "grids",
+            "within_region": "region"}
+
+__all__ = list(_SOURCES)
+
+
+def __getattr__(name):
+    if name in _SOURCES:
+        return getattr(_importlib.import_module(f"{__name__}.{_SOURCES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
