@@ -43,10 +43,10 @@ from fitlab._jax import jax, jnp
 from fitlab.fitting.least_squares import (LM_DAMPING, LM_GTOL, LM_MAXITER, LM_XTOL, ROW_MASK,
                                           ROW_WEIGHT, FitData, at_bound_mask, lm_end,
                                           lm_stop_reasons, names_at_bound_many, pad_to, padded_size,
-                                          predict_data, residuals_z, scan_costs)
+                                          predict_data, residuals_z, scan_block, scan_costs)
 from fitlab.fitting.lm import lm_queue
 from fitlab.fitting.losses import has_absolute_noise, is_weighted, residuals
-from fitlab.fitting.searches import SCAN_BLOCK, scan_points
+from fitlab.fitting.searches import scan_points
 from fitlab.fitting.space import SCALE, FitSpace, to_native, to_unit, z_from_unit
 
 #: Halton points of the global scan, and Levenberg–Marquardt starts besides its best point and
@@ -200,8 +200,7 @@ def shared_scan_costs(static, loss: str, U, problem):
     if is_weighted(loss):
         w = d.consts["w"] * d.consts.get(ROW_MASK, 1.0)
         w2 = w * w
-        M = jax.lax.map(unscaled, U, batch_size=max(1, min(int(U.shape[0]),
-                                                            SCAN_BLOCK // max(rows, 1))))
+        M = jax.lax.map(unscaled, U, batch_size=scan_block(int(U.shape[0]), rows, static.model))
         quad = w2 @ (M * M).T  # (B, P)
         cross = (w2 * d.value) @ M.T
         const = jnp.sum(w2 * d.value * d.value, axis=1)[:, None]
@@ -218,8 +217,7 @@ def shared_scan_costs(static, loss: str, U, problem):
             r = r * d.consts[ROW_MASK]
         return 0.5 * jnp.sum(r * r, axis=-1)
 
-    block = max(1, min(int(U.shape[0]), SCAN_BLOCK // max(B * rows, 1)))
-    return jax.lax.map(at, U, batch_size=block).T
+    return jax.lax.map(at, U, batch_size=scan_block(int(U.shape[0]), B * rows, static.model)).T
 
 
 def shares_scan(static, stacked: dict) -> bool:

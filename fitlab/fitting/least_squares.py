@@ -36,6 +36,7 @@ from fitlab.fitting.searches import (DEFAULT_GLOBAL_SEARCH, SCAN_BLOCK, SCAN_ROW
 from fitlab.fitting.solvers import DEFAULT_LOCAL_SOLVER, LOCAL_SOLVERS, algorithm
 from fitlab.fitting.space import FitSpace, StaticSpace, predict, to_native, unit_from_z, z_from_unit
 from fitlab.fitting.status import Status
+from fitlab.models.base import call_work
 
 #: Levenberg–Marquardt settings (both solvers): step limit, Madsen–Nielsen tolerances on the step and
 #: the gradient, and the initial damping relative to the largest diagonal element of JᵀJ.
@@ -306,10 +307,18 @@ def kernels(static: StaticSpace, loss: str, maxiter: int = LM_MAXITER,
 
 def scan_costs(static: StaticSpace, loss: str, U, problem):
     """The cost at every point of ``U`` (P, d) of the unit box: one compiled call, a block of
-    points at a time (at most SCAN_BLOCK point-row pairs; all at once for small data)."""
-    rows = int(problem["data"].value.shape[0])
-    block = max(1, min(int(U.shape[0]), SCAN_BLOCK // max(rows, 1)))
+    points at a time (at most SCAN_BLOCK point-row pairs, a model's per-call samples counted
+    as rows: :func:`fitlab.models.base.call_work`; all at once for small data)."""
+    block = scan_block(int(U.shape[0]), int(problem["data"].value.shape[0]), static.model)
     return jax.lax.map(lambda u: cost_unit(static, loss, u, problem), U, batch_size=block)
+
+
+def scan_block(points: int, rows: int, model) -> int:
+    """Points evaluated together by a scan over ``rows`` rows: at most SCAN_BLOCK point-row
+    pairs, each point's per-call samples (:func:`fitlab.models.base.call_work`: SpongeCake's
+    energy budget tabulates 45,056 to 90,112 per parameter set) counted as rows (without them
+    a two-layer lobe fit's scan of 4,096 points asked for 40 GB at once)."""
+    return max(1, min(points, SCAN_BLOCK // max(rows + call_work(model), 1)))
 
 
 def scan_rows(static: StaticSpace, data: FitData, limit: int = SCAN_ROWS) -> FitData:

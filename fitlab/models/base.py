@@ -156,6 +156,11 @@ class Model(NamedTuple):
     #: (renderer, its native plugin that evaluates this same f) pairs, e.g. ("mitsuba",
     #: "roughconductor"); an exporter translates by plugin, never by model name
     translations: tuple[tuple[str, str], ...] = ()
+    #: samples each call draws per parameter set besides its rows (SpongeCake's energy budget
+    #: tabulates albedos per call: fitlab/models/directional_albedo.py); 0 for most models.
+    #: Code that evaluates many parameter sets at once (a fit's global scan) sizes its blocks
+    #: by it: :func:`call_work`
+    work_per_parameter_set: int = 0
 
     def translation(self, renderer: str) -> str | None:
         """The native plugin of ``renderer`` that evaluates this model's f, or None."""
@@ -187,6 +192,13 @@ class Model(NamedTuple):
 
     def default_options(self) -> dict:
         return {o.name: o.default for o in self.options}
+
+
+def call_work(model: Model) -> int:
+    """The samples a call of ``model`` draws per parameter set besides its rows: its own
+    ``work_per_parameter_set`` and its terms' and inner models'."""
+    return (model.work_per_parameter_set + sum(call_work(t.model) for t in model.terms)
+            + sum(call_work(t.model) for t in model.inner))
 
 
 def choose_branch(P, u):

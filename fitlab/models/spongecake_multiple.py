@@ -249,6 +249,8 @@ def with_multiple(base: Model | None, stack: Model, mode: str, name: str, transm
         sample=sample,
         pdf=pdf,
         capabilities=capabilities,
+        # the budget's tables: N_POINTS samples per node, E_lobe and (with a base) E_base
+        work_per_parameter_set=da.N_POINTS * nodes.size * (1 if base is None else 2),
         reference=((base.reference if base is not None else stack.reference)
                    + "; multiple scattering: §5, a single-scattering lobe with modified "
                    "parameters weighted W1 and a Lambertian lobe W2 (+ W2T, transmission)"),
@@ -272,5 +274,6 @@ def with_learned(lobe: Model, base: Model, name: str, lobe_of, provenance: str) 
         sample=lambda params, wi, u, **o: lobe.sample(full(params), wi, u, **o),
         pdf=lambda params, wi, wo, **o: lobe.pdf(full(params), wi, wo, **o),
         capabilities=lobe.capabilities,
+        work_per_parameter_set=lobe.work_per_parameter_set,
         reference=lobe.reference + f"; lobe parameters from the network ({provenance})",
     )

@@ -90,3 +90,24 @@ def test_api_fit_is_the_optimum_of_the_rows_given():
     c0 = float(k["value"](u0, problem))
     for du in (np.array([1e-4, 0]), np.array([0, 1e-4]), np.array([-1e-4, 1e-4])):
         assert float(k["value"](u0 + du, problem)) >= c0 * (1 - 1e-9)
+
+
+def test_scan_blocks_count_a_models_per_call_samples():
+    """A model that tabulates per call (SpongeCake's energy budget) declares the samples it
+    draws per parameter set, sums and derived models inherit them, and the global scan sizes
+    its blocks by rows + those samples (a two-layer lobe fit's 4,096-point scan asked for 40 GB
+    in one block before)."""
+    from fitlab.fitting.least_squares import scan_block
+    from fitlab.fitting.searches import SCAN_BLOCK
+    from fitlab.models import get_model
+    from fitlab.models.base import call_work
+
+    plain, lobe = get_model("rough_conductor"), get_model("spongecake(fiber,surface,multiple=only)")
+    assert call_work(plain) == 0 and call_work(lobe) > 10_000
+    assert call_work(get_model("spongecake(fiber,multiple=learned)")) \
+        == call_work(get_model("spongecake(fiber,multiple=lobe)")) > 0
+    assert call_work(get_model("lambertian+spongecake(fiber,multiple=lobe)")) \
+        == call_work(get_model("spongecake(fiber,multiple=lobe)"))
+    assert scan_block(4096, 256, plain) == 4096
+    n = scan_block(4096, 256, lobe)
+    assert 1 <= n < 4096 and n * (256 + call_work(lobe)) <= SCAN_BLOCK
