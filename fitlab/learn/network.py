@@ -49,6 +49,9 @@ KINDS = ("surface", "fiber")
 THETA_I = (0.0, 30.0, 55.0, 75.0)
 GRID = (4, 8)
 SAMPLES = 10_000
+#: stacks in a dataset by its number of layers: the paper's 4,000 one-layer and 12,000
+#: two-layer stacks (SpongeCake §5), and the shipped weights'
+STACKS = {1: 4000, 2: 12000}
 def _logit(p):
     return math.log(p / (1.0 - p))
 
@@ -381,11 +384,13 @@ def make_dataset_parallel(directory, n_stacks: int, seed: int = 0, samples: int 
     return names
 
 
-def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: int = 8000,
-          seed: int = 0, progress=None, layers: int = 1, jobs: int = 1) -> dict:
+def learn(directory, out, *, stacks: int | None = None, samples: int = SAMPLES,
+          steps: int = 8000, seed: int = 0, progress=None, layers: int = 1,
+          jobs: int = 1) -> dict:
     """The one command (``fitlab learn-lobe``): make the missing training stacks of ``layers``
-    layers in ``directory`` (in ``jobs`` processes), train, write the weights ``out`` (.npz)
-    and their provenance (``out`` with .json) atomically. Returns the provenance."""
+    layers in ``directory`` (``stacks`` of them, default :data:`STACKS` [layers]; in ``jobs``
+    processes), train, write the weights ``out`` (.npz) and their provenance (``out`` with
+    .json) atomically. Returns the provenance."""
     import hashlib
 
     import equinox
@@ -397,6 +402,7 @@ def learn(directory, out, *, stacks: int = 4000, samples: int = SAMPLES, steps: 
 
     if layers not in LAYERS:
         raise ValueError(f"layers must be one of {', '.join(map(str, LAYERS))}")
+    stacks = STACKS[layers] if stacks is None else stacks
     say = progress or (lambda *a: None)
     paths = make_dataset_parallel(directory, stacks, seed, samples,
                                   progress=lambda k, n, made: say("dataset", k, n, made),
