@@ -14,7 +14,7 @@ Names are imported at their first use (PEP 562): ``fitlab models`` reads the reg
 without the simulator, JAX or matplotlib.
 """
 
-import importlib as _importlib
+from fitlab._lazy import exports
 
 _SOURCES = {"atlas": "run", "AtlasResult": "run", "GRIDS": "grids",
             "within_region": "region"}
@@ -22,11 +22,4 @@ _SOURCES = {"atlas": "run", "AtlasResult": "run", "GRIDS": "grids",
 __all__ = list(_SOURCES)
 
 
-def __getattr__(name):
-    if name in _SOURCES:
-        return getattr(_importlib.import_module(f"{__name__}.{_SOURCES[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = exports(__name__, _SOURCES)

@@ -8,7 +8,7 @@ The names below are imported at their first use (PEP 562): a submodule (``engine
 devices, ``walk`` for the launch size) loads without the rest.
 """
 
-import importlib as _importlib
+from fitlab._lazy import exports
 
 #: Public name -> the module that defines it.
 _SOURCES = {"Scene": "scene", "load_scene": "scene", "scene_from_dict": "scene",
@@ -19,11 +19,4 @@ __all__ = ["Scene", "load_scene", "scene_from_dict", "EffectPlan", "derive_effec
            "SimulationResult", "simulate", "ORDER_CLASSES"]
 
 
-def __getattr__(name):
-    if name in _SOURCES:
-        return getattr(_importlib.import_module(f"{__name__}.{_SOURCES[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = exports(__name__, _SOURCES)
