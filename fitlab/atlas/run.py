@@ -127,7 +127,7 @@ def atlas(models=None, *, out: str | Path = DEFAULT_OUT, samples: int | None = N
     (the grids as shipped only, and ``out`` the source tree's ``reports/layered_atlas``, the
     page its links name). ValueError saying what to do for bad arguments."""
     from fitlab.fitting import progress as prog
-    from fitlab.io.atomic import atomic_write_text
+    from fitlab.io.atomic import atomic_open, atomic_write_text
     from fitlab.report import atlas as drawn
 
     t_start = time.perf_counter()
@@ -192,8 +192,6 @@ def atlas(models=None, *, out: str | Path = DEFAULT_OUT, samples: int | None = N
     full_estimate = estimate_s([grids.GRIDS[n] for n in grids.GRIDS]) / 60
     files["atlas.json"] = region.to_json(rec).encode("utf-8")
     files["README.md"] = drawn.page(rec, full_estimate).encode("utf-8")
-    from fitlab.io.atomic import atomic_open
-
     for name in sorted(files, key=lambda n: (n == "README.md", n)):  # the page last
         with atomic_open(out / name, "wb") as fh:
             fh.write(files[name])

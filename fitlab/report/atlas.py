@@ -248,8 +248,6 @@ def fit_note(model, params: dict, options: dict) -> str | None:
         return (f"Validation atlas: the fitted parameters lie {text}. The model's own "
                 "approximation of its stack may limit this fit there (the model check above, "
                 "where run, measures it at the fit's directions).")
-    if verdict:
-        return f"Validation atlas: {text}."
     return f"Validation atlas: {text}."
 
 
