@@ -372,11 +372,14 @@ def test_reciprocity_where_declared(name):
 # ----------------------------------------------------------------------------------------------
 
 #: samples per (parameter set, θi) row in the first round: a multiple of CHUNK, so that every
-#: compiled call of the sampling check's function holds one row's parameters
+#: compiled call of the sampling check's function holds one row's parameters; a model that
+#: tabulates per call samples in blocks of N_FURNACE (:func:`_furnace_block`)
 N_FURNACE = 4 * 8192
-#: a row whose standard error is above FURNACE_SE gets FURNACE_GROWTH times as many samples,
-#: up to N_FURNACE_MAX (the count is stated when the test fails); only that row is sampled again
-FURNACE_SE, FURNACE_GROWTH, N_FURNACE_MAX = 0.003, 3, 3 ** 4 * N_FURNACE
+N_FURNACE_FIRST = 2 * CHUNK
+#: a row whose standard error is above FURNACE_SE is sampled again, to the count its sample
+#: variance says it needs times FURNACE_MARGIN (at least one more granule), up to N_FURNACE_MAX
+#: (the count is stated when the test fails); only that row is sampled again
+FURNACE_SE, FURNACE_MARGIN, N_FURNACE_MAX = 0.003, 1.25, 81 * N_FURNACE
 FURNACE_LIMIT = 1.01
 FURNACE_SETS = ("default", "rough", "smooth", "anisotropic")
 FURNACE_THETAS = (0.0, 60.0, 85.0, 89.0, 89.9)
@@ -443,18 +446,33 @@ def _furnace(name, seed=11):
             for row, wr in zip(rows, w):
                 yield row, wr.sum(), (wr * wr).sum(), n
 
-    todo, n = list(stats), N_FURNACE
-    while todo:
-        for start in range(0, len(todo), max(1, 4 * N_FURNACE // n)):  # <= 4 N_FURNACE rows a call
-            for row, a, b, m in draw(todo[start:start + max(1, 4 * N_FURNACE // n)], n):
-                stats[row][0] += a
-                stats[row][1] += b
-                stats[row][2] += m
+    granule = N_FURNACE if _tabulates_per_call(model) else CHUNK
+    need = {r: max(granule, N_FURNACE_FIRST) for r in stats}
+    while need:
+        rows = sorted(need, key=lambda r: need[r])
+        for count in sorted(set(need.values())):  # rows needing the same count drawn together
+            same = [r for r in rows if need[r] == count]
+            step = max(1, 4 * N_FURNACE // count)  # <= 4 N_FURNACE samples a call
+            for start in range(0, len(same), step):
+                for row, a, b, m in draw(same[start:start + step], count):
+                    stats[row][0] += a
+                    stats[row][1] += b
+                    stats[row][2] += m
         out = {r: (a / m, float(np.sqrt(max(b / m - (a / m) ** 2, 0.0) / m)), m)
                for r, (a, b, m) in stats.items()}
-        todo = [r for r in todo if out[r][1] > FURNACE_SE and stats[r][2] < N_FURNACE_MAX]
-        n = (FURNACE_GROWTH - 1) * stats[todo[0]][2] if todo else 0
+        need = {r: _furnace_more(stats[r], granule) for r in stats
+                if out[r][1] > FURNACE_SE and stats[r][2] < N_FURNACE_MAX}
     return out
+
+
+def _furnace_more(stat, granule):
+    """Samples a row needs beyond its ``stat`` = [Σw, Σw², n] for a standard error of
+    FURNACE_SE: its sample variance's count times FURNACE_MARGIN, in whole granules, at least
+    one, so that it never passes N_FURNACE_MAX."""
+    a, b, m = stat
+    var = max(b / m - (a / m) ** 2, 0.0)
+    want = int(np.ceil(FURNACE_MARGIN * var / FURNACE_SE ** 2 / granule)) * granule
+    return int(min(max(want - m, granule), N_FURNACE_MAX - m))
 
 
 def _furnace_marks(name):
