@@ -397,11 +397,15 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
     def pdf(params, wi, wo, **opts):
         """Σ_lobes P_j D(h; κ_j) cos θh / (4 |wo·h|) (+ P_c cos θo / π for the compensation's
         cosine lobe): the mixture ``sample`` draws from."""
+        return mixture_pdf(lobes(params, wi, opts), wi, wo)
+
+    def mixture_pdf(ls, wi, wo):
+        """:func:`pdf` of the lobes ``ls`` (:func:`lobes` at wi), which ``sample`` has made."""
         ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
         h = _half_vector(wi, wo, ok)
         jac = safe_div(1.0, 4.0 * jnp.abs(dot(wo, h)))
         total = 0.0
-        for kappa, p in lobes(params, wi, opts):
+        for kappa, p in ls:
             if kappa is None:
                 total = total + p * jnp.maximum(wo[..., 2], 0.0) / jnp.pi
             else:
@@ -429,7 +433,7 @@ def make_thin_layer(bottom: Model, roughness: str = "kappa") -> Model:
         wc = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi),
                         jnp.sqrt(jnp.maximum(1.0 - u[..., 0], 0.0))], -1)
         wo = jnp.where(cosine[..., None], wc, reflect(wi, m))
-        p = pdf(params, wi, wo, **opts)
+        p = mixture_pdf(ls, wi, wo)
         f = eval(params, wi, wo, **opts)
         return sample_result(wo, f, p, (wi[..., 2] > 0) & (wo[..., 2] > 0))
 
