@@ -151,7 +151,14 @@ PLUGIN_CASES = {
 }
 
 
-@pytest.mark.parametrize("case", list(PLUGIN_CASES))
+#: Cases whose model costs 7-9 s to compile for the plugin (the thin layer's masking integrals,
+#: the learned lobe's budget tables): the whole suite runs them; the plugin's code path is the
+#: same for every model, and the quick tier keeps the others.
+SLOW_PLUGIN_CASES = {"thin layer", "spongecake with the learned lobe"}
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=[pytest.mark.slow] * (c in SLOW_PLUGIN_CASES))
+                                  for c in PLUGIN_CASES])
 def test_plugin_renders_fitlab_values(fm, case):
     rendered, expected = _render_case(fm, PLUGIN_CASES[case], plugin_bsdf)
     err = _rel(rendered, expected)
