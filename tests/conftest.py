@@ -291,6 +291,13 @@ def pytest_runtest_logreport(report):
 
 
 @pytest.hookimpl(trylast=True)
+def pytest_collection_finish(session):
+    """The modules imported by collecting (JAX, fitlab, the test modules) live for the session:
+    frozen, the cyclic collector does not walk them again (see tune_collector above)."""
+    gc.collect()
+    gc.freeze()
+
+
 def pytest_collection_modifyitems(config, items):
     """Modules run heaviest first (MODULE_SECONDS). A session that runs slow tests leaves out
     their quick-tier samples (marked
