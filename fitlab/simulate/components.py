@@ -115,7 +115,8 @@ class MitsubaBoundary:
     internal reflection F = 1 and the forced refraction's weight 1 − F is 0), and the weight
     times F or 1 − F at the sampled microfacet (Walter eq. 22 from ``mi.fresnel``) is the
     forced branch's, as Mitsuba's own ``type_mask`` contexts weight it; its density stays the
-    unforced one."""
+    unforced one. A branch forced for every lane (``force`` one int) is sampled in that
+    branch's context itself."""
 
     def __init__(self, bsdf, nonspecular: bool, eta=None):
         import mitsuba as mi
@@ -124,12 +125,18 @@ class MitsubaBoundary:
         self.nonspecular = nonspecular
         self.eta = eta
         self.ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        # one branch for every lane: Mitsuba's own one-lobe contexts
+        self.ctx_lobe = {code: mi.BSDFContext(mi.TransportMode.Importance, flags)
+                         for code, flags in ((FORCE_REFLECT, mi.BSDFFlags.Reflection),
+                                             (FORCE_REFRACT, mi.BSDFFlags.Transmission))}
 
     def sample(self, wi, sample1, sample2, force, active, need_pdf=False):
         import drjit as dr
         import mitsuba as mi
 
         si = _local_si(wi)
+        if self.eta is not None and isinstance(force, int) and force != FORCE_CHOOSE:
+            return self._sample_lobe(si, sample1, sample2, force, active, need_pdf)
         if self.eta is not None:
             sample1 = dr.select(force == FORCE_REFLECT, 0.0,
                                 dr.select(force == FORCE_REFRACT, 1.0, sample1))
@@ -151,6 +158,19 @@ class MitsubaBoundary:
         weight = dr.select(ok, weight, 0.0)
         pdf = dr.select(ok & self.nonspecular, pdf, 0.0)
         return wo, weight, pdf
+
+    def _sample_lobe(self, si, sample1, sample2, force: int, active, need_pdf):
+        """:meth:`sample` with one branch forced for every lane: Mitsuba's sampling in that
+        lobe's context (its weight holds F or 1 − F), the density the unforced one."""
+        import drjit as dr
+        import mitsuba as mi
+
+        bs, weight = self.bsdf.sample(self.ctx_lobe[force], si, sample1, sample2, active)
+        wo = dr.normalize(bs.wo)
+        weight = mi.Spectrum(weight)
+        ok = active & (bs.pdf > 0) & dr.all(dr.isfinite(weight))
+        pdf = self.bsdf.pdf(self.ctx, si, wo, ok) if need_pdf else mi.Float(0.0)
+        return wo, dr.select(ok, weight, 0.0), dr.select(ok & self.nonspecular, pdf, 0.0)
 
     def eval(self, wi, wo, active):
         return f_from_mitsuba(self.bsdf.eval(self.ctx, _local_si(wi), wo, active), wo)

@@ -23,7 +23,7 @@ Boundary (interface or substrate)::
                 1 - F when ``force`` forces a branch; 0 for an invalid sample
         pdf:    density per solid angle of the *unforced* sampling (0 for a specular event)
         force:  UInt32 per lane, FORCE_CHOOSE (by the Fresnel probability), FORCE_REFLECT or
-                FORCE_REFRACT (ignored by opaque boundaries)
+                FORCE_REFRACT (ignored by opaque boundaries), or one int for every lane
     eval(wi, wo, active) -> Spectrum
         fitlab's f(wi, wo) in 1/sr, radiance convention, without the cosine (Walter eqs 20-21:
         f_t(i, o)/η_o² = f_t(o, i)/η_i²), as fitlab's JAX models return it

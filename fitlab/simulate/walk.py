@@ -1176,9 +1176,8 @@ class ConeIndex:
     #: Largest candidate count tested in the kernel (wider tables are tested on the host).
     DEVICE_WIDTH = 16
 
-    def device_members(self, w):
-        """In the kernel: the cones containing w, as ``width`` UInt32 (cone index + 1, 0: none),
-        from the cell of w and its candidates (gathered from the tables as kernel inputs)."""
+    def _device_cell(self, w):
+        """In the kernel: the tables (kernel inputs) and the cell of each w."""
         import drjit as dr
         import mitsuba as mi
 
@@ -1188,12 +1187,28 @@ class ConeIndex:
                          mi.Float(np.ascontiguousarray(self.cos, np.float32)))
             for v in self._dev:
                 dr.make_opaque(v)
-        table, axes, cos = self._dev
-        width = self.table.shape[1]
         iz = mi.UInt32(dr.clip(mi.Int32((w.z + 1.0) * (0.5 * self.Z)), 0, self.Z - 1))
         ip = mi.UInt32(dr.clip(mi.Int32((dr.atan2(w.y, w.x) + dr.pi) * (self.PHI / (2 * dr.pi))),
                                0, self.PHI - 1))
-        cell = iz * self.PHI + ip
+        return self._dev, iz * self.PHI + ip
+
+    def device_near(self, w):
+        """In the kernel: whether the cell of w has a candidate cone (false: w lies in none);
+        one gather, where :meth:`device_members` takes five per candidate."""
+        import drjit as dr
+        import mitsuba as mi
+
+        (table, _, _), cell = self._device_cell(w)
+        return dr.gather(mi.UInt32, table, cell * self.table.shape[1]) > 0
+
+    def device_members(self, w):
+        """In the kernel: the cones containing w, as ``width`` UInt32 (cone index + 1, 0: none),
+        from the cell of w and its candidates (gathered from the tables as kernel inputs)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        (table, axes, cos), cell = self._device_cell(w)
+        width = self.table.shape[1]
         out = []
         for k in range(width):
             c1 = dr.gather(mi.UInt32, table, cell * width + k)
@@ -1250,40 +1265,54 @@ def _tally_key(cfg: WalkConfig, path, w, order, n_out: int):
     return slot * 2 + dr.select(w.z < 0, 1, 0)
 
 
-def _member_pairs(columns, x, key) -> tuple:
+def _member_pairs(columns, x, key, path=None) -> tuple:
     """(path, cone) pairs from the kernel's candidate columns (cone index + 1, 0: none), column
     by column, each in path order (the same order whatever the launch size), with each pair's
-    path weights (m, C) float64 and tally key. The paths in some cone are picked on the device
-    (``dr.compress`` keeps their order), so only they travel."""
+    path weights (m, C) float64 and tally key. Picked on the device (``dr.compress`` keeps the
+    order), so only the pairs travel: the paths in some cone first, then each column's members
+    among them. ``path``: the launch's path of each row (UInt32, evaluated) where the columns
+    hold picked paths only (rows in path order), else None (row = path)."""
     import drjit as dr
     import mitsuba as mi
 
-    inside = columns[0] > 0
-    for col in columns[1:]:
-        inside = inside | (col > 0)
-    idx = dr.compress(inside)
-    picked = [dr.gather(mi.UInt32, col, idx) for col in columns]
-    xs = [dr.gather(mi.Float, v, idx) for v in x]
-    ks = dr.gather(mi.UInt32, key, idx)
-    dr.eval(picked, xs, ks)
-    idx = np.array(idx).astype(np.int64)
-    xs = np.stack([np.array(v) for v in xs], axis=1).astype(np.float64)
-    ks = np.array(ks).astype(np.int64)
-    js, rs = [], []
-    for col in picked:
-        col = np.array(col)
-        j = np.flatnonzero(col)
-        js.append(j)
-        rs.append(col[j].astype(np.int64) - 1)
-    j = np.concatenate(js)
-    return idx[j], np.concatenate(rs), xs[j], ks[j]
+    if path is None:
+        inside = columns[0] > 0
+        for col in columns[1:]:
+            inside = inside | (col > 0)
+        path = dr.compress(inside)
+        columns = [dr.gather(mi.UInt32, col, path) for col in columns]
+        x = [dr.gather(mi.Float, v, path) for v in x]
+        key = dr.gather(mi.UInt32, key, path)
+    if dr.width(path) == 0:
+        return _no_pairs(len(x))
+    member = [col > 0 for col in columns]
+    dr.eval(columns, x, key, member)
+    parts = []
+    for col, m in zip(columns, member):
+        j = dr.compress(m)
+        parts.append([dr.gather(mi.UInt32, path, j), dr.gather(mi.UInt32, col, j),
+                      dr.gather(mi.UInt32, key, j)] + [dr.gather(mi.Float, v, j) for v in x])
+    dr.eval(parts)
+
+    def cat(i):
+        return np.concatenate([np.array(part[i]) for part in parts])
+
+    xs = np.stack([cat(3 + c) for c in range(len(x))], axis=1).astype(np.float64)
+    return (cat(0).astype(np.int64), cat(1).astype(np.int64) - 1, xs,
+            cat(2).astype(np.int64))
+
+
+def _no_pairs(channels: int) -> tuple:
+    """:func:`_member_pairs` where no path lies in any cone."""
+    return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, channels)),
+            np.zeros(0, np.int64))
 
 
 def _device_sides(x, key, n: int):
     """The exits' sums per block of :data:`TALLY_BLOCK` paths, moment (x, x²) and exit side
-    (key's lowest bit: downward), (nb, 2, 2, C) float64, from the kernel's per-path weights
-    ``x`` (C arrays) and keys, on the device: each block reduced in path order by one thread
-    (``dr.block_sum``, evaluated: no atomics)."""
+    (key's lowest bit: downward; ``key`` None: every exit upward), (nb, 2, 2, C) float64, from
+    the kernel's per-path weights ``x`` (C arrays) and keys, on the device: each block reduced
+    in path order by one thread (``dr.block_sum``, evaluated: no atomics)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -1291,17 +1320,23 @@ def _device_sides(x, key, n: int):
     nb = -(-n // TALLY_BLOCK)
     idx = dr.arange(mi.UInt32, nb * TALLY_BLOCK)
     valid = idx < n
-    down = (dr.gather(mi.UInt32, key, idx, valid) & 1) != 0
+    sides = 1 if key is None else 2
+    down = None if key is None else (dr.gather(mi.UInt32, key, idx, valid) & 1) != 0
     parts = []
     for v in x:
         v = F64(dr.gather(mi.Float, v, idx, valid))
+        if down is None:
+            parts += [v, v * v]
+            continue
         v_down = dr.select(down, v, 0.0)
         v_up = v - v_down  # exact: v or 0
         parts += [v_up, v_down, v_up * v_up, v_down * v_down]
     sums = [dr.block_sum(v, TALLY_BLOCK, mode="evaluated") for v in parts]
     dr.eval(sums)
-    out = np.stack([np.array(v) for v in sums], axis=1)  # (nb, C × 4)
-    return out.reshape(nb, len(x), 2, 2).transpose(0, 2, 3, 1)  # (nb, moment, side, C)
+    out = np.zeros((nb, len(x), 2, 2))  # (nb, C, moment, side)
+    out[..., :sides] = np.stack([np.array(v) for v in sums], axis=1).reshape(
+        nb, len(x), 2, sides)
+    return out.transpose(0, 2, 3, 1)  # (nb, moment, side, C)
 
 
 def tally_exits(cfg: WalkConfig, det: Detector, ex: Exits, n_out: int,
@@ -1542,38 +1577,113 @@ def _tea_rng_fields(path, words):
     return rng.state, rng.inc
 
 
-def _split_first(stack: Stack, wi, n: int, first: int, words, n_out: int,
-                 cones: ConeIndex | None, cores: _Cores) -> Exits:
-    """Splitting at the first interface: the reflected branch of each path's first crossing of
-    the top boundary (forced reflection, weight F times the sample weight), sampled with its own
-    random numbers: its exits, tallied as bounce order 0 (bin or cones found on the device, as
-    the walk's own exits)."""
-    import drjit as dr
-    import mitsuba as mi
+class _Split:
+    """Splitting at the first interface (:attr:`WalkConfig.split_first`): the walk's first
+    crossing of the top boundary refracts (weight 1 − F); the reflected branch of that crossing
+    (weight F) is tallied here, as bounce order 0 in bins or cones as the walk's own exits are,
+    sampled with random numbers of its own (independent of the walk's path: its variance adds
+    to the walk's). :meth:`blocks` gives one launch's sums per block of :data:`TALLY_BLOCK`
+    paths, as :func:`tally_exits` does.
 
-    cfg = stack.cfg
-    rng = path_rng(n, (words[0] ^ 0x27D4EB2F165667B1, words[1] ^ 0x165667B19E3779F9), first)
-    wi_v = mi.Vector3f(*[dr.opaque(mi.Float, float(c)) for c in wi])
-    u1 = rng.next_float32()
-    u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
-    top = stack.boundary[0]  # called directly: every lane meets the top (no dispatch)
-    wo, f, _ = top.sample(wi_v, u1, u2, mi.UInt32(FORCE_REFLECT), mi.Bool(True), False)
-    keep = (wo.z > 0) & dr.all(dr.isfinite(f)) & dr.all(dr.isfinite(wo))
-    if not cfg.delta and not top.nonspecular:
-        keep = mi.Bool(False)
-    x = dr.select(keep, f, 0.0)
-    wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
-    key = _tally_key(cfg, dr.arange(mi.UInt32, n), wo, mi.UInt32(0), n_out)
-    on_device = cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH
-    members = cones.device_members(wo) if on_device else []
-    # only what the tally reads is evaluated: C weights, the key, the cone members (or the
-    # directions, where the host finds the cones)
-    x = [x[c] for c in range(cfg.channels)]
-    host_w = [wo[c] for c in range(3)] if cones is not None and not on_device else []
-    cores.kernel()
-    dr.eval(x, key, members, host_w)
-    cores.host()
-    return _exits(cfg, x, key, n, host_w, members)
+    A specular top reflects every path alike (one direction, weight F(θi)): its branch is
+    computed once and counted once per path of each block, with no per-path kernel."""
+
+    #: Salt of the split's seed words: its PCG32 streams are not the walk's.
+    SALT = (0x27D4EB2F165667B1, 0x165667B19E3779F9)
+
+    def __init__(self, stack: Stack, det: Detector, wi, words, n_out: int,
+                 cones: ConeIndex | None, cores: _Cores):
+        self.stack, self.det, self.wi, self.n_out, self.cones = stack, det, wi, n_out, cones
+        self.words = (words[0] ^ self.SALT[0], words[1] ^ self.SALT[1])
+        # a specular top: the sums of one path's branch (one block), scaled in :meth:`blocks`
+        self.one = None if stack.boundary[0].nonspecular else self._tally(1, 0, cores)
+
+    def blocks(self, n: int, first: int, cores):
+        """The sums of paths first .. first + n − 1 (``first`` a multiple of
+        :data:`TALLY_BLOCK`) per block: (nb, K, n_out, C) twice and (nb, 2, 2, C)."""
+        if self.one is None:
+            return self._tally(n, first, cores)
+        # every path of a block adds the one branch: its count times the branch's sums
+        nb = -(-n // TALLY_BLOCK)
+        count = np.full(nb, float(TALLY_BLOCK))
+        count[-1] = n - TALLY_BLOCK * (nb - 1)
+        return tuple(count.reshape((nb,) + (1,) * (t.ndim - 1)) * t for t in self.one)
+
+    def _branch(self, n: int, first: int):
+        """The reflected branches of the first crossings of paths first .. first + n − 1: their
+        weights (C Floats, 0 where not tallied) and exit directions (upward), from PCG32
+        streams of their own (:func:`path_rng` of the split's words); the top sampled in its
+        reflection lobe for every lane."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cfg = self.stack.cfg
+        rng = path_rng(n, self.words, first)
+        u1 = rng.next_float32()
+        u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
+        wi_v = mi.Vector3f(*[dr.opaque(mi.Float, float(c)) for c in self.wi])
+        top = self.stack.boundary[0]  # called directly: every lane meets the top (no dispatch)
+        wo, f, _ = top.sample(wi_v, u1, u2, FORCE_REFLECT, mi.Bool(True), False)
+        keep = (wo.z > 0) & dr.all(dr.isfinite(f)) & dr.all(dr.isfinite(wo))
+        if not cfg.delta and not top.nonspecular:
+            keep = mi.Bool(False)
+        f = dr.select(keep, f, 0.0)
+        wo = dr.select(keep, wo, mi.Vector3f(0.0, 0.0, 1.0))
+        return [f[c] for c in range(cfg.channels)], wo
+
+    def _key(self, path, wo):
+        """The tally keys (order 0) of the branches of the launch's paths ``path``."""
+        import mitsuba as mi
+
+        return _tally_key(self.stack.cfg, path, wo, mi.UInt32(0), self.n_out)
+
+    def _tally(self, n: int, first: int, cores):
+        """:func:`tally_exits` of the branches of paths first .. first + n − 1, per block: in
+        bins, or in cones found on the host where the cone table is too wide for the kernel,
+        else in :meth:`_cones`."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cones = self.cones
+        x, wo = self._branch(n, first)
+        if cones is not None and cones.table.shape[1] <= ConeIndex.DEVICE_WIDTH:
+            ex = self._cones(x, wo, n, cores)
+        else:
+            key = self._key(dr.arange(mi.UInt32, n), wo)
+            host_w = [wo[c] for c in range(3)] if cones is not None else []
+            cores.kernel()
+            dr.eval(x, key, host_w)
+            cores.host()
+            ex = _exits(self.stack.cfg, x, key, n, host_w)
+        return tally_exits(self.stack.cfg, self.det, ex, self.n_out, cones)
+
+    def _cones(self, x, wo, n: int, cores) -> Exits:
+        """The branches' :class:`Exits` in cones found on the device, in two passes: only the
+        branches whose cell has a candidate cone (:meth:`ConeIndex.device_near`, one gather:
+        about a quarter on the throughput arc) are picked and their members found (five
+        gathers per candidate, most of a branch's cost if every branch paid them). Every
+        branch leaves upward: the sides' sums need no keys."""
+        import drjit as dr
+        import mitsuba as mi
+
+        cones = self.cones
+        wo = [wo[c] for c in range(3)]
+        near = cones.device_near(mi.Vector3f(*wo)) & (x[0] > 0)
+        for v in x[1:]:
+            near = near | (v > 0)  # a branch of weight 0 lies in no cone
+        cores.kernel()
+        dr.eval(x, near, wo)
+        idx = dr.compress(near)
+        picked = None
+        if dr.width(idx) > 0:
+            w_p = mi.Vector3f(*[dr.gather(mi.Float, v, idx) for v in wo])
+            picked = [cones.device_members(w_p), [dr.gather(mi.Float, v, idx) for v in x],
+                      self._key(idx, w_p), idx]
+            dr.eval(picked)
+        cores.host()
+        pairs = _no_pairs(len(x)) if picked is None else _member_pairs(*picked)
+        return Exits(None, None, cones=pairs[:2], side=_device_sides(x, None, n),
+                     pair_x=pairs[2], pair_key=pairs[3])
 
 
 def _exits(cfg: WalkConfig, x, key, n: int, w=(), members=()) -> Exits:
@@ -1623,12 +1733,13 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
         if cfg.split_first else None
     truncated = events = 0
     with _Cores() as cores:
+        splitter = _Split(stack, det, wi, words, n_out, cones, cores) if cfg.split_first \
+            else None
         for first in range(0, n_paths, launch):
             n = min(launch, n_paths - first)
             ex, sums, capped, ev = _launch(stack, walk, wi, n, first, words, n_out, cones,
                                           cores)
-            sp = (_split_first(stack, wi, n, first, words, n_out, cones, cores)
-                  if split is not None else None)
+            sp = splitter.blocks(n, first, cores) if splitter is not None else None
             truncated += capped
             events += ev
             t1, t2, t_side = tally_exits(cfg, det, ex, n_out, cones)
@@ -1641,7 +1752,7 @@ def run(stack: Stack, det: Detector, wi, n_paths: int, words, n_out: int, n_up: 
                 # each path exits in one order class: its total's square is its order's
                 s2 = _fold(s2, np.concatenate([t2, t2.sum(axis=1, keepdims=True)], axis=1))
             if sp is not None:
-                q1, q2, q_side = tally_exits(cfg, det, sp, n_out, cones)
+                q1, q2, q_side = sp
                 split[0] = _fold(split[0], q1[:, 0])
                 split[1] = _fold(split[1], q2[:, 0])
                 split[2] = _fold(split[2], q_side)

@@ -298,6 +298,99 @@ def test_forced_branches_weigh_as_mitsubas_one_lobe_contexts(mi):
         assert ok.sum() > n // 2
         np.testing.assert_allclose(w[ok], w_ref[ok], rtol=2e-4, atol=1e-6)
         np.testing.assert_allclose(np.array(wo).T[ok], np.array(bs.wo).T[ok], atol=2e-5)
+        # one branch for every lane (force one int, as the split's reflections): that lobe's
+        # context itself, the same weights, directions and unforced density
+        wo1, w1, p1 = bd.sample(_vec(mi, wi), mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]),
+                                code, mi.Bool(True), True)
+        _, _, p = bd.sample(_vec(mi, wi), mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]),
+                            mi.UInt32(code), mi.Bool(True), True)
+        np.testing.assert_array_equal(np.array(w1)[0][ok], w_ref[ok])
+        np.testing.assert_allclose(np.array(wo1).T[ok], np.array(bs.wo).T[ok], atol=2e-6)
+        np.testing.assert_allclose(np.array(p1)[ok], np.array(p)[ok], rtol=1e-3)
+
+
+@pytest.mark.parametrize("distribution", ["smooth", "beckmann", "vmf"])
+def test_a_branch_forced_for_every_lane_is_the_per_lane_forcing(mi, distribution):
+    """``force`` as one int (the split's reflections): fitlab's own dielectrics and the smooth
+    one give exactly what the same code per lane gives (Mitsuba's, in its one-lobe context, is
+    tested against that context above)."""
+    from fitlab.simulate import components as comp
+    from fitlab.simulate.protocol import FORCE_REFLECT, FORCE_REFRACT
+
+    bd = comp.make_boundary(comp.BoundarySpec("dielectric", distribution),
+                            comp.BoundaryValues(alpha=0.3, alpha_y=0.3, eta=1.5), True)
+    wi = np.concatenate([_directions(500, True), _directions(500, False)])
+    u = RNG.random((len(wi), 3)).astype(np.float32)
+    for code in (FORCE_REFLECT, FORCE_REFRACT):
+        args = (_vec(mi, wi), mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]))
+        one = bd.sample(*args, code, mi.Bool(True), True)
+        per_lane = bd.sample(*args, mi.UInt32(code), mi.Bool(True), True)
+        assert np.array(one[1])[0].max() > 0
+        for a, b in zip(one, per_lane):
+            np.testing.assert_array_equal(np.broadcast_to(np.array(a), np.shape(np.array(b))),
+                                          np.array(b))
+
+
+@pytest.mark.parametrize("top, detector", [
+    ("ggx", {"type": "inplane", "theta_o": [-40, -30, 10, 150], "acceptance_sr": 0.05}),
+    ("smooth", {"type": "inplane", "theta_o": [-40, -30, 10, 150], "acceptance_sr": 0.05}),
+    ("ggx", None)], ids=["rough-cones", "smooth-cones", "rough-bins"])
+def test_split_same_bytes_whatever_the_thread_count_and_batch(top, detector):
+    """Splitting at the first interface (its reflections tallied per block apart from the
+    walk, a smooth top's computed once and counted per path): 1 or 2 threads, one launch or
+    many, identical numbers; the split's reflection (order 0, the mirror cone) is there."""
+    import drjit as dr
+
+    stack = [{"type": "interface", "distribution": "ggx", "alpha": 0.2} if top == "ggx"
+             else {"type": "interface"},
+             {"type": "medium", "index": 1.5, "thickness": 1.0, "sigma_a": 0.2,
+              "sigma_s": 0.8, "phase": "hg", "g": 0.5},
+             {"type": "interface", "distribution": "beckmann", "alpha": 0.3}]
+    scene = _slab_scene(stack=stack, effects={"split_first_interface": True},
+                        **({"detector": detector} if detector else {}))
+    before = dr.thread_count()
+    try:
+        dr.set_thread_count(1)
+        a = simulate(scene, 9000, seed=3)
+        dr.set_thread_count(2)
+        b = simulate(scene, 9000, seed=3, batch_size=4096)
+    finally:
+        dr.set_thread_count(before)
+    for f in ("value", "sigma", "by_order", "sigma_by_order", "energy", "energy_sigma"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+    assert a.plan.split_first and a.by_order[0].max() > 0
+
+
+def test_split_cones_are_sought_only_where_a_cell_has_candidates(mi):
+    """The split finds its reflections' cones in two passes, the second only for directions
+    whose cell has a candidate cone (ConeIndex.device_near): every direction inside a cone is
+    among them, for narrow and wide cones, at the poles and near the cell edges."""
+    from fitlab.simulate import walk
+
+    for sr in (0.0005, 0.01, 0.3):
+        axes = np.concatenate([[[0, 0, 1], [0, 0, -1], [1, 0, 0], [0.6, 0.8, 0]],
+                               _directions(40)])
+        det = walk.Detector(axes, np.full(len(axes), 1.0 - sr / (2 * np.pi)))
+        cones = walk.ConeIndex(det)
+        gamma = np.arccos(det.cone_cos[0])
+        near_axes = axes[RNG.integers(0, len(axes), 40_000)] + RNG.normal(size=(40_000, 3)) \
+            * gamma
+        w = np.concatenate([_directions(40_000), near_axes])
+        w = (w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
+        near = np.array(cones.device_near(_vec(mi, w)))
+        p, _ = cones.pairs(w)
+        assert len(p) > 1000 and near[p].all(), sr
+        assert near.mean() < 0.9 or sr == 0.3
+
+
+def test_cones_no_path_reaches_tally_zero():
+    """Cones so narrow that no path's exit (nor, split, its first reflection) lands in one:
+    every launch finds no (path, cone) pair, and the values are zeros with zero errors."""
+    for effects in ({}, {"split_first_interface": True}):
+        scene = _slab_scene(detector={"type": "inplane", "theta_o": [-80.0, 150.0],
+                                      "acceptance_sr": 1e-9}, effects=effects)
+        res = simulate(scene, 3000, seed=1, batch_size=1024)
+        assert np.all(res.value == 0) and np.all(res.sigma == 0) and res.energy.sum() > 0
 
 
 def test_cones_found_on_the_host_tally_as_the_kernels(monkeypatch):

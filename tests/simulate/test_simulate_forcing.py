@@ -156,6 +156,39 @@ def test_splitting_the_first_interface_agrees_and_sharpens_the_surface_lobe(top)
     assert split.by_order[0, mirror, 0] > 0
 
 
+@pytest.mark.parametrize("detector", ["cone", "bins"])
+def test_a_smooth_tops_split_is_counted_once_per_path(detector):
+    """A smooth top reflects every path alike (mirror direction, weight F(θi)): the split
+    computes its branch once and counts it per path of each block (walk._Split.blocks), the
+    same sums as tallying every path's branch, and its order-0 value has no Monte Carlo error."""
+    from fitlab.simulate import detectors, simulator, walk
+
+    over = {} if detector == "cone" else {"detector": {"type": "hemisphere", "theta_bins": 3,
+                                                       "phi_bins": 4}}
+    scene = _slab([-35.0, 10.0, 35.0], "smooth", estimator="cone", **over,
+                  effects={"color": "mono", "split_first_interface": True})
+    plan = derive_effects(scene)
+    stack = walk.Stack(*simulator._walk_setup(scene, plan, plan.channel_pick, 1000))
+    ti, pi_, rows, axes = simulator._incidence_rows(scene)[0]
+    if axes is None:  # bins: both sides, 3 x 4 each
+        det, cones, n_out = walk.Detector(np.zeros((1, 3)), np.full(1, 2.0)), None, 24
+    else:
+        cos = detectors.cone_half_angle_cos(scene.detector.acceptance_sr)
+        det = walk.Detector(np.asarray(axes, float), np.full(len(axes), cos))
+        cones, n_out = walk.ConeIndex(det), len(axes)
+    n = 3 * walk.TALLY_BLOCK + 123
+    with walk._Cores() as cores:
+        split = walk._Split(stack, det, detectors.direction(ti, pi_), walk.seed_words(1, 0),
+                            n_out, cones, cores)
+        once, every = split.blocks(n, 0, cores), split._tally(n, 0, cores)
+    assert split.one is not None and once[0].sum() > 0
+    for a, b in zip(once, every):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
+    res = simulate(scene, 5000, seed=2)
+    up = res.theta_o < 90.0  # order 0 there: the split alone (the walk's first crossing refracts)
+    assert np.all(res.sigma_by_order[0][up] == 0) and res.by_order[0][up].max() > 0
+
+
 @pytest.mark.parametrize("change, words", [
     ({"detector": {"type": "inplane", "theta_o": [10.0], "estimator": "point"}}, "exactly"),
     ({"detector": {"type": "inplane", "theta_o": [150.0], "acceptance_sr": 0.01}},
