@@ -298,6 +298,7 @@ def pytest_collection_finish(session):
     gc.freeze()
 
 
+@pytest.hookimpl(trylast=True)  # after `-m`/`-k` have deselected: what is left decides
 def pytest_collection_modifyitems(config, items):
     """Modules run heaviest first (MODULE_SECONDS). A session that runs slow tests leaves out
     their quick-tier samples (marked
